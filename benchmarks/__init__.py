@@ -1,0 +1,1 @@
+"""Reproducible benchmarks run by ``curio bench NAME``; see docs/benchmarks.md."""

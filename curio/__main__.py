@@ -1,0 +1,5 @@
+"""Allow ``python -m curio``."""
+
+from curio.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,275 @@
+"""The ``curio`` command.
+
+``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
+``curio emulate DEVICE``, ``curio map ...`` and ``curio bench NAME``. Exit codes: 0 success,
+1 failure (a scenario or a check failed), 2 bad arguments or bad configuration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import math
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from curio.config import Config, ConfigError, dump_config, load_config
+
+__all__ = ["main"]
+
+log = logging.getLogger("curio")
+
+
+class UsageError(Exception):
+    """Bad command-line arguments (exit code 2)."""
+
+
+def _floats(text: str, counts: tuple[int, ...], what: str) -> tuple[float, ...]:
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) not in counts:
+        allowed = " or ".join(str(c) for c in counts)
+        raise UsageError(f"{what} takes {allowed} comma-separated numbers, got '{text}'")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        raise UsageError(f"{what} takes numbers like 1.5,-2,0.3, got '{text}'") from None
+    if not all(math.isfinite(v) for v in values):
+        raise UsageError(f"{what} must be finite numbers, got '{text}'")
+    return values
+
+
+def _add_config_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, help="config TOML (default: ./config.toml)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE", help="override one config key (repeatable)")
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="curio", description=__doc__.split("\n")[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    run = sub.add_parser("run", help="run the robot (the shipped config runs the simulator)")
+    _add_config_args(run)
+
+    sim = sub.add_parser("sim", help="run a scripted scenario headless on simulated time")
+    sim.add_argument("scenario", help="square, goto, tour, operator-demo, blocked-door, kidnap")
+    sim.add_argument("--map", dest="map_yaml", help="world map YAML (default: sim.world)")
+    sim.add_argument("--start", help="start pose X,Y,YAW in map (m, m, rad)")
+    sim.add_argument("--goal", help="goal X,Y[,YAW] in map (m, m, rad)")
+    sim.add_argument("--seed", type=int, help="random seed (default: sim.seed)")
+    sim.add_argument("--speed", default="max", help="N x real time, or max (default)")
+    sim.add_argument("--duration", type=float, help="time limit, simulated seconds")
+    sim.add_argument("--report", type=Path, help="write the JSON report here")
+    sim.add_argument("--web", action="store_true", help="serve the dashboard (real time)")
+    _add_config_args(sim)
+
+    config = sub.add_parser("config", help="configuration tools")
+    config_sub = config.add_subparsers(dest="config_command", required=True, metavar="ACTION")
+    show = config_sub.add_parser("show", help="print the effective configuration")
+    _add_config_args(show)
+
+    for name, helptext in (
+        ("check", "diagnose the hardware and say how to fix what is wrong"),
+        ("emulate", "serve a device emulator (arduino, rplidar) on a pseudo-terminal"),
+        ("map", "build, save and inspect maps"),
+    ):
+        p = sub.add_parser(name, help=helptext, add_help=False)
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+
+    bench = sub.add_parser("bench", help="run a benchmark and print its table")
+    bench.add_argument("name", help="benchmark name (see benchmarks/)")
+    bench.add_argument("--json", type=Path, help="write the result JSON here")
+    bench.add_argument("--map", dest="map_yaml", help="map YAML for map-based benchmarks")
+    bench.add_argument("--pairs", type=int, help="number of start/goal pairs or runs")
+    bench.add_argument("--seed", type=int, default=1, help="random seed")
+    bench.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
+                       help="benchmark-specific option (repeatable)")
+    return parser
+
+
+def _load(args: argparse.Namespace) -> Config:
+    return load_config(args.config, args.overrides)
+
+
+def _cmd_config(args: argparse.Namespace) -> int:
+    print(dump_config(_load(args)), end="")
+    return 0
+
+
+def _cmd_sim(args: argparse.Namespace) -> int:
+    from curio.scenarios import get_scenario
+    from curio.scenarios.base import ScenarioArgs, run_scenario
+
+    try:
+        scenario = get_scenario(args.scenario)
+    except KeyError as exc:
+        raise UsageError(str(exc.args[0])) from None
+    if args.speed == "max":
+        speed = None
+    else:
+        try:
+            speed = float(args.speed)
+        except ValueError:
+            raise UsageError(f"--speed takes a number > 0 or 'max', got '{args.speed}'") from None
+        if not speed > 0:
+            raise UsageError(f"--speed takes a number > 0 or 'max', got '{args.speed}'")
+    start = _floats(args.start, (3,), "--start") if args.start else None
+    goal_values = _floats(args.goal, (2, 3), "--goal") if args.goal else None
+    goal = None
+    if goal_values is not None:
+        goal = (goal_values[0], goal_values[1], goal_values[2] if len(goal_values) == 3 else None)
+    if args.duration is not None and not args.duration > 0:
+        raise UsageError(f"--duration takes simulated seconds > 0, got {args.duration}")
+    if args.map_yaml is not None and not Path(args.map_yaml).is_file():
+        raise UsageError(f"--map: no such file: {args.map_yaml}")
+    cfg = _load(args)
+    sargs = ScenarioArgs(
+        map_yaml=args.map_yaml, start=start, goal=goal, seed=args.seed, speed=speed,
+        duration_s=args.duration, web=args.web,
+    )
+
+    async def announce(app: Any) -> None:
+        if app.web_url:
+            print(f"dashboard: {app.web_url}", flush=True)
+
+    report = asyncio.run(run_scenario(scenario, cfg, sargs, args.report, on_app=announce))
+    verdict = "succeeded" if report["success"] else f"FAILED: {report['failure']}"
+    print(
+        f"{report['scenario']} (seed {report['seed']}) {verdict}\n"
+        f"  sim {report['sim_time_s']:.1f} s in {report['wall_time_s']:.2f} s wall; "
+        f"goals {report['goals_reached']}/{report['goals_total']}; "
+        f"collisions {report['collisions']}; path {report['path_length_m']:.2f} m; "
+        f"localisation RMSE {report['localization_rmse_m']}"
+    )
+    for key, value in report.get("metrics", {}).items():
+        print(f"  {key}: {value}")
+    for check in report.get("checks", []):
+        mark = "ok  " if check["ok"] else "FAIL"
+        print(f"  [{mark}] {check['name']} {check['detail']}")
+    if args.report:
+        print(f"  report: {args.report}")
+    return 0 if report["success"] else 1
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from curio.app import App
+    from curio.clock import Clock, RealClock, SimClock
+
+    cfg = _load(args)
+    clock: Clock
+    sim_clock: SimClock | None = None
+    if cfg.drivers.mode != "real" and cfg.sim.speed is not None:
+        sim_clock = SimClock(speed=cfg.sim.speed)
+        clock = sim_clock
+    else:
+        clock = RealClock()
+
+    async def main() -> int:
+        app = App(cfg, clock)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(NotImplementedError):
+                loop.add_signal_handler(sig, stop.set)
+        await app.start()
+        mode = cfg.drivers.mode
+        log.info("curio running (drivers.mode=%s); Ctrl-C stops the rover and exits", mode)
+        if app.web_url:
+            print(f"dashboard: {app.web_url}", flush=True)
+        runner = asyncio.create_task(sim_clock.run(stop=stop.is_set)) if sim_clock else None
+        waiter = asyncio.create_task(stop.wait())
+        while not stop.is_set():
+            await asyncio.wait({waiter}, timeout=0.5)
+            if app.failed_parts():
+                name, exc = app.failed_parts()[0]
+                log.error("stopping: %s failed: %s", name, exc)
+                stop.set()
+        log.info("stopping the rover")
+        await app.stop()
+        if runner is not None:
+            runner.cancel()
+        return 1 if app.failed_parts() else 0
+
+    return asyncio.run(main())
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from curio.bench import BenchOptions, dumps, format_table, run_benchmark
+
+    extra: dict[str, Any] = {}
+    for item in args.extra:
+        if "=" not in item:
+            raise UsageError(f"--set takes KEY=VALUE, got '{item}'")
+        key, _, value = item.partition("=")
+        extra[key.strip()] = value.strip()
+    if args.pairs is not None and args.pairs <= 0:
+        raise UsageError(f"--pairs takes a whole number > 0, got {args.pairs}")
+    if args.map_yaml is not None and not Path(args.map_yaml).is_file():
+        raise UsageError(f"--map: no such file: {args.map_yaml}")
+    opts = BenchOptions(map_yaml=args.map_yaml, pairs=args.pairs, seed=args.seed, extra=extra)
+    try:
+        result = run_benchmark(args.name, opts, args.json)
+    except KeyError as exc:
+        raise UsageError(str(exc.args[0])) from None
+    print(f"benchmark {result['benchmark']} on {result['machine']} at {result['date']}")
+    print(format_table(result["rows"]))
+    if args.json:
+        print(f"wrote {args.json}")
+    elif not sys.stdout.isatty():
+        pass
+    _ = dumps
+    return 0
+
+
+def _delegate(command: str, rest: list[str]) -> int:
+    """Hand ``check``, ``emulate`` and ``map`` to the modules that own them."""
+    import importlib
+
+    module_name = {
+        "check": "curio.drivers.check",
+        "emulate": "curio.drivers.emulate",
+        "map": "curio.nav.mapcli",
+    }[command]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name == module_name:
+            print(f"curio {command}: not available in this build", file=sys.stderr)
+            return 2
+        raise
+    result: int = module.main(rest)
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``curio`` command; returns the exit code."""
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
+        datefmt="%H:%M:%S",
+    )
+    try:
+        if args.command == "run":
+            return _cmd_run(args)
+        if args.command == "sim":
+            return _cmd_sim(args)
+        if args.command == "config":
+            return _cmd_config(args)
+        if args.command == "bench":
+            return _cmd_bench(args)
+        return _delegate(args.command, args.rest)
+    except ConfigError as exc:
+        print(f"curio: {exc}", file=sys.stderr)
+        return 2
+    except UsageError as exc:
+        print(f"curio {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130

@@ -1,0 +1,307 @@
+"""Time for the whole application: the only module that reads time or sleeps (DESIGN rule 2).
+
+Two clocks implement :class:`Clock`:
+
+* :class:`RealClock` — monotonic wall time and ``asyncio.sleep``; used on the rover and by
+  ``curio run``.
+* :class:`SimClock` — virtual time. Sleepers wait on futures kept in a heap; :meth:`SimClock.run`
+  lets every runnable task settle, then jumps straight to the next wake-up. It runs as fast as
+  the CPU allows (``speed=None``) or at ``speed`` × real time, and for a given program and seed
+  it is deterministic: timers fire in (time, registration order) order.
+
+All times are seconds. ``now()`` is monotonic (the epoch is arbitrary, 0 for a fresh
+``SimClock``); ``wall_time()`` is UNIX time for log and report stamps.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import heapq
+import itertools
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable
+from dataclasses import dataclass
+from typing import Protocol, TypeVar, runtime_checkable
+
+T = TypeVar("T")
+
+__all__ = [
+    "Clock",
+    "RateStats",
+    "RealClock",
+    "SimClock",
+    "wall_perf_counter",
+    "wall_sleep",
+    "wall_time",
+]
+
+
+def wall_perf_counter() -> float:
+    """Return a high-resolution wall-clock counter in seconds (for benchmarks and wall_time_s)."""
+    return time.perf_counter()
+
+
+def wall_time() -> float:
+    """Return UNIX time in seconds (for report dates and log stamps, never for control)."""
+    return time.time()
+
+
+def wall_sleep(seconds: float) -> None:
+    """Block the calling *thread* for ``seconds`` of wall time (device threads only, never the loop)."""
+    time.sleep(seconds)
+
+
+def thread_cpu_time() -> float:
+    """Return CPU seconds used by this process (for CPU-fraction benchmarks)."""
+    return time.process_time()
+
+
+@dataclass
+class RateStats:
+    """Timing statistics of a fixed-rate loop (``Clock.every``).
+
+    Attributes:
+        ticks: iterations so far.
+        overruns: iterations that started later than one whole period after their due time.
+        max_lateness_s: worst lateness of an iteration's start against its due time, seconds.
+    """
+
+    ticks: int = 0
+    overruns: int = 0
+    max_lateness_s: float = 0.0
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """What every component gets instead of ``time`` and ``asyncio.sleep``."""
+
+    def now(self) -> float:
+        """Monotonic time in seconds."""
+        ...
+
+    def wall_time(self) -> float:
+        """UNIX time in seconds (simulated clocks count from their configured epoch)."""
+        ...
+
+    async def sleep(self, dt_s: float) -> None:
+        """Sleep ``dt_s`` seconds of this clock's time (at least one loop iteration)."""
+        ...
+
+    async def sleep_until(self, t_s: float) -> None:
+        """Sleep until ``now() >= t_s``."""
+        ...
+
+
+async def _yield_once() -> None:
+    """Give every other ready task one turn (a zero-length sleep)."""
+    await asyncio.sleep(0)
+
+
+class _ClockMixin:
+    """Helpers shared by both clocks, built on ``now``/``sleep_until``."""
+
+    def now(self) -> float:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    async def sleep_until(self, t_s: float) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    async def every(
+        self, period_s: float, stats: RateStats | None = None, *, phase_s: float = 0.0
+    ) -> AsyncIterator[float]:
+        """Yield the clock time once every ``period_s`` seconds, without drift.
+
+        A late iteration is not repeated to catch up: the next due time skips ahead, and the
+        miss is counted in ``stats.overruns``.
+        """
+        if period_s <= 0:
+            raise ValueError(f"period_s must be > 0, got {period_s}")
+        due = self.now() + phase_s
+        while True:
+            await self.sleep_until(due)
+            now = self.now()
+            if stats is not None:
+                stats.ticks += 1
+                lateness = now - due
+                stats.max_lateness_s = max(stats.max_lateness_s, lateness)
+                if lateness > period_s:
+                    stats.overruns += 1
+            yield now
+            due += period_s
+            if due < self.now():
+                due = self.now() + period_s - ((self.now() - due) % period_s)
+
+    async def wait_for(self, awaitable: Awaitable[T], timeout_s: float) -> T:
+        """Await ``awaitable`` for at most ``timeout_s`` of clock time.
+
+        Raises:
+            TimeoutError: the awaitable did not finish in time (it is cancelled).
+        """
+        task = asyncio.ensure_future(awaitable)
+        timer = asyncio.ensure_future(self.sleep_until(self.now() + timeout_s))
+        try:
+            await asyncio.wait({task, timer}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            timer.cancel()
+        if task.done():
+            return task.result()
+        task.cancel()
+        raise TimeoutError(f"timed out after {timeout_s:.3f} s")
+
+    async def wait_until(
+        self, predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.05
+    ) -> bool:
+        """Poll ``predicate`` every ``poll_s`` until it holds; return False after ``timeout_s``."""
+        deadline = self.now() + timeout_s
+        while not predicate():
+            if self.now() >= deadline:
+                return False
+            await self.sleep_until(min(deadline, self.now() + poll_s))
+        return True
+
+
+class RealClock(_ClockMixin):
+    """Monotonic wall time, for the rover and ``curio run``."""
+
+    def now(self) -> float:
+        """Monotonic time in seconds."""
+        return time.monotonic()
+
+    def wall_time(self) -> float:
+        """UNIX time in seconds."""
+        return time.time()
+
+    async def sleep(self, dt_s: float) -> None:
+        """Sleep ``dt_s`` seconds of wall time."""
+        await asyncio.sleep(max(0.0, dt_s))
+
+    async def sleep_until(self, t_s: float) -> None:
+        """Sleep until the monotonic time reaches ``t_s``."""
+        await asyncio.sleep(max(0.0, t_s - time.monotonic()))
+
+
+class SimClock(_ClockMixin):
+    """Virtual time for the simulator, tests and benchmarks.
+
+    Args:
+        speed: ``None`` runs as fast as the CPU allows; a number runs at that multiple of real
+            time (1.0 = real time), sleeping on the wall clock between timer events.
+        start_s: the initial value of ``now()``, seconds.
+        epoch_wall_s: the UNIX time that ``wall_time()`` reports at ``now() == start_s``; fixed
+            so reports are identical across runs.
+        settle_polls: how many zero-length I/O polls the stepper grants after the loop looks
+            idle before it moves time on (real pseudo-terminal I/O in emulated mode needs a few).
+    """
+
+    def __init__(
+        self,
+        speed: float | None = None,
+        start_s: float = 0.0,
+        epoch_wall_s: float = 1_700_000_000.0,
+        settle_polls: int = 0,
+    ) -> None:
+        if speed is not None and speed <= 0:
+            raise ValueError(f"speed must be > 0 or None, got {speed}")
+        self.speed = speed
+        self._now = start_s
+        self._epoch_wall_s = epoch_wall_s - start_s
+        self._timers: list[tuple[float, int, asyncio.Future[None]]] = []
+        self._seq = itertools.count()
+        self.settle_polls = settle_polls
+        self.steps = 0
+
+    def now(self) -> float:
+        """Simulated monotonic time in seconds."""
+        return self._now
+
+    def wall_time(self) -> float:
+        """Simulated UNIX time in seconds (a fixed epoch plus ``now()``)."""
+        return self._epoch_wall_s + self._now
+
+    async def sleep(self, dt_s: float) -> None:
+        """Sleep ``dt_s`` simulated seconds."""
+        await self.sleep_until(self._now + max(0.0, dt_s))
+
+    async def sleep_until(self, t_s: float) -> None:
+        """Sleep until simulated time reaches ``t_s`` (yields once even if it already has)."""
+        if t_s <= self._now:
+            await _yield_once()
+            return
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        heapq.heappush(self._timers, (t_s, next(self._seq), fut))
+        await fut
+
+    def pending_timers(self) -> int:
+        """Number of live sleepers (cancelled ones are pruned lazily)."""
+        return sum(1 for _, _, f in self._timers if not f.done())
+
+    async def _settle(self) -> None:
+        """Run every ready task until none is ready (each has blocked on a timer or I/O)."""
+        loop = asyncio.get_running_loop()
+        ready = getattr(loop, "_ready", None)
+        idle_polls = 0
+        for _ in range(100_000):
+            await _yield_once()
+            if ready is None:  # pragma: no cover - non-CPython loop: best effort
+                idle_polls += 1
+                if idle_polls > 20:
+                    return
+                continue
+            if len(ready) == 0:
+                idle_polls += 1
+                if idle_polls > self.settle_polls:
+                    return
+            else:
+                idle_polls = 0
+
+    def _fire_due(self) -> int:
+        """Resolve every timer due at the current time; return how many fired."""
+        fired = 0
+        while self._timers and self._timers[0][0] <= self._now:
+            _, _, fut = heapq.heappop(self._timers)
+            if not fut.done():
+                fut.set_result(None)
+                fired += 1
+        return fired
+
+    async def advance(self, dt_s: float) -> None:
+        """Advance time by ``dt_s``, firing every timer on the way in order (for tests)."""
+        await self.run(until_s=self._now + dt_s)
+
+    async def run(
+        self,
+        until_s: float | None = None,
+        stop: Callable[[], bool] | None = None,
+    ) -> None:
+        """Drive simulated time until ``until_s``, until ``stop()`` is true, or for ever.
+
+        Call it as a task beside the application (or await it from a test). When nothing is
+        runnable and no timer is pending, it yields to real I/O for a millisecond.
+        """
+        wall_anchor = time.perf_counter()
+        sim_anchor = self._now
+        while True:
+            await self._settle()
+            if stop is not None and stop():
+                return
+            while self._timers and self._timers[0][2].done():
+                heapq.heappop(self._timers)
+            if not self._timers:
+                if until_s is not None and self._now < until_s and self.speed is None:
+                    self._now = until_s
+                if until_s is not None and self._now >= until_s:
+                    return
+                await asyncio.sleep(0.001)
+                continue
+            t_next = self._timers[0][0]
+            if until_s is not None and t_next > until_s:
+                self._now = max(self._now, until_s)
+                return
+            if self.speed is not None:
+                wall_due = wall_anchor + (t_next - sim_anchor) / self.speed
+                delay = wall_due - time.perf_counter()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+            self._now = max(self._now, t_next)
+            self.steps += 1
+            self._fire_due()

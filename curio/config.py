@@ -1,0 +1,535 @@
+"""Typed, validated configuration (``config.toml`` plus ``--set KEY=VALUE`` overrides).
+
+One pydantic model per section; every key carries its unit in its name. Unknown keys, wrong
+types and out-of-range values raise :class:`ConfigError` with a message that names the key, the
+value and what is allowed (the CLI turns it into exit code 2). Relative paths in the file are
+resolved against the directory of the config file.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+__all__ = ["Config", "ConfigError", "default_config_path", "dump_config", "load_config"]
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+class ConfigError(Exception):
+    """A configuration problem, phrased for the person who has to fix it."""
+
+
+class Section(BaseModel):
+    """Base of every section: unknown keys are errors, assignments are validated."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+Point2 = tuple[float, float]
+
+
+class RobotConfig(Section):
+    """The rover's geometry and limits (hardware.md §2)."""
+
+    name: str = "curio"
+    footprint: list[Point2] = Field(
+        default_factory=lambda: [(0.33, 0.31), (0.33, -0.31), (-0.33, -0.31), (-0.33, 0.31)],
+        description="footprint polygon in base_link, metres (counter-clockwise or clockwise)",
+    )
+    wheel_radius_m: float = Field(0.060, gt=0.0, le=0.5)
+    mid_wheel_track_m: float = Field(0.52, gt=0.0, le=2.0)
+    wheel_radius_multiplier: float = Field(1.04, gt=0.5, le=1.5)
+    mid_wheel_track_multiplier: float = Field(0.96875, gt=0.5, le=1.5)
+    max_wheel_speed_mps: float = Field(0.37, gt=0.0, le=2.0)
+    max_angular_radps: float = Field(1.45, gt=0.0, le=10.0)
+    laser_pose: tuple[float, float, float] = Field(
+        (0.152, 0.078, 0.0), description="laser in base_link: x m, y m, yaw rad"
+    )
+    imu_pose: tuple[float, float, float] = Field(
+        (0.110, -0.043, 0.0), description="imu_link in base_link: x m, y m, yaw rad"
+    )
+    home: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="home pose in map: x m, y m, yaw rad"
+    )
+
+    @field_validator("footprint")
+    @classmethod
+    def _footprint_is_polygon(cls, value: list[Point2]) -> list[Point2]:
+        if len(value) < 3:
+            raise ValueError("a footprint needs at least 3 points [[x, y], ...] in metres")
+        return value
+
+
+class ArduinoConfig(Section):
+    """The Arduino Mega base controller link."""
+
+    port: str = "/dev/curio-arduino"
+    baud: int = Field(115200, gt=0)
+    cmd_timeout_s: float = Field(0.5, gt=0.0, le=5.0)
+    boot_wait_s: float = Field(2.0, ge=0.0, le=10.0)
+    feedback_rate_hz: float = Field(30.0, gt=0.0, le=200.0)
+
+
+class LidarConfig(Section):
+    """The RPLidar A1."""
+
+    port: str = "/dev/curio-lidar"
+    baud: int = Field(115200, gt=0)
+    stall_timeout_s: float = Field(1.0, gt=0.0, le=10.0)
+
+
+class ImuConfig(Section):
+    """The BNO055 on I2C."""
+
+    i2c_bus: int = Field(1, ge=0)
+    address: int = Field(0x28, description="0x28 (ADR low) or 0x29 (ADR high)")
+    rate_hz: float = Field(100.0, gt=0.0, le=200.0)
+    calibration_file: str = "bno055_calibration.json"
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, value: int) -> int:
+        if value not in (0x28, 0x29):
+            raise ValueError("the BNO055 answers at 0x28 (40) or 0x29 (41)")
+        return value
+
+
+class DriversConfig(Section):
+    """Which drivers run: simulator messages, real drivers on emulators, or hardware."""
+
+    mode: Literal["sim", "emulated", "real"] = "sim"
+    arduino: ArduinoConfig = Field(default_factory=ArduinoConfig)
+    lidar: LidarConfig = Field(default_factory=LidarConfig)
+    imu: ImuConfig = Field(default_factory=ImuConfig)
+
+
+class SimNoiseConfig(Section):
+    """Simulator noise and imperfections."""
+
+    odom_scale_error: float = Field(0.05, ge=0.0, le=0.5, description="wheel scale error")
+    odom_heading_drift_rad_per_m: float = Field(math.radians(2.0), ge=0.0, le=1.0)
+    wheel_slip: float = Field(0.0, ge=0.0, le=0.5)
+    lidar_range_sigma_m: float = Field(0.02, ge=0.0, le=1.0)
+    lidar_dropout_fraction: float = Field(0.02, ge=0.0, le=1.0)
+    lidar_invalid_fraction: float = Field(0.005, ge=0.0, le=1.0)
+    gyro_bias_radps: float = Field(0.005, ge=-1.0, le=1.0)
+    gyro_sigma_radps: float = Field(0.002, ge=0.0, le=1.0)
+    accel_sigma_mps2: float = Field(0.05, ge=0.0, le=10.0)
+
+
+class SimConfig(Section):
+    """The built-in simulator."""
+
+    world: str = "maps/curio_building.yaml"
+    seed: int = 1
+    start: tuple[float, float, float] | None = Field(
+        None, description="start pose in map (x m, y m, yaw rad); default robot.home"
+    )
+    physics_rate_hz: float = Field(50.0, ge=10.0, le=1000.0)
+    lidar_rate_hz: float = Field(10.0, ge=5.5, le=10.0)
+    lidar_beams: int = Field(360, ge=90, le=2000)
+    lidar_range_min_m: float = Field(0.15, gt=0.0)
+    lidar_range_max_m: float = Field(12.0, gt=0.0, le=40.0)
+    imu_rate_hz: float = Field(100.0, gt=0.0, le=400.0)
+    wheel_feedback_rate_hz: float = Field(30.0, gt=0.0, le=200.0)
+    steer_slew_radps: float = Field(math.radians(60.0) / 0.16, gt=0.0)
+    speed: float | None = Field(
+        None, gt=0.0, description="sim clock speed for `curio run`: None = real time"
+    )
+    noise: SimNoiseConfig = Field(default_factory=SimNoiseConfig)
+
+
+class EkfConfig(Section):
+    """Odometry + IMU fusion (filterpy inside)."""
+
+    enabled: bool = True
+    rate_hz: float = Field(50.0, gt=0.0, le=500.0)
+    use_imu_heading: bool = False
+    odom_position_sigma_m: float = Field(0.01, gt=0.0)
+    odom_yaw_rate_sigma_radps: float = Field(0.05, gt=0.0)
+    imu_yaw_rate_sigma_radps: float = Field(0.01, gt=0.0)
+    imu_heading_sigma_rad: float = Field(0.02, gt=0.0)
+    gate_mahalanobis: float = Field(5.0, gt=0.0, description="reject measurements beyond this")
+
+
+class LocalizationConfig(Section):
+    """Particle-filter localisation in the known map (AMCL-class)."""
+
+    enabled: bool = True
+    min_particles: int = Field(200, ge=10)
+    max_particles: int = Field(3000, ge=10)
+    update_min_d_m: float = Field(0.05, ge=0.0)
+    update_min_a_rad: float = Field(0.05, ge=0.0)
+    laser_beams: int = Field(60, ge=8, le=2000)
+    laser_sigma_hit_m: float = Field(0.1, gt=0.0)
+    laser_z_hit: float = Field(0.9, ge=0.0, le=1.0)
+    laser_z_rand: float = Field(0.1, ge=0.0, le=1.0)
+    laser_likelihood_max_dist_m: float = Field(2.0, gt=0.0)
+    kld_err: float = Field(0.01, gt=0.0, lt=1.0)
+    kld_z: float = Field(0.99, gt=0.0, lt=1.0)
+    recovery_alpha_slow: float = Field(0.001, ge=0.0, le=1.0)
+    recovery_alpha_fast: float = Field(0.1, ge=0.0, le=1.0)
+    initial_std_xy_m: float = Field(0.25, gt=0.0)
+    initial_std_yaw_rad: float = Field(0.2, gt=0.0)
+
+
+class CostmapConfig(Section):
+    """Global and local costmaps."""
+
+    obstacle_range_m: float = Field(5.5, gt=0.0)
+    raytrace_range_m: float = Field(6.0, gt=0.0)
+    inflation_radius_m: float = Field(0.55, gt=0.0)
+    cost_scaling_factor: float = Field(10.0, gt=0.0)
+    footprint_padding_m: float = Field(0.01, ge=0.0)
+    local_window_m: float = Field(6.0, gt=1.0)
+    update_rate_hz: float = Field(5.0, gt=0.0)
+
+
+class PlannerConfig(Section):
+    """Global planner."""
+
+    replan_rate_hz: float = Field(1.0, ge=0.0, description="0 = only when needed")
+    goal_nearest_free: bool = True
+    goal_nearest_free_max_m: float = Field(0.5, ge=0.0)
+    heuristic_weight: float = Field(1.0, ge=1.0, le=5.0)
+
+
+class ControllerConfig(Section):
+    """Local controller (defaults from the original's tuned values, original-system.md §6)."""
+
+    rate_hz: float = Field(10.0, gt=0.0, le=100.0)
+    max_speed_mps: float = Field(0.3, gt=0.0, le=1.0)
+    max_angular_radps: float = Field(1.0, gt=0.0, le=4.0)
+    max_accel_mps2: float = Field(0.8, gt=0.0)
+    max_angular_accel_radps2: float = Field(3.0, gt=0.0)
+    xy_goal_tolerance_m: float = Field(0.15, gt=0.0)
+    yaw_goal_tolerance_rad: float = Field(0.2, gt=0.0)
+    lookahead_m: float = Field(0.6, gt=0.0)
+    progress_timeout_s: float = Field(10.0, gt=0.0)
+    progress_min_distance_m: float = Field(0.1, gt=0.0)
+
+
+class SafetyConfig(Section):
+    """The safety stage in front of the motors."""
+
+    max_speed_mps: float = Field(0.37, gt=0.0, le=1.0)
+    max_angular_radps: float = Field(1.45, gt=0.0, le=4.0)
+    max_accel_mps2: float = Field(0.8, gt=0.0)
+    max_angular_accel_radps2: float = Field(3.0, gt=0.0)
+    stop_distance_m: float = Field(0.10, ge=0.0, description="margin around the footprint")
+    slow_distance_m: float = Field(0.5, ge=0.0)
+    lookahead_s: float = Field(1.0, gt=0.0)
+    cmd_timeout_s: float = Field(0.5, gt=0.0)
+    teleop_timeout_s: float = Field(0.5, gt=0.0)
+    rate_hz: float = Field(20.0, gt=0.0, le=200.0)
+
+
+class RecoveryConfig(Section):
+    """The recovery ladder tried before a goal is aborted."""
+
+    ladder: list[Literal["clear_costmap", "step_back", "rotate", "wait"]] = Field(
+        default_factory=lambda: ["clear_costmap", "step_back", "rotate", "wait"]
+    )
+    step_back_distance_m: float = Field(1.0, gt=0.0, le=3.0)
+    step_back_speed_mps: float = Field(0.3, gt=0.0, le=0.37)
+    step_back_clearance_m: float = Field(0.5, ge=0.0)
+    rotate_angle_rad: float = Field(math.pi / 2, gt=0.0)
+    wait_s: float = Field(5.0, ge=0.0)
+
+
+class BlockedConfig(Section):
+    """Blocked-path detection (the original's obstaclesdist.py, fixed)."""
+
+    obstacle_distance_m: float = Field(1.1, gt=0.0)
+    obstacle_angle_rad: float = Field(0.7, gt=0.0, le=math.pi)
+    no_progress_s: float = Field(8.0, gt=0.0)
+    progress_distance_m: float = Field(0.1, gt=0.0)
+
+
+class NavConfig(Section):
+    """Navigation stack."""
+
+    costmap: CostmapConfig = Field(default_factory=CostmapConfig)
+    planner: PlannerConfig = Field(default_factory=PlannerConfig)
+    controller: ControllerConfig = Field(default_factory=ControllerConfig)
+    safety: SafetyConfig = Field(default_factory=SafetyConfig)
+    recovery: RecoveryConfig = Field(default_factory=RecoveryConfig)
+    blocked: BlockedConfig = Field(default_factory=BlockedConfig)
+
+
+class PathConfig(Section):
+    """One path of the path manager: points in map (metres) and optional headings (deg)."""
+
+    name: str = ""
+    points: list[Point2]
+    yaw_deg: list[float] | None = None
+
+
+def _default_paths() -> list[PathConfig]:
+    return [
+        PathConfig(name="Home", points=[(0.0, 0.0)], yaw_deg=[0.0]),
+        PathConfig(name="Path 1", points=[(0.2, 0.0), (-0.2, 0.0), (0.5, 0.0)],
+                   yaw_deg=[90.0, 0.0, 180.0]),
+        PathConfig(name="Path 2", points=[(1.0, 1.0), (2.0, 2.0), (3.0, 4.0)],
+                   yaw_deg=[0.0, 0.0, 0.0]),
+    ]
+
+
+class TourStopConfig(Section):
+    """A stop of the tour: where, how long to dwell, what to tell the visitors."""
+
+    name: str
+    x_m: float
+    y_m: float
+    yaw_deg: float | None = None
+    dwell_s: float = Field(10.0, ge=0.0)
+    message: str = ""
+
+
+class BtConfig(Section):
+    """Behaviour tree."""
+
+    tree: Literal["follow_path", "two_step", "tour"] = "follow_path"
+    tick_hz: float = Field(2.0, gt=0.0, le=100.0)
+    autostart_path: int | None = Field(
+        None, description="path to start on at boot (the original drove path 1 at once)"
+    )
+    help_timeout_s: float = Field(120.0, gt=0.0)
+    help_timeout_action: Literal["replan", "go_home", "keep_waiting"] = "replan"
+    help_clear_s: float = Field(2.0, ge=0.0, description="way must stay clear this long")
+    low_battery_v: float = Field(6.6, ge=0.0)
+    battery_ok_v: float = Field(7.0, ge=0.0)
+    speak: bool = True
+    two_step_goals: list[tuple[float, float, float]] = Field(
+        default_factory=lambda: [(1.0, 1.0, 0.0), (2.0, 2.0, 0.0)]
+    )
+    paths: list[PathConfig] = Field(default_factory=_default_paths)
+    paths_file: str = "paths.json"
+    tour_stops: list[TourStopConfig] = Field(default_factory=list)
+    tour_loop: bool = False
+
+
+class WebConfig(Section):
+    """The dashboard server."""
+
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = Field(8080, ge=0, le=65535)
+    token_file: str = "web_token"
+    require_token: bool = True
+    max_message_bytes: int = Field(65536, ge=256)
+    max_messages_per_s: float = Field(50.0, gt=0.0)
+    client_rate_hz: float = Field(10.0, gt=0.0, le=60.0)
+    allowed_origins: list[str] = Field(default_factory=list)
+
+
+class Config(Section):
+    """The whole application configuration."""
+
+    data_dir: str = Field("var", description="where paths, tokens and calibrations are kept")
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+    robot: RobotConfig = Field(default_factory=RobotConfig)
+    drivers: DriversConfig = Field(default_factory=DriversConfig)
+    sim: SimConfig = Field(default_factory=SimConfig)
+    ekf: EkfConfig = Field(default_factory=EkfConfig)
+    localization: LocalizationConfig = Field(default_factory=LocalizationConfig)
+    nav: NavConfig = Field(default_factory=NavConfig)
+    bt: BtConfig = Field(default_factory=BtConfig)
+    web: WebConfig = Field(default_factory=WebConfig)
+
+    # Where relative paths are resolved; not a config key.
+    base_dir: Path = Field(default_factory=lambda: REPO_ROOT, exclude=True)
+
+    def resolve(self, path_str: str) -> Path:
+        """Resolve a path from the config against the config file's directory."""
+        path = Path(path_str).expanduser()
+        return path if path.is_absolute() else (self.base_dir / path)
+
+    def data_path(self, name: str) -> Path:
+        """A file inside ``data_dir`` (created on demand)."""
+        directory = self.resolve(self.data_dir)
+        directory.mkdir(parents=True, exist_ok=True)
+        return directory / name
+
+
+def default_config_path() -> Path | None:
+    """``./config.toml`` if present, else the repository's shipped ``config.toml``."""
+    for candidate in (Path.cwd() / "config.toml", REPO_ROOT / "config.toml"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _fields_of(model: type[BaseModel]) -> list[str]:
+    return [name for name, f in model.model_fields.items() if not f.exclude]
+
+
+def _model_at(path: list[str]) -> type[BaseModel] | None:
+    """The section model at a dotted path, or None if the path ends on a leaf."""
+    model: type[BaseModel] = Config
+    for part in path:
+        field = model.model_fields.get(part)
+        if field is None:
+            return None
+        annotation = field.annotation
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            model = annotation
+        else:
+            return None
+    return model
+
+
+def _suggest(word: str, choices: list[str]) -> str:
+    close = difflib.get_close_matches(word, choices, n=1, cutoff=0.5)
+    hint = f" Did you mean '{close[0]}'?" if close else ""
+    return f"{hint} Allowed keys here: {', '.join(sorted(choices))}."
+
+
+def _check_key(dotted: str) -> None:
+    """Raise ConfigError if ``dotted`` does not name a config key."""
+    parts = dotted.split(".")
+    model: type[BaseModel] = Config
+    for i, part in enumerate(parts):
+        fields = _fields_of(model)
+        if part not in fields:
+            where = ".".join(parts[:i]) or "the top level"
+            raise ConfigError(f"unknown config key '{dotted}' ('{part}' is not a key of {where})."
+                              + _suggest(part, fields))
+        sub = _model_at(parts[: i + 1])
+        if sub is None:
+            if i != len(parts) - 1:
+                raise ConfigError(f"unknown config key '{dotted}': '{'.'.join(parts[: i + 1])}' "
+                                  "is a value, not a section.")
+            return
+        model = sub
+    raise ConfigError(f"'{dotted}' is a section, not a key; set one of its keys: "
+                      f"{', '.join(_fields_of(model))}.")
+
+
+def _parse_value(text: str) -> Any:
+    """Parse a ``--set`` value as TOML (numbers, booleans, arrays, strings); bare words are
+    strings."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _apply_override(data: dict[str, Any], item: str) -> None:
+    if "=" not in item:
+        raise ConfigError(f"--set takes KEY=VALUE (e.g. drivers.mode=emulated), got '{item}'.")
+    key, _, raw = item.partition("=")
+    key = key.strip()
+    _check_key(key)
+    node = data
+    parts = key.split(".")
+    for part in parts[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"cannot set '{key}': '{part}' is not a section in the file.")
+        node = child
+    node[parts[-1]] = _parse_value(raw.strip())
+
+
+def _describe_errors(exc: ValidationError, source: str) -> str:
+    lines = []
+    for err in exc.errors():
+        loc = [str(p) for p in err["loc"]]
+        key = ".".join(loc)
+        if err["type"] == "extra_forbidden":
+            parent = _model_at([p for p in loc[:-1] if not p.isdigit()]) or Config
+            lines.append(f"unknown config key '{key}' in {source}." +
+                         _suggest(loc[-1], _fields_of(parent)))
+            continue
+        value = err.get("input")
+        shown = repr(value) if not isinstance(value, dict) else "{...}"
+        lines.append(f"{key} = {shown} in {source}: {err['msg']}.")
+    return "config error:\n  " + "\n  ".join(lines)
+
+
+def load_config(path: Path | str | None = None, overrides: list[str] | None = None) -> Config:
+    """Load ``path`` (or the default config), apply ``overrides``, validate.
+
+    Args:
+        path: a TOML file; None means :func:`default_config_path` (or built-in defaults).
+        overrides: ``KEY=VALUE`` strings; VALUE is parsed as a TOML value.
+
+    Raises:
+        ConfigError: unreadable file, TOML syntax error, unknown key, bad value.
+    """
+    data: dict[str, Any] = {}
+    file_path = Path(path) if path is not None else default_config_path()
+    source = str(file_path) if file_path else "the defaults"
+    if file_path is not None:
+        try:
+            with open(file_path, "rb") as fh:
+                data = tomllib.load(fh)
+        except FileNotFoundError:
+            raise ConfigError(f"config file not found: {file_path}") from None
+        except PermissionError:
+            raise ConfigError(f"config file not readable (permission denied): {file_path}") from None
+        except IsADirectoryError:
+            raise ConfigError(f"config path is a directory, not a TOML file: {file_path}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"config file {file_path} is not valid TOML: {exc}") from None
+    for item in overrides or []:
+        _apply_override(data, item)
+    if overrides:
+        source += " with --set " + " ".join(overrides)
+    base_dir = file_path.resolve().parent if file_path is not None else REPO_ROOT
+    try:
+        return Config.model_validate({**data, "base_dir": base_dir})
+    except ValidationError as exc:
+        raise ConfigError(_describe_errors(exc, source)) from None
+
+
+def dump_config(cfg: Config) -> str:
+    """Render the effective configuration as TOML text."""
+    out: list[str] = []
+
+    def fmt(value: Any) -> str:
+        if isinstance(value, bool):
+            return "true" if value else "false"
+        if isinstance(value, str):
+            return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        if isinstance(value, (list, tuple)):
+            return "[" + ", ".join(fmt(v) for v in value) + "]"
+        if isinstance(value, dict):
+            return "{ " + ", ".join(f"{k} = {fmt(v)}" for k, v in value.items()) + " }"
+        if value is None:
+            return '"none"'
+        return repr(value)
+
+    def emit(prefix: str, model: BaseModel) -> None:
+        scalars: list[str] = []
+        tables: list[tuple[str, BaseModel]] = []
+        arrays_of_tables: list[tuple[str, list[BaseModel]]] = []
+        for name in _fields_of(type(model)):
+            value = getattr(model, name)
+            if isinstance(value, BaseModel):
+                tables.append((name, value))
+            elif isinstance(value, list) and value and all(isinstance(v, BaseModel) for v in value):
+                arrays_of_tables.append((name, value))
+            elif value is None:
+                scalars.append(f"# {name} is unset")
+            else:
+                scalars.append(f"{name} = {fmt(value)}")
+        if prefix and (scalars or not tables):
+            out.append(f"\n[{prefix}]")
+        out.extend(scalars)
+        for name, items in arrays_of_tables:
+            for item in items:
+                out.append(f"\n[[{prefix + '.' if prefix else ''}{name}]]")
+                out.extend(f"{k} = {fmt(v)}" for k, v in item.model_dump().items()
+                           if v is not None)
+        for name, sub in tables:
+            emit(f"{prefix}.{name}" if prefix else name, sub)
+
+    emit("", cfg)
+    return "\n".join(out).lstrip() + "\n"

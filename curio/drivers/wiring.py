@@ -1,0 +1,12 @@
+"""Driver wiring: base driver and odometry in every mode; lidar and IMU drivers with emulators in emulated mode, hardware in real mode."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from curio.app import App
+
+
+def build_drivers(app: App) -> None:
+    """Construct this subsystem's parts from ``app.cfg`` and register them on ``app``."""

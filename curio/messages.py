@@ -1,0 +1,345 @@
+"""Immutable messages carried by the bus.
+
+Every message has ``stamp`` (the injected clock's ``now()``, seconds) and, when it has a frame,
+``frame_id`` (REP-105: ``map``, ``odom``, ``base_link``, ``laser``, ``imu_link``). Units are SI
+and in the field names. Arrays inside messages are read-only by convention: producers create a
+fresh array for each message and consumers never write into it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from curio.geometry import Pose2D
+
+FloatArray = npt.NDArray[np.float32]
+
+# Wheel order used everywhere a tuple of six wheels appears (hardware.md §2.1).
+WHEEL_NAMES: tuple[str, ...] = ("FL", "ML", "BL", "FR", "MR", "BR")
+# Steering servo order where a tuple of four corners appears.
+STEER_NAMES: tuple[str, ...] = ("FL", "BL", "FR", "BR")
+
+
+def _frozen_array(values: Any, dtype: Any = np.float32) -> FloatArray:
+    arr = np.array(values, dtype=dtype)
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True, slots=True)
+class Twist:
+    """A velocity command or estimate in ``base_link``: forward m/s and yaw rate rad/s."""
+
+    stamp: float
+    linear_mps: float = 0.0
+    angular_radps: float = 0.0
+    source: str = ""
+    frame_id: str = "base_link"
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class LaserScan:
+    """One full lidar revolution in ``laser`` frame.
+
+    Beam ``i`` points at ``angle_min_rad + i * angle_increment_rad`` (counter-clockwise, 0 = the
+    laser's +x). ``ranges_m`` holds ``inf`` for no return and ``nan`` for an invalid return;
+    values outside ``[range_min_m, range_max_m]`` are also invalid.
+    """
+
+    stamp: float
+    angle_min_rad: float
+    angle_increment_rad: float
+    range_min_m: float
+    range_max_m: float
+    ranges_m: FloatArray
+    intensities: FloatArray | None = None
+    scan_time_s: float = 0.1
+    frame_id: str = "laser"
+
+    @property
+    def angles_rad(self) -> npt.NDArray[np.float64]:
+        """Beam angles in the laser frame, radians."""
+        n = len(self.ranges_m)
+        return self.angle_min_rad + np.arange(n, dtype=np.float64) * self.angle_increment_rad
+
+    def valid_mask(self) -> npt.NDArray[np.bool_]:
+        """Beams with a finite range inside the sensor's limits."""
+        r = self.ranges_m
+        with np.errstate(invalid="ignore"):
+            return np.isfinite(r) & (r >= self.range_min_m) & (r <= self.range_max_m)
+
+
+@dataclass(frozen=True, slots=True)
+class Imu:
+    """BNO055 reading in ``imu_link`` (REP-103 axes, converted at the driver).
+
+    Attributes:
+        orientation_xyzw: absolute orientation quaternion; meaningful when ``orientation_valid``.
+        angular_velocity_radps: gyro (x, y, z), rad/s.
+        linear_acceleration_mps2: gravity-free acceleration (x, y, z), m/s².
+        calibration: BNO055 calibration levels (sys, gyro, accel, mag), each 0–3.
+    """
+
+    stamp: float
+    orientation_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    angular_velocity_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    linear_acceleration_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    orientation_valid: bool = False
+    calibration: tuple[int, int, int, int] = (0, 0, 0, 0)
+    frame_id: str = "imu_link"
+
+
+@dataclass(frozen=True, slots=True)
+class ServoCommand:
+    """What the base sends to the servos: wheel duties and steering positions.
+
+    Attributes:
+        wheel_duty: LX-16A motor-mode duties −1000..1000, order ``WHEEL_NAMES``.
+        steer_position: LX-16A positions 0..1000 (500 = straight), order ``STEER_NAMES``.
+        steer_move_time_ms: time the steering servos are given to reach the positions.
+    """
+
+    stamp: float
+    wheel_duty: tuple[int, int, int, int, int, int]
+    steer_position: tuple[int, int, int, int]
+    steer_move_time_ms: int = 50
+
+
+@dataclass(frozen=True, slots=True)
+class WheelEncoders:
+    """Raw LX-16A wheel servo positions (counts 0..1499 over a turn, with the dead zone).
+
+    ``positions`` follow ``WHEEL_NAMES``; ``None`` marks a reading the servo did not give.
+    """
+
+    stamp: float
+    positions: tuple[int | None, int | None, int | None, int | None, int | None, int | None]
+
+
+@dataclass(frozen=True, slots=True)
+class Odometry:
+    """A pose of ``child_frame_id`` in ``frame_id`` with its velocity in ``child_frame_id``.
+
+    ``covariance`` is the row-major 3×3 covariance of (x, y, yaw) in m² and rad².
+    """
+
+    stamp: float
+    pose: Pose2D
+    linear_mps: float = 0.0
+    angular_radps: float = 0.0
+    covariance: tuple[float, ...] = (0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.01)
+    frame_id: str = "odom"
+    child_frame_id: str = "base_link"
+
+
+@dataclass(frozen=True, slots=True)
+class PoseWithCovariance:
+    """An estimated pose of ``base_link`` in ``frame_id`` (normally ``map``).
+
+    ``covariance`` is the row-major 3×3 covariance of (x, y, yaw) in m² and rad².
+    """
+
+    stamp: float
+    pose: Pose2D
+    covariance: tuple[float, ...] = (0.25, 0.0, 0.0, 0.0, 0.25, 0.0, 0.0, 0.0, 0.07)
+    frame_id: str = "map"
+
+
+@dataclass(frozen=True, slots=True)
+class Transform:
+    """The pose of ``child_frame_id`` in ``frame_id`` (e.g. the ``map`` → ``odom`` correction)."""
+
+    stamp: float
+    transform: Pose2D
+    frame_id: str = "map"
+    child_frame_id: str = "odom"
+
+
+@dataclass(frozen=True, slots=True)
+class Path:
+    """A sequence of poses in ``frame_id`` (a global or local plan), metres/radians."""
+
+    stamp: float
+    poses: tuple[Pose2D, ...]
+    frame_id: str = "map"
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class GridMessage:
+    """An occupancy or cost grid in ``frame_id``.
+
+    Attributes:
+        data: row-major ``(height, width)`` int8 values, row 0 at the *bottom* (map_server
+            convention after loading): occupancy −1 unknown, 0..100; costs 0..100 likewise.
+        resolution_m: cell size, metres.
+        origin: pose of cell (0, 0)'s lower-left corner in ``frame_id``.
+        version: increases whenever the content changes (the dashboard refetches then).
+        kind: ``"map"`` or ``"costmap"``.
+    """
+
+    stamp: float
+    data: npt.NDArray[np.int8]
+    resolution_m: float
+    origin: Pose2D
+    version: int = 0
+    kind: str = "map"
+    frame_id: str = "map"
+
+
+@dataclass(frozen=True, slots=True)
+class Obstacles:
+    """Obstacles extracted from a scan, in ``frame_id``.
+
+    Attributes:
+        segments: ``((x1, y1), (x2, y2))`` line segments, metres.
+        circles: ``(x, y, radius)``, metres.
+    """
+
+    stamp: float
+    segments: tuple[tuple[tuple[float, float], tuple[float, float]], ...] = ()
+    circles: tuple[tuple[float, float, float], ...] = ()
+    frame_id: str = "map"
+
+
+@dataclass(frozen=True, slots=True)
+class BlockedState:
+    """The blocked-path signal: an obstacle ahead and no progress for a while."""
+
+    stamp: float
+    blocked: bool
+    obstacle_distance_m: float | None = None
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class BatteryState:
+    """Servo supply voltage, volts, and whether it counts as low."""
+
+    stamp: float
+    voltage_v: float
+    low: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class EStop:
+    """The latched emergency stop: ``engaged`` until an operator releases it."""
+
+    stamp: float
+    engaged: bool
+    source: str = ""
+    reason: str = ""
+
+
+OperatorAction = Literal[
+    "go_home",
+    "pause",
+    "resume",
+    "toggle_pause",
+    "select_path",
+    "goto",
+    "cancel",
+    "help_done",
+    "estop",
+    "release_estop",
+    "start_tour",
+    "stop_tour",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorCommand:
+    """A one-shot operator command (reliable: never dropped, never collapsed).
+
+    Attributes:
+        action: what to do.
+        path_id: with ``select_path``: the path number (0 = home).
+        goal: with ``goto``: a single goal pose in ``map``.
+        source: who sent it (``web``, ``cli``, ``scenario``, ``tree``).
+        request_id: an id the sender can match against the reply event.
+    """
+
+    stamp: float
+    action: OperatorAction
+    path_id: int | None = None
+    goal: Pose2D | None = None
+    source: str = ""
+    request_id: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class StatusText:
+    """Operator-facing status line (e.g. ``Moving to (0.2,0)``)."""
+
+    stamp: float
+    text: str
+    state: str = "idle"
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """A reliable event for people and reports: goal reached, help requested, fault, ...
+
+    ``kind`` is a short dotted name (``goal.reached``, ``help.requested``, ``collision``);
+    ``detail`` is JSON-serialisable.
+    """
+
+    stamp: float
+    kind: str
+    detail: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class Progress:
+    """Per-waypoint progress of the current path.
+
+    ``states`` has one entry per waypoint: ``pending``, ``active``, ``reached``, ``failed`` or
+    ``skipped``.
+    """
+
+    stamp: float
+    path_id: int
+    path_name: str
+    states: tuple[str, ...]
+    current_index: int
+
+
+@dataclass(frozen=True, slots=True)
+class TreeSnapshot:
+    """The behaviour tree after a tick that changed something.
+
+    ``nodes`` is a list of ``{id, name, type, status, parent, children}`` dicts; ``blackboard``
+    maps keys to JSON-safe values.
+    """
+
+    stamp: float
+    tick: int
+    nodes: tuple[dict[str, Any], ...]
+    blackboard: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class DriverHealth:
+    """Health of one component: ``state`` is ``ok``, ``starting``, ``degraded``, ``error``
+    or ``off``; ``counters`` holds error and traffic counts; ``message`` says what to do.
+    """
+
+    stamp: float
+    name: str
+    state: str
+    message: str = ""
+    counters: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class LocalizationStatus:
+    """Localisation quality for the tree and the dashboard."""
+
+    stamp: float
+    state: Literal["ok", "uncertain", "lost", "off"]
+    particles: int = 0
+    std_xy_m: float = 0.0
+    std_yaw_rad: float = 0.0

@@ -1,0 +1,1 @@
+"""Navigation and state estimation: maps, EKF, localisation, mapping, costmap, planner, controller."""

@@ -1,0 +1,12 @@
+"""Estimation wiring: map server, EKF and localisation."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from curio.app import App
+
+
+def build_estimation(app: App) -> None:
+    """Construct this subsystem's parts from ``app.cfg`` and register them on ``app``."""

@@ -1,0 +1,352 @@
+"""Scenario framework: run the whole application on the simulated clock with a script.
+
+A scenario is a class with a ``name``, an optional :meth:`Scenario.configure` that adjusts the
+config, and :meth:`Scenario.run`, an async script that schedules timed events (close a door,
+place an obstacle, teleport the rover, press a dashboard button), waits for conditions and
+records checks. :func:`run_scenario` builds the :class:`~curio.app.App` on a
+:class:`~curio.clock.SimClock`, runs the script, and returns the report of DESIGN.md's contract.
+
+Report fields: ``scenario``, ``seed``, ``success``, ``sim_time_s``, ``wall_time_s``,
+``goals_reached``, ``goals_total``, ``collisions``, ``path_length_m`` (ground-truth distance
+driven), ``localization_rmse_m`` (null when localisation is off), ``events``
+(``[{t, kind, detail}]``), plus ``checks`` and scenario-specific ``metrics``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from curio.app import App
+from curio.clock import SimClock, wall_perf_counter
+from curio.config import Config
+from curio.fileio import atomic_write_json
+from curio.geometry import Pose2D
+from curio.messages import Event, OperatorCommand, OperatorAction, PoseWithCovariance
+from curio.topics import EVENTS, GROUND_TRUTH, OPERATOR, POSE
+
+__all__ = ["Scenario", "ScenarioArgs", "ScenarioContext", "ScenarioFailed", "run_scenario"]
+
+log = logging.getLogger("curio.scenario")
+
+
+class ScenarioFailed(Exception):
+    """Raised by a script to end the scenario as failed, with the reason."""
+
+
+@dataclass
+class ScenarioArgs:
+    """Command-line arguments of ``curio sim`` (all optional)."""
+
+    map_yaml: str | None = None
+    start: tuple[float, float, float] | None = None
+    goal: tuple[float, float, float | None] | None = None
+    seed: int | None = None
+    speed: float | None = None
+    duration_s: float | None = None
+    web: bool = False
+
+
+@dataclass
+class Check:
+    """One named check of a scenario."""
+
+    name: str
+    ok: bool
+    detail: str = ""
+
+
+@dataclass
+class _Metrics:
+    path_length_m: float = 0.0
+    last_truth: Pose2D | None = None
+    truth_history: list[tuple[float, Pose2D]] = field(default_factory=list)
+    sq_err_sum: float = 0.0
+    sq_yaw_err_sum: float = 0.0
+    max_err_m: float = 0.0
+    err_count: int = 0
+
+
+class ScenarioContext:
+    """What a scenario script works with."""
+
+    def __init__(self, app: App, clock: SimClock, args: ScenarioArgs) -> None:
+        self.app = app
+        self.clock = clock
+        self.bus = app.bus
+        self.args = args
+        self.cfg = app.cfg
+        self.events: list[dict[str, Any]] = []
+        self.checks: list[Check] = []
+        self.metrics: dict[str, Any] = {}
+        self.goals_total = 0
+        self.goals_reached = 0
+        self._timers: list[asyncio.Task[None]] = []
+
+    @property
+    def world(self) -> Any:
+        """The simulated world (``app.world``)."""
+        return self.app.world
+
+    def now(self) -> float:
+        """Simulated time, seconds."""
+        return self.clock.now()
+
+    def record(self, kind: str, **detail: Any) -> None:
+        """Publish a scenario event on ``/events`` (it lands in the report)."""
+        self.bus.publish(EVENTS, Event(self.clock.now(), kind, dict(detail)))
+
+    def check(self, name: str, ok: bool, detail: str = "") -> bool:
+        """Record a named check; a failed check fails the scenario."""
+        self.checks.append(Check(name, bool(ok), detail))
+        self.record("check", name=name, ok=bool(ok), detail=detail)
+        return bool(ok)
+
+    def press(self, action: OperatorAction, **kwargs: Any) -> None:
+        """Press a dashboard button: publish an operator command (reliable)."""
+        self.bus.publish(
+            OPERATOR, OperatorCommand(self.clock.now(), action, source="scenario", **kwargs)
+        )
+
+    def at(self, t_s: float, action: Callable[[], Any], label: str = "") -> None:
+        """Run ``action`` at simulated time ``t_s`` (a coroutine function or a plain one)."""
+
+        async def fire() -> None:
+            await self.clock.sleep_until(t_s)
+            if label:
+                self.record("script", action=label)
+            result = action()
+            if asyncio.iscoroutine(result):
+                await result
+
+        self._timers.append(asyncio.create_task(fire(), name=f"script@{t_s}"))
+
+    async def sleep(self, dt_s: float) -> None:
+        """Sleep simulated seconds."""
+        await self.clock.sleep(dt_s)
+
+    async def wait_until(
+        self, predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.1
+    ) -> bool:
+        """Wait (simulated time) until ``predicate()`` holds; False on timeout."""
+        return await self.clock.wait_until(predicate, timeout_s, poll_s)
+
+    def events_of(self, kind: str) -> list[dict[str, Any]]:
+        """Events recorded so far whose kind equals or starts with ``kind``."""
+        return [e for e in self.events if e["kind"] == kind or e["kind"].startswith(kind + ".")]
+
+    def truth(self) -> Pose2D | None:
+        """The rover's true pose in ``map`` (simulator ground truth)."""
+        msg = self.bus.latest(GROUND_TRUTH)
+        return msg.pose if msg is not None else None
+
+    def cancel_timers(self) -> None:
+        """Cancel scripted events that have not fired."""
+        for task in self._timers:
+            task.cancel()
+
+
+class Scenario:
+    """Base class of scenarios; subclasses set ``name`` and implement :meth:`run`."""
+
+    name = ""
+    description = ""
+    default_duration_s = 600.0
+
+    def configure(self, cfg: Config, args: ScenarioArgs) -> Config:
+        """Return the config this scenario runs with (default: unchanged)."""
+        return cfg
+
+    async def run(self, ctx: ScenarioContext) -> None:
+        """The script. Raise :class:`ScenarioFailed` (or record failed checks) to fail."""
+        raise NotImplementedError
+
+
+def _apply_common_args(cfg: Config, args: ScenarioArgs) -> Config:
+    updates: dict[str, Any] = {}
+    sim = cfg.sim.model_copy()
+    if args.map_yaml is not None:
+        sim.world = str(Path(args.map_yaml).resolve())
+    if args.start is not None:
+        sim.start = args.start
+    if args.seed is not None:
+        sim.seed = args.seed
+    updates["sim"] = sim
+    if not args.web:
+        web = cfg.web.model_copy()
+        web.enabled = False
+        updates["web"] = web
+    return cfg.model_copy(update=updates)
+
+
+async def _collect(ctx: ScenarioContext, metrics: _Metrics, stop: asyncio.Event) -> None:
+    """Gather events, the driven path length and the localisation error."""
+    events_sub = ctx.bus.subscribe(EVENTS)
+    truth_sub = ctx.bus.subscribe(GROUND_TRUTH, maxsize=64)
+    pose_sub = ctx.bus.subscribe(POSE, maxsize=64)
+    try:
+        while not stop.is_set():
+            for ev in events_sub.drain():
+                ctx.events.append({"t": round(ev.stamp, 3), "kind": ev.kind,
+                                   "detail": _json_safe(ev.detail)})
+            for gt in truth_sub.drain():
+                if metrics.last_truth is not None:
+                    metrics.path_length_m += metrics.last_truth.distance_to(gt.pose)
+                metrics.last_truth = gt.pose
+                metrics.truth_history.append((gt.stamp, gt.pose))
+                if len(metrics.truth_history) > 2000:
+                    del metrics.truth_history[:1000]
+            for est in pose_sub.drain():
+                _score_pose(metrics, est)
+            await ctx.clock.sleep(0.05)
+    finally:
+        for ev in events_sub.drain():
+            ctx.events.append({"t": round(ev.stamp, 3), "kind": ev.kind,
+                               "detail": _json_safe(ev.detail)})
+        events_sub.close()
+        truth_sub.close()
+        pose_sub.close()
+
+
+def _score_pose(metrics: _Metrics, est: PoseWithCovariance) -> None:
+    """Compare an estimate with the ground truth at the same stamp (nearest sample)."""
+    if not metrics.truth_history:
+        return
+    best = min(metrics.truth_history[-50:], key=lambda item: abs(item[0] - est.stamp))
+    if abs(best[0] - est.stamp) > 0.05:
+        return
+    err = est.pose.distance_to(best[1])
+    yaw_err = math.remainder(est.pose.yaw - best[1].yaw, 2 * math.pi)
+    metrics.sq_err_sum += err * err
+    metrics.sq_yaw_err_sum += yaw_err * yaw_err
+    metrics.max_err_m = max(metrics.max_err_m, err)
+    metrics.err_count += 1
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, float):
+        return round(value, 6) if math.isfinite(value) else None
+    if isinstance(value, (str, int, bool)) or value is None:
+        return value
+    if isinstance(value, Pose2D):
+        return [round(value.x, 6), round(value.y, 6), round(value.yaw, 6)]
+    return str(value)
+
+
+async def run_scenario(
+    scenario: Scenario,
+    cfg: Config,
+    args: ScenarioArgs,
+    report_path: Path | None = None,
+    on_app: Callable[[App], Awaitable[None]] | None = None,
+) -> dict[str, Any]:
+    """Run ``scenario`` headless on a simulated clock and return its report.
+
+    Args:
+        scenario: what to run.
+        cfg: the base config (the scenario and ``args`` adjust it).
+        args: ``curio sim`` arguments.
+        report_path: where to write the JSON report (atomically), if given.
+        on_app: awaited once the app has started (``--web`` uses it to print the URL).
+    """
+    cfg = scenario.configure(_apply_common_args(cfg, args), args)
+    speed = args.speed
+    if speed is None and args.web:
+        speed = 1.0
+    settle = 3 if cfg.drivers.mode == "emulated" else 0
+    clock = SimClock(speed=speed, settle_polls=settle)
+    wall_start = wall_perf_counter()
+    app = App(cfg, clock, web=args.web)
+    ctx = ScenarioContext(app, clock, args)
+    metrics = _Metrics()
+    duration = args.duration_s if args.duration_s is not None else scenario.default_duration_s
+    failure: str | None = None
+    stop_collect = asyncio.Event()
+    script_done = False
+
+    async def script() -> None:
+        nonlocal failure, script_done
+        try:
+            await clock.wait_for(scenario.run(ctx), duration)
+        except TimeoutError:
+            failure = f"scenario did not finish within {duration:g} s of simulated time"
+        except ScenarioFailed as exc:
+            failure = str(exc)
+        finally:
+            script_done = True
+
+    await app.start()
+    if on_app is not None:
+        await on_app(app)
+    collector = asyncio.create_task(_collect(ctx, metrics, stop_collect), name="collector")
+    script_task = asyncio.create_task(script(), name=f"scenario:{scenario.name}")
+    try:
+        await clock.run(stop=lambda: script_done or bool(app.failed_parts()))
+    finally:
+        ctx.cancel_timers()
+        crashed = app.failed_parts()
+        if crashed and failure is None:
+            name, exc = crashed[0]
+            failure = f"part {name} crashed: {type(exc).__name__}: {exc}"
+        if not script_task.done():
+            script_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await script_task
+        await _settle_final_events(clock)
+        stop_collect.set()
+        with contextlib.suppress(asyncio.CancelledError):
+            await collector
+        await app.stop()
+
+    failed_checks = [c for c in ctx.checks if not c.ok]
+    if failure is None and failed_checks:
+        failure = "failed checks: " + ", ".join(c.name for c in failed_checks)
+    collisions = sum(1 for e in ctx.events if e["kind"] == "collision")
+    loc_on = cfg.localization.enabled and metrics.err_count > 0
+    rmse = math.sqrt(metrics.sq_err_sum / metrics.err_count) if loc_on else None
+    if loc_on:
+        ctx.metrics.setdefault("localization_yaw_rmse_rad",
+                               round(math.sqrt(metrics.sq_yaw_err_sum / metrics.err_count), 6))
+        ctx.metrics.setdefault("localization_max_error_m", round(metrics.max_err_m, 6))
+    report: dict[str, Any] = {
+        "scenario": scenario.name,
+        "seed": cfg.sim.seed,
+        "success": failure is None,
+        "failure": failure,
+        "sim_time_s": round(clock.now(), 3),
+        "wall_time_s": round(wall_perf_counter() - wall_start, 3),
+        "goals_reached": ctx.goals_reached,
+        "goals_total": ctx.goals_total,
+        "collisions": collisions,
+        "path_length_m": round(metrics.path_length_m, 4),
+        "localization_rmse_m": None if rmse is None else round(rmse, 6),
+        "drivers_mode": cfg.drivers.mode,
+        "checks": [{"name": c.name, "ok": c.ok, "detail": c.detail} for c in ctx.checks],
+        "metrics": _json_safe(ctx.metrics),
+        "events": ctx.events,
+    }
+    if report_path is not None:
+        atomic_write_json(report_path, report)
+    return report
+
+
+async def _settle_final_events(clock: SimClock) -> None:
+    """Let already-queued work (final events) run before collecting."""
+    for _ in range(5):
+        await clock.sleep(0)
+
+
+def report_json(report: dict[str, Any]) -> str:
+    """The report as indented JSON text."""
+    return json.dumps(report, indent=2, sort_keys=True)

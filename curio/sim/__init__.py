@@ -1,0 +1,1 @@
+"""The built-in simulator: world, rover physics, lidar ray casting, IMU."""

@@ -1,0 +1,1 @@
+"""The web dashboard: aiohttp server, WebSocket hub, REST API, static page."""
