@@ -118,7 +118,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
             raise UsageError(f"--speed takes a number > 0 or 'max', got '{args.speed}'") from None
         if not speed > 0:
             raise UsageError(f"--speed takes a number > 0 or 'max', got '{args.speed}'")
-    start = _floats(args.start, (3,), "--start") if args.start else None
+    start_values = _floats(args.start, (3,), "--start") if args.start else None
+    start = None if start_values is None else (start_values[0], start_values[1], start_values[2])
     goal_values = _floats(args.goal, (2, 3), "--goal") if args.goal else None
     goal = None
     if goal_values is not None:

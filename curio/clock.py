@@ -47,7 +47,7 @@ def wall_time() -> float:
 
 
 def wall_sleep(seconds: float) -> None:
-    """Block the calling *thread* for ``seconds`` of wall time (device threads only, never the loop)."""
+    """Block the calling thread for ``seconds`` of wall time (device threads, never the loop)."""
     time.sleep(seconds)
 
 

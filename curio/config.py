@@ -230,11 +230,15 @@ class SafetyConfig(Section):
     rate_hz: float = Field(20.0, gt=0.0, le=200.0)
 
 
+RecoveryStep = Literal["clear_costmap", "step_back", "rotate", "wait"]
+_DEFAULT_LADDER: tuple[RecoveryStep, ...] = ("clear_costmap", "step_back", "rotate", "wait")
+
+
 class RecoveryConfig(Section):
     """The recovery ladder tried before a goal is aborted."""
 
-    ladder: list[Literal["clear_costmap", "step_back", "rotate", "wait"]] = Field(
-        default_factory=lambda: ["clear_costmap", "step_back", "rotate", "wait"]
+    ladder: list[RecoveryStep] = Field(
+        default_factory=lambda: list(_DEFAULT_LADDER)
     )
     step_back_distance_m: float = Field(1.0, gt=0.0, le=3.0)
     step_back_speed_mps: float = Field(0.3, gt=0.0, le=0.37)
@@ -473,7 +477,8 @@ def load_config(path: Path | str | None = None, overrides: list[str] | None = No
         except FileNotFoundError:
             raise ConfigError(f"config file not found: {file_path}") from None
         except PermissionError:
-            raise ConfigError(f"config file not readable (permission denied): {file_path}") from None
+            raise ConfigError(f"config file not readable (permission denied): {file_path}") \
+                from None
         except IsADirectoryError:
             raise ConfigError(f"config path is a directory, not a TOML file: {file_path}") from None
         except tomllib.TOMLDecodeError as exc:

@@ -83,7 +83,9 @@ class Pose2D:
         """Map an ``(N, 2)`` array of points from this pose's frame into the parent frame."""
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         rot = np.array([[c, -s], [s, c]])
-        return np.asarray(xy, dtype=np.float64) @ rot.T + np.array([self.x, self.y])
+        out: npt.NDArray[np.float64] = np.asarray(xy, dtype=np.float64) @ rot.T + np.array(
+            [self.x, self.y])
+        return out
 
     def distance_to(self, other: Pose2D) -> float:
         """Euclidean distance between the two positions, metres."""

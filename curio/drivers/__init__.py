@@ -1,1 +1,1 @@
-"""Device drivers: base link (kinematics, odometry, Arduino protocol), RPLidar, BNO055, emulators."""
+"""Device drivers: base link, RPLidar, BNO055, and their emulators."""

@@ -1,4 +1,4 @@
-"""Driver wiring: base driver and odometry in every mode; lidar and IMU drivers with emulators in emulated mode, hardware in real mode."""
+"""Driver wiring: odometry in every mode; device drivers and emulators when not in sim mode."""
 
 from __future__ import annotations
 

@@ -1,1 +1,1 @@
-"""Navigation and state estimation: maps, EKF, localisation, mapping, costmap, planner, controller."""
+"""Navigation and state estimation: maps, EKF, localisation, mapping, costmap, planning."""

@@ -15,18 +15,18 @@ from typing import Protocol
 from curio.geometry import Pose2D
 
 __all__ = [
+    "ControllerFailedError",
+    "GoalBlockedError",
     "GoalHandle",
+    "GoalOutsideMapError",
     "GoalState",
+    "LocalizationLostError",
     "NavError",
     "Navigator",
     "NoPathError",
     "NoProgressError",
-    "GoalBlockedError",
-    "GoalOutsideMapError",
     "StartBlockedError",
     "StartOutsideMapError",
-    "LocalizationLostError",
-    "ControllerFailedError",
 ]
 
 

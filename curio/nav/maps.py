@@ -73,11 +73,11 @@ class OccupancyGrid:
 
     def occupied_mask(self) -> npt.NDArray[np.bool_]:
         """Cells that are obstacles."""
-        return self.data >= int(round(self.occupied_thresh * 100))
+        return self.data >= round(self.occupied_thresh * 100)
 
     def free_mask(self) -> npt.NDArray[np.bool_]:
         """Cells known to be free."""
-        return (self.data >= 0) & (self.data <= int(round(self.free_thresh * 100)))
+        return (self.data >= 0) & (self.data <= round(self.free_thresh * 100))
 
     def unknown_mask(self) -> npt.NDArray[np.bool_]:
         """Cells of unknown occupancy."""

@@ -1,4 +1,4 @@
-"""Navigation wiring: costmap, planner, controller, navigator, recovery, safety stage, obstacles, blocked detection."""
+"""Navigation wiring: costmap, planner, controller, navigator, recovery, safety, blocked."""
 
 from __future__ import annotations
 

@@ -29,7 +29,7 @@ from curio.clock import SimClock, wall_perf_counter
 from curio.config import Config
 from curio.fileio import atomic_write_json
 from curio.geometry import Pose2D
-from curio.messages import Event, OperatorCommand, OperatorAction, PoseWithCovariance
+from curio.messages import Event, OperatorAction, OperatorCommand, PoseWithCovariance
 from curio.topics import EVENTS, GROUND_TRUTH, OPERATOR, POSE
 
 __all__ = ["Scenario", "ScenarioArgs", "ScenarioContext", "ScenarioFailed", "run_scenario"]
