@@ -162,6 +162,9 @@ class LocalizationConfig(Section):
     """Particle-filter localisation in the known map (AMCL-class)."""
 
     enabled: bool = True
+    map_yaml: str | None = Field(
+        None, description="navigation map (map_server YAML); default sim.world"
+    )
     min_particles: int = Field(200, ge=10)
     max_particles: int = Field(3000, ge=10)
     update_min_d_m: float = Field(0.05, ge=0.0)
