@@ -122,14 +122,15 @@ class _ClockMixin:
             now = self.now()
             if stats is not None:
                 stats.ticks += 1
-                lateness = now - due
-                stats.max_lateness_s = max(stats.max_lateness_s, lateness)
-                if lateness > period_s:
-                    stats.overruns += 1
+                stats.max_lateness_s = max(stats.max_lateness_s, now - due)
             yield now
             due += period_s
-            if due < self.now():
-                due = self.now() + period_s - ((self.now() - due) % period_s)
+            behind = self.now() - due
+            if behind > 0:
+                # The iteration overran its period: skip the missed ticks, keep the phase.
+                if stats is not None:
+                    stats.overruns += 1
+                due += period_s * (int(behind // period_s) + 1)
 
     async def wait_for(self, awaitable: Awaitable[T], timeout_s: float) -> T:
         """Await ``awaitable`` for at most ``timeout_s`` of clock time.
