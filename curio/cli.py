@@ -62,7 +62,8 @@ def _build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--start", help="start pose X,Y,YAW in map (m, m, rad)")
     sim.add_argument("--goal", help="goal X,Y[,YAW] in map (m, m, rad)")
     sim.add_argument("--seed", type=int, help="random seed (default: sim.seed)")
-    sim.add_argument("--speed", default="max", help="N x real time, or max (default)")
+    sim.add_argument("--speed", default=None,
+                     help="N x real time, or max (default: max; 1 with --web)")
     sim.add_argument("--duration", type=float, help="time limit, simulated seconds")
     sim.add_argument("--report", type=Path, help="write the JSON report here")
     sim.add_argument("--web", action="store_true", help="serve the dashboard (real time)")
@@ -109,7 +110,9 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         scenario = get_scenario(args.scenario)
     except KeyError as exc:
         raise UsageError(str(exc.args[0])) from None
-    if args.speed == "max":
+    if args.speed is None:
+        speed = 1.0 if args.web else None
+    elif args.speed == "max":
         speed = None
     else:
         try:

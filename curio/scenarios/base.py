@@ -262,8 +262,6 @@ async def run_scenario(
     """
     cfg = scenario.configure(_apply_common_args(cfg, args), args)
     speed = args.speed
-    if speed is None and args.web:
-        speed = 1.0
     settle = 3 if cfg.drivers.mode == "emulated" else 0
     clock = SimClock(speed=speed, settle_polls=settle)
     wall_start = wall_perf_counter()
