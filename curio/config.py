@@ -44,6 +44,12 @@ class RobotConfig(Section):
     )
     wheel_radius_m: float = Field(0.060, gt=0.0, le=0.5)
     mid_wheel_track_m: float = Field(0.52, gt=0.0, le=2.0)
+    corner_wheel_track_m: float = Field(0.47, gt=0.0, le=2.0,
+                                        description="lateral separation of front/back wheels")
+    front_wheel_lon_m: float = Field(0.28, gt=0.0, le=2.0,
+                                     description="front axle ahead of the mid axle")
+    back_wheel_lon_m: float = Field(0.25, gt=0.0, le=2.0,
+                                    description="back axle behind the mid axle")
     wheel_radius_multiplier: float = Field(1.04, gt=0.5, le=1.5)
     mid_wheel_track_multiplier: float = Field(0.96875, gt=0.5, le=1.5)
     max_wheel_speed_mps: float = Field(0.37, gt=0.0, le=2.0)
@@ -180,6 +186,24 @@ class LocalizationConfig(Section):
     recovery_alpha_fast: float = Field(0.1, ge=0.0, le=1.0)
     initial_std_xy_m: float = Field(0.25, gt=0.0)
     initial_std_yaw_rad: float = Field(0.2, gt=0.0)
+    odom_alpha1: float = Field(0.05, ge=0.0, description="rotation noise from rotation")
+    odom_alpha2: float = Field(0.01, ge=0.0, description="rotation noise from translation")
+    odom_alpha3: float = Field(0.01, ge=0.0, description="translation noise from translation")
+    odom_alpha4: float = Field(0.01, ge=0.0, description="translation noise from rotation")
+    scan_match: bool = Field(True, description="refine the best cluster by Gauss-Newton")
+    scan_match_beams: int = Field(180, ge=8, le=2000)
+    scan_match_max_residual_m: float = Field(0.15, gt=0.0)
+    inlier_distance_m: float = Field(0.12, gt=0.0, description="beam counts as fitting the map")
+    lost_inlier_fraction: float = Field(0.45, ge=0.0, le=1.0)
+    lost_std_xy_m: float = Field(0.6, gt=0.0)
+    lost_after_scans: int = Field(5, ge=1, description="poor scans in a row before 'lost'")
+    auto_relocalize: bool = Field(True, description="global search when lost")
+    global_step_m: float = Field(0.3, gt=0.0)
+    global_yaw_step_rad: float = Field(0.17, gt=0.0)
+    global_poses_per_scan: int = Field(60000, ge=1000, description="search budget per scan")
+    global_std_xy_m: float = Field(
+        50.0, gt=0.0, description="an INITIAL_POSE std above this asks for global localisation"
+    )
 
 
 class CostmapConfig(Section):
@@ -231,6 +255,21 @@ class SafetyConfig(Section):
     cmd_timeout_s: float = Field(0.5, gt=0.0)
     teleop_timeout_s: float = Field(0.5, gt=0.0)
     rate_hz: float = Field(20.0, gt=0.0, le=200.0)
+    max_brake_mps2: float = Field(
+        2.0, gt=0.0, description="deceleration allowed when the stop zone or e-stop brakes"
+    )
+    contact_margin_m: float = Field(
+        0.02, ge=0.0, description="margin for points already inside stop_distance_m and for "
+        "turning in place (the stop zone then only prevents contact)"
+    )
+    slow_min_fraction: float = Field(
+        0.4, gt=0.0, le=1.0, description="speed fraction kept when approaching within "
+        "slow_distance_m"
+    )
+    require_scan: bool = Field(
+        True, description="stop when no lidar scan has arrived for scan_timeout_s"
+    )
+    scan_timeout_s: float = Field(1.0, gt=0.0)
 
 
 RecoveryStep = Literal["clear_costmap", "step_back", "rotate", "wait"]
