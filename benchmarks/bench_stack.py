@@ -17,7 +17,7 @@ import tempfile
 from typing import Any
 
 from curio.bench import BenchOptions
-from curio.clock import thread_cpu_time, wall_perf_counter
+from curio.clock import process_cpu_time, wall_perf_counter
 from curio.config import REPO_ROOT, load_config
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, run_scenario
@@ -29,9 +29,9 @@ def _one(label: str, scenario_name: str, overrides: list[str], web: bool, seed: 
         cfg = load_config(REPO_ROOT / "config.toml",
                           [f'data_dir="{tmp}"', "web.port=0", "bt.speak=false", *overrides])
         args = ScenarioArgs(seed=seed, speed=None, duration_s=duration_s, web=web)
-        cpu0, wall0 = thread_cpu_time(), wall_perf_counter()
+        cpu0, wall0 = process_cpu_time(), wall_perf_counter()
         report = asyncio.run(run_scenario(get_scenario(scenario_name), cfg, args))
-        cpu, wall = thread_cpu_time() - cpu0, wall_perf_counter() - wall0
+        cpu, wall = process_cpu_time() - cpu0, wall_perf_counter() - wall0
     return {
         "subject": label,
         "scenario": scenario_name,

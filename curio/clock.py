@@ -51,7 +51,7 @@ def wall_sleep(seconds: float) -> None:
     time.sleep(seconds)
 
 
-def thread_cpu_time() -> float:
+def process_cpu_time() -> float:
     """Return CPU seconds used by this process (for CPU-fraction benchmarks)."""
     return time.process_time()
 
