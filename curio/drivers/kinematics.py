@@ -48,6 +48,7 @@ DUTY_PER_RADPS = 1000.0 / (2.0 * math.pi)
 WHEEL_SIDES: tuple[int, int, int, int, int, int] = (1, 1, 1, -1, -1, -1)
 # Index into the six wheels of each steering corner (FL, BL, FR, BR).
 STEER_CORNERS: tuple[int, int, int, int] = (0, 2, 3, 5)
+_MAX_TURN_RADIUS_M = 1e6
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,7 +91,9 @@ def inverse_kinematics(
         raise ValueError(f"twist must be finite, got linear {v} m/s, angular {w} rad/s")
     speeds = [v] * 6
     angles = [0.0] * 4
-    if w != 0.0:  # exact test, as the original
+    # Exact float test, as the original; a turning radius beyond 1e6 m (a denormal ω) is
+    # also straight, so the arithmetic below never overflows to inf/nan.
+    if w != 0.0 and abs(v) < _MAX_TURN_RADIUS_M * abs(w):
         r_p = v / w
         for i in range(6):
             dy = r_p - geo.y_m[i]
