@@ -216,6 +216,8 @@ class CostmapConfig(Section):
     footprint_padding_m: float = Field(0.01, ge=0.0)
     local_window_m: float = Field(6.0, gt=1.0)
     update_rate_hz: float = Field(5.0, gt=0.0)
+    global_publish_rate_hz: float = Field(1.0, gt=0.0, description="COSTMAP at most this often")
+    inf_is_valid: bool = Field(True, description="an inf range clears the whole ray")
 
 
 class PlannerConfig(Section):
@@ -225,6 +227,12 @@ class PlannerConfig(Section):
     goal_nearest_free: bool = True
     goal_nearest_free_max_m: float = Field(0.5, ge=0.0)
     heuristic_weight: float = Field(1.0, ge=1.0, le=5.0)
+    cost_penalty: float = Field(
+        3.0, ge=0.0, le=50.0,
+        description="traversal cost per metre = 1 + cost_penalty * cost / 252 (keeps off walls)")
+    allow_unknown: bool = Field(False, description="plan through unknown (255) cells")
+    path_step_m: float = Field(0.05, gt=0.0, le=1.0, description="spacing of the output poses")
+    smooth: bool = Field(True, description="shortcut and smooth the grid path")
 
 
 class ControllerConfig(Section):
@@ -316,6 +324,15 @@ class PathConfig(Section):
     points: list[Point2]
     yaw_deg: list[float] | None = None
 
+    @field_validator("yaw_deg")
+    @classmethod
+    def _one_yaw_per_point(cls, value: list[float] | None, info: Any) -> list[float] | None:
+        points = info.data.get("points")
+        if value is not None and points is not None and len(value) != len(points):
+            raise ValueError(f"yaw_deg needs one heading per point ({len(points)}), "
+                             f"got {len(value)}")
+        return value
+
 
 def _default_paths() -> list[PathConfig]:
     return [
@@ -349,6 +366,11 @@ class BtConfig(Section):
     help_timeout_s: float = Field(120.0, gt=0.0)
     help_timeout_action: Literal["replan", "go_home", "keep_waiting"] = "replan"
     help_clear_s: float = Field(2.0, ge=0.0, description="way must stay clear this long")
+    help_rearm_s: float = Field(
+        15.0, ge=0.0,
+        description="after a help episode that ended without the way clearing (help_done, "
+        "timeout, pre-emption), ignore BLOCKED this long unless it first reports clear",
+    )
     low_battery_v: float = Field(6.6, ge=0.0)
     battery_ok_v: float = Field(7.0, ge=0.0)
     speak: bool = True
