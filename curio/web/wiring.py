@@ -1,12 +1,98 @@
-"""Web wiring: the dashboard server."""
+"""Web wiring: the dashboard server as a Part of the application.
+
+``build_web(app)`` loads (or creates) the control token, builds the aiohttp application and
+binds its listening socket at once, so ``app.web_url`` — the ready-to-open control URL with the
+token — is known before the app starts (``web.port = 0`` picks a free port, for tests). The
+URL is logged when the server starts.
+"""
 
 from __future__ import annotations
 
+import asyncio
+import logging
+import socket
 from typing import TYPE_CHECKING
+
+from aiohttp import web
+
+from curio.app import Part
+from curio.web.auth import load_or_create_token
+from curio.web.hub import Hub
+from curio.web.server import HUB, WebServices, create_app
 
 if TYPE_CHECKING:
     from curio.app import App
 
+__all__ = ["WebServer", "build_web"]
+
+log = logging.getLogger("curio.web")
+
+
+class WebServer:
+    """The running dashboard: the aiohttp application on a socket bound at construction.
+
+    Attributes:
+        url: the page's URL without the token; ``control_url`` carries it.
+        hub: the WebSocket hub (clients, latched state).
+    """
+
+    def __init__(self, services: WebServices) -> None:
+        cfg = services.cfg.web
+        self.services = services
+        self.application = create_app(services)
+        self.hub: Hub = self.application[HUB]
+        family = socket.AF_INET6 if ":" in cfg.host else socket.AF_INET
+        self.sock = socket.socket(family, socket.SOCK_STREAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self.sock.bind((cfg.host, cfg.port))
+        except OSError as exc:
+            self.sock.close()
+            raise OSError(
+                f"the dashboard cannot listen on {cfg.host}:{cfg.port} ({exc.strerror}); "
+                "set web.port to a free port (or 0 for any) or web.host to a local address"
+            ) from exc
+        self.sock.listen(128)
+        self.sock.setblocking(False)
+        self.port: int = self.sock.getsockname()[1]
+        shown = "127.0.0.1" if cfg.host in ("0.0.0.0", "", "::") else cfg.host
+        if ":" in shown:
+            shown = f"[{shown}]"
+        self.url = f"http://{shown}:{self.port}/"
+        self.control_url = f"{self.url}?token={services.token}"
+        self._runner: web.AppRunner | None = None
+
+    async def run(self) -> None:
+        """Serve until cancelled."""
+        self._runner = web.AppRunner(self.application, access_log=None, handle_signals=False)
+        await self._runner.setup()
+        site = web.SockSite(self._runner, self.sock)
+        await site.start()
+        cfg = self.services.cfg.web
+        log.info("dashboard: open %s to control the rover (viewing only: %s)",
+                 self.control_url, self.url)
+        if cfg.host in ("0.0.0.0", "::"):
+            log.info("dashboard listens on all interfaces: http://%s:%d/?token=%s",
+                     socket.gethostname(), self.port, self.services.token)
+        try:
+            await asyncio.get_running_loop().create_future()
+        finally:
+            await self.close()
+
+    async def close(self) -> None:
+        """Close every client and the listening socket."""
+        runner, self._runner = self._runner, None
+        if runner is not None:
+            await runner.cleanup()
+        self.sock.close()
+
 
 def build_web(app: App) -> None:
-    """Construct this subsystem's parts from ``app.cfg`` and register them on ``app``."""
+    """Construct the dashboard from ``app.cfg.web`` and register it as a Part."""
+    cfg = app.cfg
+    token = load_or_create_token(cfg.data_path(cfg.web.token_file))
+    services = WebServices(cfg=cfg, clock=app.clock, bus=app.bus, token=token, paths=app.paths)
+    server = WebServer(services)
+    app.web = server
+    app.web_url = server.control_url
+    app.add(Part("web", run=server.run, close=server.close))

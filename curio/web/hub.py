@@ -1,0 +1,626 @@
+"""The WebSocket hub: bus topics out to every browser, operator input in.
+
+Design (after rosboard's per-client throttling, made safe for a robot):
+
+* The hub holds **one** bus subscription per topic and encodes each message **once**; the frame
+  is then offered to every client.
+* Each client has a conflating slot per stream key (scan, pose, plans, tree, health, ...) that
+  its own sender task flushes at most ``rate_hz`` times a second, and an ordered queue for
+  reliable messages (status, progress, events, e-stop, acks) that is never dropped. A slow
+  client only delays its own sender: the bus and the other clients never wait for it. A client
+  whose reliable backlog exceeds ``MAX_BACKLOG`` is disconnected (code 1013); it reconnects and
+  catches up from the state snapshot.
+* A (re)connecting client first receives a snapshot of the latched state (status, progress,
+  e-stop, help state, paths, grids, tree, health, recent events marked as history) and the
+  latest binary frames. Commands are never queued or replayed: each carries a ``request_id``
+  and a duplicate id is acknowledged without being published again.
+* Teleop: ``teleop`` messages publish :data:`~curio.topics.CMD_VEL_TELEOP` (source ``web``); a
+  zero velocity is published when the teleop client disconnects or goes silent for
+  ``cfg.nav.safety.teleop_timeout_s`` (the safety stage also has its own watchdog).
+
+Frames: see :mod:`curio.web.encode`. Times come from the injected clock.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import json
+import logging
+import math
+from collections import OrderedDict, deque
+from collections.abc import Callable, Coroutine
+from dataclasses import dataclass, field
+from typing import Any
+
+from aiohttp import WSCloseCode, web
+
+from curio.bus import Bus, Topic
+from curio.clock import Clock
+from curio.config import Config
+from curio.geometry import Pose2D
+from curio.messages import (
+    BatteryState,
+    BlockedState,
+    DriverHealth,
+    EStop,
+    Event,
+    GridMessage,
+    LaserScan,
+    LocalizationStatus,
+    Obstacles,
+    Odometry,
+    OperatorCommand,
+    Path,
+    PoseWithCovariance,
+    Progress,
+    StatusText,
+    TreeSnapshot,
+    Twist,
+)
+from curio.topics import (
+    BATTERY,
+    BLOCKED,
+    CMD_VEL,
+    CMD_VEL_TELEOP,
+    COSTMAP,
+    ESTOP,
+    EVENTS,
+    GROUND_TRUTH,
+    HEALTH,
+    INITIAL_POSE,
+    LOCAL_COSTMAP,
+    LOCAL_PLAN,
+    LOCALIZATION,
+    MAP,
+    OBSTACLES,
+    ODOM,
+    OPERATOR,
+    PLAN,
+    POSE,
+    PROGRESS,
+    SCAN,
+    STATUS,
+    TREE,
+)
+from curio.web.auth import RateLimiter
+from curio.web.encode import (
+    FRAME_LOCAL_PLAN,
+    FRAME_PLAN,
+    FRAME_TRUTH,
+    encode_path,
+    encode_pose,
+    encode_scan,
+    grid_meta,
+    grid_png,
+    to_json,
+    to_jsonable,
+)
+
+__all__ = ["GRID_TOPICS", "Client", "CommandError", "Hub"]
+
+log = logging.getLogger("curio.web.hub")
+
+GRID_TOPICS: dict[str, Topic[GridMessage]] = {
+    "map": MAP,
+    "costmap": COSTMAP,
+    "local_costmap": LOCAL_COSTMAP,
+}
+MAX_BACKLOG = 2000
+RECENT_EVENTS = 50
+# Consecutive rate-limited messages after which a client is disconnected (code 1008).
+MAX_REJECTED_IN_A_ROW = 100
+# A pose from POSE is preferred; ODOM stands in when no POSE arrived for this long, seconds.
+POSE_STALE_S = 2.0
+CLIENT_OPS = ("ping", "rate", "teleop", "command", "initial_pose")
+
+
+class CommandError(ValueError):
+    """An operator command or input that cannot be accepted; the message says why."""
+
+    def __init__(self, message: str, status: int = 400) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+@dataclass
+class Client:
+    """One connected browser."""
+
+    id: int
+    ws: web.WebSocketResponse
+    control: bool
+    rate_hz: float
+    limiter: RateLimiter
+    remote: str = ""
+    pending: dict[str, str | bytes] = field(default_factory=dict)
+    reliable: deque[str] = field(default_factory=deque)
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    closed: bool = False
+    rejected_in_a_row: int = 0
+    last_teleop_seq: int = -1
+    sent_frames: int = 0
+    sent_bytes: int = 0
+
+
+@dataclass
+class _Grid:
+    """The latest grid of one kind and the hub's version of it."""
+
+    msg: GridMessage
+    serial: int
+    png: bytes | None = None
+
+
+class Hub:
+    """Fans bus traffic out to WebSocket clients and turns their input into bus messages.
+
+    Args:
+        cfg: the whole configuration (``cfg.web`` limits, ``cfg.robot`` geometry).
+        clock: the injected clock (rate limits, watchdogs, stamps).
+        bus: the application bus.
+        paths: the path manager (``app.paths``) or None when the behaviour tree is not built.
+    """
+
+    def __init__(self, cfg: Config, clock: Clock, bus: Bus, paths: Any = None) -> None:
+        self.cfg = cfg
+        self.clock = clock
+        self.bus = bus
+        self.paths = paths
+        self.clients: set[Client] = set()
+        self._ids = itertools.count(1)
+        self._latest_frames: dict[str, str | bytes] = {}
+        self.status: StatusText | None = None
+        self.progress: Progress | None = None
+        self.estop: EStop | None = None
+        self.battery: BatteryState | None = None
+        self.blocked: BlockedState | None = None
+        self.localization: LocalizationStatus | None = None
+        self.tree: TreeSnapshot | None = None
+        self.health: dict[str, DriverHealth] = {}
+        self.help: dict[str, Any] = {"active": False, "message": "", "since": None,
+                                      "resolved_at": None}
+        self.events: deque[dict[str, Any]] = deque(maxlen=RECENT_EVENTS)
+        self.grids: dict[str, _Grid] = {}
+        self._grid_serial = itertools.count(1)
+        self._pose_msg: PoseWithCovariance | None = None
+        self._pose_stamp_s = -math.inf
+        self._odom: Odometry | None = None
+        self._recent_requests: OrderedDict[str, float] = OrderedDict()
+        self._teleop_client: int | None = None
+        self._teleop_last_s = -math.inf
+        self._teleop_moving = False
+        self.system: dict[str, Any] = {}
+        self.commands_published = 0
+        self.teleop_published = 0
+
+    # --- lifecycle ----------------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Pump every topic into the clients and run the teleop watchdog (until cancelled)."""
+        async with asyncio.TaskGroup() as tg:
+            self._pump(tg, SCAN, self._on_scan)
+            self._pump(tg, POSE, self._on_pose)
+            self._pump(tg, ODOM, self._on_odom)
+            self._pump(tg, GROUND_TRUTH, self._on_truth)
+            self._pump(tg, PLAN, lambda m: self._on_path("plan", m, FRAME_PLAN))
+            self._pump(tg, LOCAL_PLAN, lambda m: self._on_path("local_plan", m,
+                                                               FRAME_LOCAL_PLAN))
+            self._pump(tg, OBSTACLES, self._on_obstacles)
+            self._pump(tg, STATUS, self._on_status)
+            self._pump(tg, PROGRESS, self._on_progress)
+            self._pump(tg, EVENTS, self._on_event)
+            self._pump(tg, ESTOP, self._on_estop)
+            self._pump(tg, TREE, self._on_tree)
+            self._pump(tg, HEALTH, self._on_health, maxsize=64)
+            self._pump(tg, LOCALIZATION, self._on_localization)
+            self._pump(tg, BATTERY, self._on_battery)
+            self._pump(tg, BLOCKED, self._on_blocked)
+            self._pump(tg, CMD_VEL, self._on_cmd_vel)
+            for name, topic in GRID_TOPICS.items():
+                self._pump(tg, topic, self._grid_handler(name))
+            tg.create_task(self._teleop_watchdog(), name="web.teleop_watchdog")
+
+    def _pump(
+        self,
+        tg: asyncio.TaskGroup,
+        topic: Topic[Any],
+        handler: Callable[[Any], None],
+        maxsize: int | None = None,
+    ) -> None:
+        sub = self.bus.subscribe(topic, maxsize=maxsize)
+
+        async def pump() -> None:
+            try:
+                async for msg in sub:
+                    try:
+                        handler(msg)
+                    except Exception:
+                        log.exception("web hub: cannot forward a %s message", topic.name)
+            finally:
+                sub.close()
+
+        tg.create_task(pump(), name=f"web.pump{topic.name}")
+
+    async def close(self) -> None:
+        """Stop any teleop motion and close every client."""
+        for client in list(self.clients):
+            with contextlib.suppress(Exception):
+                await client.ws.close(code=WSCloseCode.GOING_AWAY, message=b"server shutdown")
+            self.unregister(client)
+
+    # --- clients ------------------------------------------------------------------------------
+
+    def register(self, ws: web.WebSocketResponse, control: bool, remote: str = "") -> Client:
+        """Add a connected socket; queue the state snapshot and the latest frames for it."""
+        web_cfg = self.cfg.web
+        client = Client(
+            id=next(self._ids),
+            ws=ws,
+            control=control,
+            rate_hz=web_cfg.client_rate_hz,
+            limiter=RateLimiter(web_cfg.max_messages_per_s, burst=web_cfg.max_messages_per_s),
+            remote=remote,
+        )
+        self.clients.add(client)
+        client.reliable.append(
+            to_json({"t": "hello", "client": client.id, "control": control,
+                     "require_token": web_cfg.require_token, "rate_hz": client.rate_hz,
+                     "server_time": self.clock.now()})
+        )
+        client.reliable.append(to_json({"t": "state", **self.snapshot()}))
+        client.pending.update(self._latest_frames)
+        client.wake.set()
+        return client
+
+    def unregister(self, client: Client) -> None:
+        """Forget ``client``; if it was driving, stop the rover."""
+        client.closed = True
+        client.wake.set()
+        self.clients.discard(client)
+        if self._teleop_client == client.id:
+            self._stop_teleop("teleop client disconnected")
+
+    async def serve(self, client: Client) -> None:
+        """Send ``client`` its queued messages until it closes (its own task)."""
+        ws = client.ws
+        next_stream_s = self.clock.now()
+        while not client.closed and not ws.closed:
+            while client.reliable:
+                text = client.reliable.popleft()
+                await ws.send_str(text)
+                client.sent_frames += 1
+                client.sent_bytes += len(text)
+            if client.pending:
+                now = self.clock.now()
+                if now >= next_stream_s:
+                    frames, client.pending = client.pending, {}
+                    for frame in frames.values():
+                        if isinstance(frame, bytes):
+                            await ws.send_bytes(frame)
+                        else:
+                            await ws.send_str(frame)
+                        client.sent_frames += 1
+                        client.sent_bytes += len(frame)
+                    next_stream_s = max(now, next_stream_s) + 1.0 / client.rate_hz
+                    continue
+                await self.clock.sleep_until(next_stream_s)
+                continue
+            client.wake.clear()
+            if client.reliable or client.pending or client.closed:
+                continue
+            await client.wake.wait()
+
+    def _reliable(self, payload: dict[str, Any]) -> None:
+        text = to_json(payload)
+        for client in list(self.clients):
+            if len(client.reliable) >= MAX_BACKLOG:
+                log.warning("web client %d is too slow (%d messages queued); disconnecting",
+                            client.id, len(client.reliable))
+                self._drop_slow(client)
+                continue
+            client.reliable.append(text)
+            client.wake.set()
+
+    def _stream(self, key: str, frame: str | bytes) -> None:
+        self._latest_frames[key] = frame
+        for client in self.clients:
+            client.pending[key] = frame
+            client.wake.set()
+
+    def _drop_slow(self, client: Client) -> None:
+        self.unregister(client)
+        task = asyncio.ensure_future(
+            client.ws.close(code=WSCloseCode.TRY_AGAIN_LATER,
+                            message=b"client too slow; reconnect to catch up")
+        )
+        task.add_done_callback(lambda t: t.exception() if not t.cancelled() else None)
+
+    # --- state --------------------------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything a (re)connecting page needs to show the robot's real state."""
+        return {
+            "status": to_jsonable(self.status),
+            "progress": to_jsonable(self.progress),
+            "estop": to_jsonable(self.estop),
+            "battery": to_jsonable(self.battery),
+            "blocked": to_jsonable(self.blocked),
+            "localization": to_jsonable(self.localization),
+            "help": dict(self.help),
+            "paths": self.paths_json(),
+            "grids": {name: self.grid_info(name) for name in self.grids},
+            "tree": self.tree_json(),
+            "health": self.health_json(),
+            "events": list(self.events),
+            "robot": {
+                "footprint": [list(p) for p in self.cfg.robot.footprint],
+                "home": list(self.cfg.robot.home),
+                "max_speed_mps": min(self.cfg.robot.max_wheel_speed_mps,
+                                     self.cfg.nav.safety.max_speed_mps),
+                "max_angular_radps": min(self.cfg.robot.max_angular_radps,
+                                         self.cfg.nav.safety.max_angular_radps),
+                "name": self.cfg.robot.name,
+            },
+        }
+
+    def paths_json(self) -> list[dict[str, Any]]:
+        """The path manager's paths as JSON data (empty when there is no path manager)."""
+        if self.paths is None:
+            return []
+        return [path_to_json(p) for p in self.paths.list_paths()]
+
+    def broadcast_paths(self) -> None:
+        """Tell every client the paths changed (after an edit)."""
+        self._reliable({"t": "paths", "paths": self.paths_json()})
+
+    def tree_json(self) -> dict[str, Any] | None:
+        """The latest tree snapshot as JSON data."""
+        if self.tree is None:
+            return None
+        return {"tick": self.tree.tick, "stamp": self.tree.stamp,
+                "nodes": to_jsonable(list(self.tree.nodes)),
+                "blackboard": to_jsonable(self.tree.blackboard)}
+
+    def health_json(self) -> dict[str, Any]:
+        """Components' health, localisation quality, system figures and bus drops."""
+        stats = self.bus.stats()
+        return {
+            "components": {name: to_jsonable(h) for name, h in sorted(self.health.items())},
+            "localization": to_jsonable(self.localization),
+            "battery": to_jsonable(self.battery),
+            "system": dict(self.system),
+            "bus": {
+                "dropped_total": sum(s.dropped for s in stats.values()),
+                "topics": {name: {"published": s.published, "dropped": s.dropped,
+                                  "subscribers": s.subscribers}
+                           for name, s in stats.items() if s.published or s.dropped},
+            },
+            "web": {"clients": len(self.clients),
+                    "commands": self.commands_published,
+                    "teleop_messages": self.teleop_published},
+        }
+
+    def publish_health(self) -> None:
+        """Offer the merged health panel to every client (called about once a second)."""
+        self._stream("health", to_json({"t": "health", **self.health_json()}))
+
+    def grid_info(self, name: str) -> dict[str, Any] | None:
+        """Version and geometry of grid ``name`` (None if none has arrived)."""
+        grid = self.grids.get(name)
+        if grid is None:
+            return None
+        return {"name": name, "version": grid.serial, "url": f"/api/{name}.png?v={grid.serial}",
+                **grid_meta(grid.msg)}
+
+    def grid_png(self, name: str) -> tuple[bytes, int] | None:
+        """The PNG of grid ``name`` and its version, encoded once per version."""
+        grid = self.grids.get(name)
+        if grid is None:
+            return None
+        if grid.png is None:
+            grid.png = grid_png(grid.msg)
+        return grid.png, grid.serial
+
+    # --- bus handlers -------------------------------------------------------------------------
+
+    def _robot_pose(self) -> Pose2D | None:
+        if self._pose_msg is not None and (
+            self._odom is None or self._odom.stamp - self._pose_stamp_s <= POSE_STALE_S
+        ):
+            return self._pose_msg.pose
+        return self._odom.pose if self._odom is not None else None
+
+    def _on_scan(self, msg: LaserScan) -> None:
+        robot = self._robot_pose()
+        if robot is None:
+            return
+        lx, ly, lyaw = self.cfg.robot.laser_pose
+        self._stream("scan", encode_scan(msg, robot @ Pose2D(lx, ly, lyaw)))
+
+    def _on_pose(self, msg: PoseWithCovariance) -> None:
+        self._pose_msg = msg
+        self._pose_stamp_s = msg.stamp
+        self._stream("pose", encode_pose(msg))
+
+    def _on_odom(self, msg: Odometry) -> None:
+        self._odom = msg
+        if self._pose_msg is None or msg.stamp - self._pose_stamp_s > POSE_STALE_S:
+            self._stream("pose", encode_pose(msg))
+
+    def _on_truth(self, msg: Odometry) -> None:
+        self._stream("truth", encode_pose(msg, FRAME_TRUTH))
+
+    def _on_path(self, key: str, msg: Path, frame_type: int) -> None:
+        self._stream(key, encode_path(msg, frame_type))
+
+    def _on_obstacles(self, msg: Obstacles) -> None:
+        self._stream("obstacles", to_json({"t": "obstacles", "segments": msg.segments,
+                                           "circles": msg.circles}))
+
+    def _on_status(self, msg: StatusText) -> None:
+        self.status = msg
+        if msg.state == "needs_help" and not self.help["active"]:
+            self.help.update(active=True, message=msg.text, since=msg.stamp, resolved_at=None)
+        self._reliable({"t": "status", "status": to_jsonable(msg), "help": self.help})
+
+    def _on_progress(self, msg: Progress) -> None:
+        self.progress = msg
+        self._reliable({"t": "progress", "progress": to_jsonable(msg)})
+
+    def _on_event(self, msg: Event) -> None:
+        if msg.kind == "help.requested":
+            self.help.update(active=True, message=str(msg.detail.get("message", "")),
+                             since=msg.stamp, resolved_at=None)
+        elif msg.kind == "help.resolved":
+            self.help.update(active=False, resolved_at=msg.stamp)
+        record = {"stamp": msg.stamp, "kind": msg.kind, "detail": to_jsonable(msg.detail)}
+        self.events.append(record)
+        self._reliable({"t": "event", "event": record, "help": self.help})
+
+    def _on_estop(self, msg: EStop) -> None:
+        self.estop = msg
+        self._reliable({"t": "estop", "estop": to_jsonable(msg)})
+
+    def _on_tree(self, msg: TreeSnapshot) -> None:
+        self.tree = msg
+        self._stream("tree", to_json({"t": "tree", "tree": self.tree_json()}))
+
+    def _on_health(self, msg: DriverHealth) -> None:
+        self.health[msg.name] = msg
+
+    def _on_localization(self, msg: LocalizationStatus) -> None:
+        self.localization = msg
+        self._stream("localization", to_json({"t": "localization", "localization": msg}))
+
+    def _on_battery(self, msg: BatteryState) -> None:
+        self.battery = msg
+        self._stream("battery", to_json({"t": "battery", "battery": msg}))
+
+    def _on_blocked(self, msg: BlockedState) -> None:
+        self.blocked = msg
+        self._stream("blocked", to_json({"t": "blocked", "blocked": msg}))
+
+    def _on_cmd_vel(self, msg: Twist) -> None:
+        self._stream("cmd_vel", to_json({"t": "cmd_vel", "linear_mps": msg.linear_mps,
+                                         "angular_radps": msg.angular_radps,
+                                         "source": msg.source}))
+
+    def _grid_handler(self, name: str) -> Callable[[GridMessage], None]:
+        def handle(msg: GridMessage) -> None:
+            old = self.grids.get(name)
+            if old is not None and (
+                old.msg is msg
+                or (msg.version != 0 and msg.version == old.msg.version
+                    and msg.data.shape == old.msg.data.shape)
+            ):
+                old.msg = msg if old.msg is msg else old.msg
+                return
+            self.grids[name] = _Grid(msg, next(self._grid_serial))
+            self._stream(f"grid:{name}", to_json({"t": "grid", "grid": self.grid_info(name)}))
+
+        return handle
+
+    # --- operator input -----------------------------------------------------------------------
+
+    def publish_command(self, cmd: OperatorCommand) -> bool:
+        """Publish ``cmd`` on OPERATOR unless its request id was seen; return True if published."""
+        if cmd.request_id:
+            if cmd.request_id in self._recent_requests:
+                return False
+            self._recent_requests[cmd.request_id] = cmd.stamp
+            while len(self._recent_requests) > 512:
+                self._recent_requests.popitem(last=False)
+        self.bus.publish(OPERATOR, cmd)
+        self.commands_published += 1
+        return True
+
+    def publish_initial_pose(self, x_m: float, y_m: float, yaw_rad: float) -> None:
+        """Publish an operator-set initial pose in map."""
+        self.bus.publish(INITIAL_POSE, PoseWithCovariance(self.clock.now(),
+                                                          Pose2D(x_m, y_m, yaw_rad)))
+
+    def teleop(self, client: Client, linear_mps: float, angular_radps: float,
+               seq: int | None = None) -> tuple[float, float]:
+        """Publish a teleop velocity for ``client`` (clamped to the limits); return it."""
+        if seq is not None:
+            if seq <= client.last_teleop_seq:
+                return (0.0, 0.0)
+            client.last_teleop_seq = seq
+        limits = self.snapshot_limits()
+        lin = max(-limits[0], min(limits[0], linear_mps))
+        ang = max(-limits[1], min(limits[1], angular_radps))
+        now = self.clock.now()
+        self._teleop_client = client.id
+        self._teleop_last_s = now
+        self._teleop_moving = lin != 0.0 or ang != 0.0
+        self.bus.publish(CMD_VEL_TELEOP, Twist(now, lin, ang, source="web"))
+        self.teleop_published += 1
+        return lin, ang
+
+    def snapshot_limits(self) -> tuple[float, float]:
+        """Teleop limits: (linear m/s, angular rad/s)."""
+        robot, safety = self.cfg.robot, self.cfg.nav.safety
+        return (min(robot.max_wheel_speed_mps, safety.max_speed_mps),
+                min(robot.max_angular_radps, safety.max_angular_radps))
+
+    def _stop_teleop(self, reason: str) -> None:
+        if self._teleop_moving or self._teleop_client is not None:
+            self.bus.publish(CMD_VEL_TELEOP, Twist(self.clock.now(), 0.0, 0.0, source="web"))
+            log.info("teleop stopped: %s", reason)
+        self._teleop_moving = False
+        self._teleop_client = None
+
+    async def _teleop_watchdog(self) -> None:
+        timeout_s = self.cfg.nav.safety.teleop_timeout_s
+        period_s = min(0.1, timeout_s / 4)
+        due = self.clock.now()
+        while True:
+            due += period_s
+            await self.clock.sleep_until(due)
+            now = self.clock.now()
+            if self._teleop_moving and now - self._teleop_last_s > timeout_s:
+                self._stop_teleop(f"no teleop message for {timeout_s:.1f} s")
+
+    # --- helpers for the server ---------------------------------------------------------------
+
+    def reply(self, client: Client, payload: dict[str, Any]) -> None:
+        """Queue a reliable reply to one client."""
+        client.reliable.append(to_json(payload))
+        client.wake.set()
+
+    def spawn(self, coro: Coroutine[Any, Any, None]) -> asyncio.Task[None]:
+        """Run ``coro`` as a task whose failure is logged (for per-client senders)."""
+        task = asyncio.ensure_future(coro)
+
+        def done(t: asyncio.Task[None]) -> None:
+            if not t.cancelled() and t.exception() is not None:
+                log.debug("web task ended: %r", t.exception())
+
+        task.add_done_callback(done)
+        return task
+
+
+def path_to_json(path: Any) -> dict[str, Any]:
+    """A path manager ``NamedPath`` as JSON data."""
+    return {
+        "id": path.id,
+        "name": path.name,
+        "waypoints": [
+            {"x_m": float(w.x_m), "y_m": float(w.y_m),
+             "yaw_rad": None if w.yaw_rad is None else float(w.yaw_rad)}
+            for w in path.waypoints
+        ],
+    }
+
+
+def parse_json_object(text: str | bytes) -> dict[str, Any]:
+    """Parse a JSON object or raise :class:`CommandError` saying what is wrong."""
+    try:
+        value = json.loads(text)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise CommandError(f"message is not valid JSON: {exc}") from None
+    if not isinstance(value, dict):
+        raise CommandError(f"message must be a JSON object, got {type(value).__name__}")
+    return value
