@@ -1,0 +1,531 @@
+"""Layered costmap in ``map``: static layer, obstacle layer (marking + ray-trace clearing),
+footprint inflation, and a rolling local window (Nav2 ``costmap_2d`` semantics).
+
+Costs are ``uint8`` on the static map's grid (same shape, resolution and origin; row 0 at the
+bottom, as :class:`~curio.nav.maps.OccupancyGrid`):
+
+* ``0`` free, ``1..252`` inflated (the exponential decay below), ``253`` inscribed (the rover's
+  centre there means a certain collision), ``254`` lethal (an obstacle), ``255`` unknown.
+* Inflation uses the distance ``d`` (metres, between cell centres) to the nearest lethal cell:
+  ``254`` at ``d = 0``; ``253`` for ``0 < d <= inscribed_radius``; for
+  ``inscribed_radius < d <= inflation_radius_m`` the cost is
+  ``floor(253 · exp(−cost_scaling_factor · (d − inscribed_radius)))`` capped at 252; 0 beyond.
+  The inscribed radius comes from ``robot.footprint`` grown by ``footprint_padding_m``.
+* Unknown static cells stay 255 until a laser ray sees them (then they are free) or inflation
+  raises them to 253 or more (Nav2's rule with ``inflate_unknown`` false).
+
+Scans mark their returns within ``obstacle_range_m`` and clear every cell a ray passes
+through up to ``raytrace_range_m`` (``inf`` returns clear the full ray range). Marks persist
+until a ray clears them or :meth:`Costmap.clear_around` removes them. Only the window touched
+by a scan is re-inflated (the ``updateBounds`` idea), so an update is cheap on big maps.
+
+The master grid returned by :meth:`Costmap.costs` is an immutable snapshot (read-only array,
+replaced, never modified in place) so a planner may use it from another thread while the
+costmap keeps updating.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+
+from curio.bus import Bus
+from curio.clock import Clock
+from curio.config import CostmapConfig, RobotConfig
+from curio.geometry import Pose2D
+from curio.messages import GridMessage, LaserScan
+from curio.nav.maps import OccupancyGrid
+from curio.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
+
+__all__ = [
+    "FREE_SPACE",
+    "INSCRIBED",
+    "LETHAL",
+    "NO_INFORMATION",
+    "Costmap",
+    "CostmapNode",
+    "GridInfo",
+    "costs_to_percent",
+    "footprint_radii",
+    "inflation_costs",
+    "pad_footprint",
+]
+
+log = logging.getLogger("curio.nav.costmap")
+
+FREE_SPACE = 0
+INSCRIBED = 253
+LETHAL = 254
+NO_INFORMATION = 255
+
+U8Array = npt.NDArray[np.uint8]
+BoolArray = npt.NDArray[np.bool_]
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class GridInfo:
+    """Where a cost grid lies.
+
+    Attributes:
+        resolution_m: cell size, metres.
+        origin: pose of cell (0, 0)'s lower-left corner in ``map``.
+        shape: ``(rows, cols)`` = ``(height, width)``.
+    """
+
+    resolution_m: float
+    origin: Pose2D
+    shape: tuple[int, int]
+
+
+def pad_footprint(footprint: list[tuple[float, float]] | list[list[float]],
+                  padding_m: float) -> FloatArray:
+    """Grow a footprint polygon by ``padding_m`` (each vertex moved outwards per axis, as Nav2).
+
+    Returns an ``(N, 2)`` array in ``base_link``, metres.
+    """
+    poly = np.asarray(footprint, dtype=np.float64).reshape(-1, 2)
+    return poly + np.sign(poly) * padding_m
+
+
+def footprint_radii(polygon: FloatArray) -> tuple[float, float]:
+    """Return ``(inscribed, circumscribed)`` radii of a polygon about ``base_link``'s origin, m.
+
+    The inscribed radius is the smallest distance from the origin to an edge; the
+    circumscribed radius the largest distance to a vertex.
+    """
+    a = polygon
+    b = np.roll(polygon, -1, axis=0)
+    ab = b - a
+    denom = np.maximum((ab * ab).sum(axis=1), 1e-12)
+    t = np.clip(((-a) * ab).sum(axis=1) / denom, 0.0, 1.0)
+    closest = a + t[:, None] * ab
+    inscribed = float(np.min(np.hypot(closest[:, 0], closest[:, 1])))
+    circumscribed = float(np.max(np.hypot(a[:, 0], a[:, 1])))
+    return inscribed, circumscribed
+
+
+def inflation_costs(distance_m: FloatArray, inscribed_m: float, inflation_radius_m: float,
+                    cost_scaling_factor: float) -> U8Array:
+    """Costs for distances (metres) to the nearest lethal cell (see the module docstring)."""
+    d = np.asarray(distance_m, dtype=np.float64)
+    out = np.zeros(d.shape, dtype=np.uint8)
+    decay = (d > inscribed_m) & (d <= inflation_radius_m)
+    if decay.any():
+        vals = np.floor(INSCRIBED * np.exp(-cost_scaling_factor * (d[decay] - inscribed_m)))
+        out[decay] = np.clip(vals, 0, INSCRIBED - 1).astype(np.uint8)
+    out[(d > 0.0) & (d <= inscribed_m)] = INSCRIBED
+    out[d <= 0.0] = LETHAL
+    return out
+
+
+# Nav2's costmap → OccupancyGrid translation for display: 0 → 0, 1..252 → 1..98, 253 → 99,
+# 254 → 100, 255 → −1.
+_PERCENT_LUT = np.empty(256, dtype=np.int8)
+_PERCENT_LUT[0] = 0
+_PERCENT_LUT[1:253] = (1 + (97 * (np.arange(1, 253) - 1)) // 251).astype(np.int8)
+_PERCENT_LUT[253] = 99
+_PERCENT_LUT[254] = 100
+_PERCENT_LUT[255] = -1
+
+
+def costs_to_percent(costs: U8Array) -> npt.NDArray[np.int8]:
+    """Scale costs 0..255 to the 0..100 / −1 range of an occupancy grid (for display)."""
+    return np.asarray(_PERCENT_LUT[costs], dtype=np.int8)
+
+
+class Costmap:
+    """The global costmap: static + obstacle layers, inflated, on the static map's grid.
+
+    Not thread-safe for updates (call the update methods from one task); the arrays returned by
+    :meth:`costs` are immutable snapshots and safe to read from any thread.
+    """
+
+    def __init__(self, static_map: OccupancyGrid, robot: RobotConfig, cfg: CostmapConfig) -> None:
+        self.cfg = cfg
+        self.robot = robot
+        self.footprint = pad_footprint(robot.footprint, cfg.footprint_padding_m)
+        self.inscribed_radius_m, self.circumscribed_radius_m = footprint_radii(self.footprint)
+        lp = robot.laser_pose
+        self.laser_in_base = Pose2D(float(lp[0]), float(lp[1]), float(lp[2]))
+        self.version = 0
+        self._set_static(static_map)
+
+    # ------------------------------------------------------------------ static layer
+    def _set_static(self, static_map: OccupancyGrid) -> None:
+        self.static_map = static_map
+        self.resolution_m = float(static_map.resolution_m)
+        self.origin = static_map.origin
+        self._origin_inv = static_map.origin.inverse()
+        h, w = static_map.height, static_map.width
+        self._static_lethal: BoolArray = static_map.occupied_mask()
+        self._unknown: BoolArray = static_map.unknown_mask() & ~self._static_lethal
+        self._obstacles: BoolArray = np.zeros((h, w), dtype=bool)
+        self._seen: BoolArray = np.zeros((h, w), dtype=bool)
+        self._margin_cells = math.ceil(self.cfg.inflation_radius_m / self.resolution_m) + 1
+        self._footprint_samples = self._make_footprint_samples()
+        master = self._inflate(self._static_lethal)
+        self._apply_unknown(master, (slice(0, h), slice(0, w)))
+        master.setflags(write=False)
+        self._master: U8Array = master
+        self.version += 1
+
+    def set_static_map(self, static_map: OccupancyGrid) -> None:
+        """Replace the static layer (a new or updated map); the obstacle layer is reset."""
+        self._set_static(static_map)
+
+    @property
+    def grid_info(self) -> GridInfo:
+        """Resolution, origin and shape of the master grid."""
+        return GridInfo(self.resolution_m, self.origin, self._master.shape)  # type: ignore[arg-type]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(rows, cols)`` of the master grid."""
+        return (int(self._master.shape[0]), int(self._master.shape[1]))
+
+    def costs(self) -> U8Array:
+        """The master cost grid (read-only snapshot; a new array after every change)."""
+        return self._master
+
+    def obstacle_mask(self) -> BoolArray:
+        """Cells marked by the obstacle layer (a copy)."""
+        return self._obstacles.copy()
+
+    # ------------------------------------------------------------------ inflation
+    def _inflate(self, lethal: BoolArray) -> U8Array:
+        """Inflated costs for a whole lethal mask (distances measured inside this array)."""
+        if not lethal.any():
+            return np.zeros(lethal.shape, dtype=np.uint8)
+        dist_cells = ndimage.distance_transform_edt(~lethal)
+        return inflation_costs(np.asarray(dist_cells) * self.resolution_m,
+                               self.inscribed_radius_m, self.cfg.inflation_radius_m,
+                               self.cfg.cost_scaling_factor)
+
+    def _apply_unknown(self, master: U8Array, region: tuple[slice, slice]) -> None:
+        unknown = self._unknown[region] & ~self._seen[region] & ~self._obstacles[region]
+        sub = master[region]
+        sub[unknown & (sub < INSCRIBED)] = NO_INFORMATION
+
+    def _recompute(self, r0: int, r1: int, c0: int, c1: int) -> None:
+        """Re-inflate output rows ``r0:r1`` and cols ``c0:c1`` (clipped) into a new master."""
+        h, w = self.shape
+        r0, r1, c0, c1 = max(0, r0), min(h, r1), max(0, c0), min(w, c1)
+        if r0 >= r1 or c0 >= c1:
+            return
+        m = self._margin_cells
+        R0, R1, C0, C1 = max(0, r0 - m), min(h, r1 + m), max(0, c0 - m), min(w, c1 + m)
+        lethal = self._static_lethal[R0:R1, C0:C1] | self._obstacles[R0:R1, C0:C1]
+        sub = self._inflate(lethal)[r0 - R0:r1 - R0, c0 - C0:c1 - C0]
+        master = self._master.copy()
+        master[r0:r1, c0:c1] = sub
+        self._apply_unknown(master, (slice(r0, r1), slice(c0, c1)))
+        master.setflags(write=False)
+        self._master = master
+        self.version += 1
+
+    # ------------------------------------------------------------------ coordinates
+    def _to_grid(self, xy_m: FloatArray) -> FloatArray:
+        """``(N, 2)`` map points → continuous ``(col, row)`` grid coordinates (cells)."""
+        return self._origin_inv.transform_points(xy_m) / self.resolution_m
+
+    def world_to_cell(self, x_m: float, y_m: float) -> tuple[int, int]:
+        """``(row, col)`` of the cell holding map point (x, y) (may lie outside the grid)."""
+        lx, ly = self._origin_inv.transform_point(x_m, y_m)
+        return (math.floor(ly / self.resolution_m), math.floor(lx / self.resolution_m))
+
+    def cell_to_world(self, row: int, col: int) -> tuple[float, float]:
+        """Map coordinates of the centre of cell ``(row, col)``."""
+        return self.origin.transform_point((col + 0.5) * self.resolution_m,
+                                           (row + 0.5) * self.resolution_m)
+
+    def in_bounds(self, row: int, col: int) -> bool:
+        """Whether ``(row, col)`` lies inside the grid."""
+        h, w = self.shape
+        return 0 <= row < h and 0 <= col < w
+
+    def cost_at(self, x_m: float, y_m: float) -> int:
+        """Cost of the cell under map point (x, y); ``LETHAL`` outside the grid."""
+        r, c = self.world_to_cell(x_m, y_m)
+        if not self.in_bounds(r, c):
+            return LETHAL
+        return int(self._master[r, c])
+
+    def is_lethal(self, x_m: float, y_m: float) -> bool:
+        """Whether the rover's centre at map point (x, y) collides (cost ≥ 253, or off-grid).
+
+        Unknown cells (255) count as lethal here.
+        """
+        return self.cost_at(x_m, y_m) >= INSCRIBED
+
+    # ------------------------------------------------------------------ obstacle layer
+    def update_from_scan(self, scan: LaserScan, pose_in_map: Pose2D) -> None:
+        """Mark and clear the obstacle layer from one scan taken at ``pose_in_map`` (base_link).
+
+        Clearing runs first (every cell a ray crosses before its end point), then marking (the
+        end points of returns within ``obstacle_range_m``), so a return always wins over a
+        clearing ray of the same scan. Inflation is recomputed only where marks changed.
+        """
+        n = len(scan.ranges_m)
+        if n == 0:
+            return
+        res = self.resolution_m
+        laser = pose_in_map @ self.laser_in_base
+        ranges = np.asarray(scan.ranges_m, dtype=np.float64)
+        angles = scan.angles_rad + laser.yaw
+        with np.errstate(invalid="ignore"):
+            finite_valid = scan.valid_mask()
+            inf_ray = np.isposinf(ranges) if self.cfg.inf_is_valid else np.zeros(n, dtype=bool)
+            # returns beyond the sensor's maximum behave as "nothing seen up to there"
+            beyond = np.isfinite(ranges) & (ranges > scan.range_max_m)
+        clear_len = np.where(finite_valid, np.minimum(ranges, self.cfg.raytrace_range_m), 0.0)
+        clear_len = np.where(inf_ray | beyond,
+                             min(self.cfg.raytrace_range_m, scan.range_max_m), clear_len)
+        # Ray origin and directions in continuous grid coordinates (cells).
+        o = self._to_grid(np.array([[laser.x, laser.y]]))[0]
+        dirs_map = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        rot_yaw = -self.origin.yaw
+        c, s = math.cos(rot_yaw), math.sin(rot_yaw)
+        dirs = dirs_map @ np.array([[c, -s], [s, c]]).T  # rotate into the grid frame
+        h, w = self.shape
+
+        # Clearing: samples every half cell along each ray, stopping half a cell short of the
+        # end point (whose cell a return marks).
+        step_cells = 0.5
+        len_cells = clear_len / res
+        rays = len_cells > 0.5
+        old = None
+        rows_c = cols_c = np.empty(0, dtype=np.int64)
+        if rays.any():
+            k_max = math.ceil(float(len_cells[rays].max()) / step_cells)
+            t = np.arange(k_max, dtype=np.float64) * step_cells
+            lc = len_cells[rays]
+            pts_t = t[None, :]
+            keep = pts_t < (lc[:, None] - 0.5)
+            d = dirs[rays]
+            xs = o[0] + d[:, 0:1] * pts_t
+            ys = o[1] + d[:, 1:2] * pts_t
+            cols_c = np.floor(xs[keep]).astype(np.int64)
+            rows_c = np.floor(ys[keep]).astype(np.int64)
+            inside = (rows_c >= 0) & (rows_c < h) & (cols_c >= 0) & (cols_c < w)
+            rows_c, cols_c = rows_c[inside], cols_c[inside]
+
+        # Marking: finite returns within the obstacle range.
+        mark = finite_valid & (ranges <= self.cfg.obstacle_range_m)
+        ends = o[None, :] + dirs[mark] * (ranges[mark] / res)[:, None]
+        cols_m = np.floor(ends[:, 0]).astype(np.int64)
+        rows_m = np.floor(ends[:, 1]).astype(np.int64)
+        inside_m = (rows_m >= 0) & (rows_m < h) & (cols_m >= 0) & (cols_m < w)
+        rows_m, cols_m = rows_m[inside_m], cols_m[inside_m]
+
+        # Bounding box of the touched window.
+        all_r = np.concatenate([rows_c, rows_m])
+        all_c = np.concatenate([cols_c, cols_m])
+        if all_r.size == 0:
+            return
+        r0, r1 = int(all_r.min()), int(all_r.max()) + 1
+        c0, c1 = int(all_c.min()), int(all_c.max()) + 1
+        old = self._obstacles[r0:r1, c0:c1].copy()
+        self._obstacles[rows_c, cols_c] = False
+        self._seen[rows_c, cols_c] = True
+        self._obstacles[rows_m, cols_m] = True
+        self._seen[rows_m, cols_m] = True
+        changed = old != self._obstacles[r0:r1, c0:c1]
+        newly_seen_unknown = bool((self._unknown[rows_c, cols_c]).any()) if rows_c.size else False
+        if changed.any():
+            rr, cc = np.nonzero(changed)
+            m = self._margin_cells
+            self._recompute(r0 + int(rr.min()) - m, r0 + int(rr.max()) + 1 + m,
+                            c0 + int(cc.min()) - m, c0 + int(cc.max()) + 1 + m)
+        elif newly_seen_unknown and (self._master[rows_c, cols_c] == NO_INFORMATION).any():
+            self._recompute(r0, r1, c0, c1)
+
+    def clear_around(self, pose_in_map: Pose2D, radius_m: float) -> None:
+        """Remove obstacle-layer marks within ``radius_m`` of the pose (a recovery action).
+
+        The static map is untouched.
+        """
+        r, c = self.world_to_cell(pose_in_map.x, pose_in_map.y)
+        rad = math.ceil(radius_m / self.resolution_m)
+        h, w = self.shape
+        r0, r1, c0, c1 = max(0, r - rad), min(h, r + rad + 1), max(0, c - rad), min(w, c + rad + 1)
+        if r0 >= r1 or c0 >= c1:
+            return
+        rr, cc = np.mgrid[r0:r1, c0:c1]
+        within = (rr - r) ** 2 + (cc - c) ** 2 <= rad * rad
+        window = self._obstacles[r0:r1, c0:c1]
+        if not (window & within).any():
+            return
+        window[within] = False
+        m = self._margin_cells
+        self._recompute(r0 - m, r1 + m, c0 - m, c1 + m)
+
+    def reset_obstacles(self) -> None:
+        """Forget every obstacle-layer mark (the static map stays)."""
+        if self._obstacles.any():
+            self._obstacles[:] = False
+            h, w = self.shape
+            self._recompute(0, h, 0, w)
+
+    # ------------------------------------------------------------------ footprint
+    def _make_footprint_samples(self) -> FloatArray:
+        """Points covering the padded footprint (interior grid + perimeter), base_link, m."""
+        poly = self.footprint
+        step = self.resolution_m * 0.5
+        xmin, ymin = poly.min(axis=0)
+        xmax, ymax = poly.max(axis=0)
+        xs = np.arange(xmin, xmax + step * 0.5, step)
+        ys = np.arange(ymin, ymax + step * 0.5, step)
+        gx, gy = np.meshgrid(xs, ys)
+        pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        inside = _points_in_polygon(pts, poly)
+        perim = []
+        for a, b in zip(poly, np.roll(poly, -1, axis=0), strict=True):
+            n = max(2, math.ceil(float(np.hypot(*(b - a))) / step) + 1)
+            tt = np.linspace(0.0, 1.0, n)[:, None]
+            perim.append(a + tt * (b - a))
+        return np.concatenate([pts[inside], *perim], axis=0)
+
+    def footprint_costs(self, poses_in_map: FloatArray) -> U8Array:
+        """Max cost under the footprint for each pose of an ``(N, 3)`` array ``[x, y, yaw]``.
+
+        Poses whose footprint leaves the grid get ``LETHAL``. ``>= LETHAL`` (254) means the
+        footprint overlaps an obstacle; 255 that it covers unknown space.
+        """
+        p = np.asarray(poses_in_map, dtype=np.float64).reshape(-1, 3)
+        s = self._footprint_samples
+        cy, sy = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
+        x = p[:, 0:1] + cy * s[None, :, 0] - sy * s[None, :, 1]
+        y = p[:, 1:2] + sy * s[None, :, 0] + cy * s[None, :, 1]
+        g = self._to_grid(np.stack([x.ravel(), y.ravel()], axis=1))
+        cols = np.floor(g[:, 0]).astype(np.int64)
+        rows = np.floor(g[:, 1]).astype(np.int64)
+        h, w = self.shape
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        vals = np.full(rows.shape, LETHAL, dtype=np.uint8)
+        vals[inside] = self._master[rows[inside], cols[inside]]
+        return np.asarray(vals.reshape(p.shape[0], -1).max(axis=1), dtype=np.uint8)
+
+    def footprint_cost(self, pose_in_map: Pose2D) -> int:
+        """Max cost under the footprint polygon at ``pose_in_map`` (``LETHAL`` if off-grid)."""
+        return int(self.footprint_costs(np.array([[pose_in_map.x, pose_in_map.y,
+                                                   pose_in_map.yaw]]))[0])
+
+    # ------------------------------------------------------------------ local window
+    def local_window(self, pose_in_map: Pose2D, size_m: float | None = None
+                     ) -> tuple[U8Array, Pose2D]:
+        """The rolling window (``local_window_m`` square) centred on the rover.
+
+        Returns ``(costs, origin)``: a copy of the master costs in the window (cells outside the
+        map are ``NO_INFORMATION``) and the pose of its cell (0, 0)'s lower-left corner in
+        ``map``. The window is aligned to the master grid's cells.
+        """
+        size = self.cfg.local_window_m if size_m is None else size_m
+        n = max(1, round(size / self.resolution_m))
+        r, c = self.world_to_cell(pose_in_map.x, pose_in_map.y)
+        r0, c0 = r - n // 2, c - n // 2
+        out = np.full((n, n), NO_INFORMATION, dtype=np.uint8)
+        h, w = self.shape
+        sr0, sr1, sc0, sc1 = max(0, r0), min(h, r0 + n), max(0, c0), min(w, c0 + n)
+        if sr0 < sr1 and sc0 < sc1:
+            out[sr0 - r0:sr1 - r0, sc0 - c0:sc1 - c0] = self._master[sr0:sr1, sc0:sc1]
+        origin = self.origin @ Pose2D(c0 * self.resolution_m, r0 * self.resolution_m, 0.0)
+        return out, origin
+
+    # ------------------------------------------------------------------ messages
+    def to_message(self, stamp: float, kind: str = "costmap") -> GridMessage:
+        """The master grid as a display message (costs scaled to 0..100, unknown −1)."""
+        return GridMessage(stamp=stamp, data=costs_to_percent(self._master),
+                           resolution_m=self.resolution_m, origin=self.origin,
+                           version=self.version, kind=kind, frame_id="map")
+
+    def local_message(self, stamp: float, pose_in_map: Pose2D,
+                      kind: str = "local_costmap") -> GridMessage:
+        """The rolling window around ``pose_in_map`` as a display message."""
+        costs, origin = self.local_window(pose_in_map)
+        return GridMessage(stamp=stamp, data=costs_to_percent(costs),
+                           resolution_m=self.resolution_m, origin=origin,
+                           version=self.version, kind=kind, frame_id="map")
+
+
+def _points_in_polygon(pts: FloatArray, poly: FloatArray) -> BoolArray:
+    """Even-odd test of ``(N, 2)`` points against a polygon ``(M, 2)``."""
+    x, y = pts[:, 0:1], pts[:, 1:2]
+    x1, y1 = poly[None, :, 0], poly[None, :, 1]
+    x2, y2 = np.roll(poly, -1, axis=0)[None, :, 0], np.roll(poly, -1, axis=0)[None, :, 1]
+    cond = (y1 > y) != (y2 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xint = x1 + (y - y1) * (x2 - x1) / (y2 - y1)
+    crosses = cond & (x < xint)
+    return np.asarray(crosses.sum(axis=1) % 2 == 1)
+
+
+class CostmapNode:
+    """Runs a :class:`Costmap` on the bus.
+
+    Subscribes ``SCAN`` and ``POSE`` (and ``MAP``: a new map replaces the static layer), updates
+    at ``update_rate_hz`` with the latest scan and pose, publishes ``COSTMAP`` when the master
+    grid changed (at most ``global_publish_rate_hz``; ``version`` increases) and
+    ``LOCAL_COSTMAP`` (the rolling window) every update.
+    """
+
+    def __init__(self, costmap: Costmap, bus: Bus, clock: Clock, cfg: CostmapConfig) -> None:
+        self.costmap = costmap
+        self.bus = bus
+        self.clock = clock
+        self.cfg = cfg
+        self.updates = 0
+        self._published_version = -1
+        self._last_global_publish = -math.inf
+        self._last_scan_stamp = -math.inf
+
+    def step(self, now: float) -> None:
+        """One update: apply the newest scan (if new) and publish."""
+        pose_msg = self.bus.latest(POSE)
+        scan = self.bus.latest(SCAN)
+        if pose_msg is None:
+            return
+        pose = pose_msg.pose
+        if scan is not None and scan.stamp != self._last_scan_stamp:
+            self._last_scan_stamp = scan.stamp
+            self.costmap.update_from_scan(scan, pose)
+            self.updates += 1
+        cm = self.costmap
+        if (cm.version != self._published_version
+                and now - self._last_global_publish >= 1.0 / self.cfg.global_publish_rate_hz):
+            self.bus.publish(COSTMAP, cm.to_message(now))
+            self._published_version = cm.version
+            self._last_global_publish = now
+        self.bus.publish(LOCAL_COSTMAP, cm.local_message(now, pose))
+
+    async def run(self) -> None:
+        """Update at ``update_rate_hz`` until cancelled."""
+        map_sub = self.bus.subscribe(MAP)
+        period = 1.0 / self.cfg.update_rate_hz
+        next_t = self.clock.now()
+        while True:
+            for grid_msg in map_sub.drain():
+                self._take_map(grid_msg)
+            self.step(self.clock.now())
+            next_t += period
+            now = self.clock.now()
+            if next_t < now:  # late: skip ahead, do not try to catch up
+                next_t = now + period
+            await self.clock.sleep_until(next_t)
+
+    def _take_map(self, msg: GridMessage) -> None:
+        if msg.kind != "map":
+            return
+        old = self.costmap.static_map
+        if (msg.data.shape == old.data.shape and msg.resolution_m == old.resolution_m
+                and msg.origin == old.origin and np.array_equal(msg.data, old.data)):
+            return
+        grid = OccupancyGrid(np.asarray(msg.data, dtype=np.int8), msg.resolution_m, msg.origin,
+                             old.occupied_thresh, old.free_thresh, old.name)
+        self.costmap.set_static_map(grid)
+        log.info("costmap: static layer replaced by a new map (%dx%d)", grid.width, grid.height)

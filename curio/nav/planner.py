@@ -1,0 +1,303 @@
+"""Global planner: cost-aware weighted A* on the costmap, then shortcutting and smoothing.
+
+The search runs on the 8-connected costmap grid (diagonal steps cost √2) with the octile
+heuristic, in compiled code (:mod:`curio.nav.planner_kernels`). A cell's traversal cost per
+metre is ``1 + cost_penalty · cost / 252`` so paths keep away from walls; cells of cost 253
+(inscribed) and above are not traversable (unknown, 255, only with ``allow_unknown``). The grid
+path is then shortcut along straight segments that are collision-free *and no more expensive*
+than the grid path they replace, resampled every ``path_step_m`` and lightly smoothed (a point
+that would move into a higher cost is left where it was). Headings follow the path; the last
+pose carries the goal's heading.
+
+Errors are the typed :mod:`curio.nav.api` ones with a sentence saying where and why:
+:class:`StartOutsideMapError`, :class:`StartBlockedError`, :class:`GoalOutsideMapError`,
+:class:`GoalBlockedError`, :class:`NoPathError`. With ``goal_nearest_free`` a blocked goal is
+moved to the nearest traversable cell within ``goal_nearest_free_max_m``.
+
+:meth:`GlobalPlanner.plan` keeps no state between calls and releases the GIL in its search,
+so it is meant to run in a worker thread (``asyncio.to_thread``) while the loop goes on.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from curio.config import PlannerConfig
+from curio.geometry import Pose2D, wrap_angle
+from curio.nav import planner_kernels as kern
+from curio.nav.api import (
+    GoalBlockedError,
+    GoalOutsideMapError,
+    NoPathError,
+    StartBlockedError,
+    StartOutsideMapError,
+)
+
+__all__ = ["GlobalPlanner", "PlanResult", "path_length_m", "traversal_lut"]
+
+U8Array = npt.NDArray[np.uint8]
+FloatArray = npt.NDArray[np.float64]
+
+_INSCRIBED = 253
+_LETHAL = 254
+_UNKNOWN = 255
+
+
+def traversal_lut(cost_penalty: float, allow_unknown: bool) -> FloatArray:
+    """Traversal cost per cell length for each costmap value (−1 = not traversable)."""
+    lut = 1.0 + cost_penalty * np.arange(256, dtype=np.float64) / 252.0
+    lut[_INSCRIBED] = -1.0
+    lut[_LETHAL] = -1.0
+    lut[_UNKNOWN] = 1.0 + cost_penalty * 0.5 if allow_unknown else -1.0
+    return lut
+
+
+def path_length_m(poses: list[Pose2D]) -> float:
+    """Length of a path along its poses, metres."""
+    return float(sum(a.distance_to(b) for a, b in itertools.pairwise(poses)))
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """A plan with the figures that describe it.
+
+    Attributes:
+        poses: the path in ``map`` (start → goal), headings along the path.
+        length_m: its length.
+        cost: traversal cost of the grid path found by A* (cells × cost factor).
+        expansions: cells expanded by the search.
+        goal: the goal actually planned to (differs from the request when moved to free space).
+        goal_moved: whether the goal was moved to the nearest free cell.
+        grid_path: ``(N, 2)`` ``(row, col)`` cells of the raw A* path.
+    """
+
+    poses: list[Pose2D]
+    length_m: float
+    cost: float
+    expansions: int
+    goal: Pose2D
+    goal_moved: bool
+    grid_path: npt.NDArray[np.int64]
+
+
+class GlobalPlanner:
+    """Plans collision-free, smoothed paths on a costmap grid (thread-safe, stateless)."""
+
+    def __init__(self, cfg: PlannerConfig, *, escape_radius_m: float = 0.35) -> None:
+        """Args:
+        cfg: planner settings.
+        escape_radius_m: around the start, cells of cost 253 (inscribed) are traversable
+            within this radius so a rover too close to an obstacle can leave (254 never is).
+        """
+        self.cfg = cfg
+        self.escape_radius_m = escape_radius_m
+        self._lut = traversal_lut(cfg.cost_penalty, cfg.allow_unknown)
+        self._lut.setflags(write=False)
+
+    def warm_up(self) -> None:
+        """Compile the kernels now (first use otherwise pays a few seconds; cached on disk)."""
+        costs = np.zeros((8, 8), dtype=np.uint8)
+        costs[2:6, 4] = _LETHAL
+        self.plan(Pose2D(0.05, 0.15), Pose2D(0.35, 0.25), costs, 0.05, Pose2D())
+
+    def plan(self, start: Pose2D, goal: Pose2D, costs: U8Array, resolution_m: float,
+             origin: Pose2D) -> list[Pose2D]:
+        """Plan from ``start`` to ``goal`` (both in ``map``) on ``costs``.
+
+        Args:
+            costs: ``(H, W)`` uint8 costmap (row 0 at the bottom), not modified.
+            resolution_m: cell size, metres.
+            origin: pose of cell (0, 0)'s lower-left corner in ``map``.
+
+        Returns:
+            Poses in ``map`` from the start to the goal, about ``path_step_m`` apart.
+
+        Raises:
+            StartOutsideMapError, StartBlockedError, GoalOutsideMapError, GoalBlockedError,
+            NoPathError: with a sentence saying where and why.
+        """
+        return self.plan_detailed(start, goal, costs, resolution_m, origin).poses
+
+    def plan_detailed(self, start: Pose2D, goal: Pose2D, costs: U8Array, resolution_m: float,
+                      origin: Pose2D) -> PlanResult:
+        """Like :meth:`plan`, returning the figures of the search too."""
+        costs = np.ascontiguousarray(costs, dtype=np.uint8)
+        if costs.ndim != 2 or costs.size == 0:
+            raise ValueError(f"costs must be a non-empty 2-D uint8 grid, got shape {costs.shape}")
+        if not resolution_m > 0.0:
+            raise ValueError(f"resolution_m must be > 0, got {resolution_m}")
+        h, w = costs.shape
+        inv = origin.inverse()
+        lut = self._lut
+
+        sx, sy = inv.transform_point(start.x, start.y)
+        s_r, s_c = math.floor(sy / resolution_m), math.floor(sx / resolution_m)
+        if not (0 <= s_r < h and 0 <= s_c < w):
+            raise StartOutsideMapError(
+                f"the start ({start.x:.2f}, {start.y:.2f}) m is outside the costmap, which "
+                f"covers {_extent(origin, resolution_m, h, w)}")
+        s_cost = int(costs[s_r, s_c])
+        if s_cost == _LETHAL or (s_cost == _UNKNOWN and lut[_UNKNOWN] < 0):
+            what = "an obstacle" if s_cost == _LETHAL else "unknown space"
+            raise StartBlockedError(
+                f"the start ({start.x:.2f}, {start.y:.2f}) m is in {what} (cost {s_cost}); "
+                f"clear the costmap around the rover or move it away")
+        escape_cells = self.escape_radius_m / resolution_m
+        escape_r2 = int(escape_cells * escape_cells) if s_cost == _INSCRIBED else 0
+
+        gx, gy = inv.transform_point(goal.x, goal.y)
+        g_r, g_c = math.floor(gy / resolution_m), math.floor(gx / resolution_m)
+        if not (0 <= g_r < h and 0 <= g_c < w):
+            raise GoalOutsideMapError(
+                f"the goal ({goal.x:.2f}, {goal.y:.2f}) m is outside the costmap, which "
+                f"covers {_extent(origin, resolution_m, h, w)}")
+        goal_moved = False
+        plan_goal = goal
+        if lut[costs[g_r, g_c]] < 0:
+            g_cost = int(costs[g_r, g_c])
+            moved = self._nearest_free(costs, g_r, g_c, resolution_m) \
+                if self.cfg.goal_nearest_free else None
+            if moved is None:
+                why = {253: "too close to an obstacle for the rover (inscribed cost 253)",
+                       254: "inside an obstacle (cost 254)",
+                       255: "in unknown space (cost 255)"}[g_cost]
+                extra = (f" and no free cell lies within goal_nearest_free_max_m="
+                         f"{self.cfg.goal_nearest_free_max_m:g} m"
+                         if self.cfg.goal_nearest_free else
+                         " (goal_nearest_free is off)")
+                raise GoalBlockedError(
+                    f"the goal ({goal.x:.2f}, {goal.y:.2f}) m is {why}{extra}")
+            g_r, g_c = moved
+            cx, cy = origin.transform_point((g_c + 0.5) * resolution_m,
+                                            (g_r + 0.5) * resolution_m)
+            plan_goal = Pose2D(cx, cy, goal.yaw)
+            goal_moved = True
+
+        n = h * w
+        g = np.zeros(n, dtype=np.float64)
+        parent = np.zeros(n, dtype=np.uint8)
+        found, expansions = kern.astar(costs, lut, s_r, s_c, g_r, g_c,
+                                       float(self.cfg.heuristic_weight), escape_r2, g, parent)
+        if not found:
+            raise NoPathError(
+                f"no collision-free path from ({start.x:.2f}, {start.y:.2f}) to "
+                f"({plan_goal.x:.2f}, {plan_goal.y:.2f}) m: the goal is cut off from the start "
+                f"in the costmap ({int(expansions)} reachable cells searched)")
+        rows, cols = kern.trace_path(parent, w, g_r, g_c)
+        total_cost = float(g[g_r * w + g_c])
+        if self.cfg.smooth and rows.shape[0] > 2:
+            max_span = max(8, round(20.0 / resolution_m))
+            keep = kern.shortcut(costs, lut, rows, cols, g, w, escape_r2, 12, max_span)
+            vr, vc = rows[keep], cols[keep]
+        else:
+            vr, vc = rows, cols
+        # Vertices in grid metres (cell centres), with the exact start and goal at the ends.
+        verts = np.stack([(vc + 0.5) * resolution_m, (vr + 0.5) * resolution_m], axis=1)
+        verts = verts.astype(np.float64)
+        if verts.shape[0] == 1:
+            verts = np.vstack([verts, verts])
+        verts[0] = (sx, sy)
+        if goal_moved:
+            verts[-1] = ((g_c + 0.5) * resolution_m, (g_r + 0.5) * resolution_m)
+        else:
+            verts[-1] = (gx, gy)
+        pts = _resample(verts, self.cfg.path_step_m)
+        if self.cfg.smooth and pts.shape[0] > 4:
+            pts = self._smooth(pts, costs, resolution_m, s_r, s_c, escape_r2)
+        world = origin.transform_points(pts)
+        poses = _with_headings(world, plan_goal.yaw)
+        return PlanResult(poses=poses, length_m=path_length_m(poses), cost=total_cost,
+                          expansions=int(expansions), goal=plan_goal, goal_moved=goal_moved,
+                          grid_path=np.stack([rows, cols], axis=1))
+
+    # ------------------------------------------------------------------ helpers
+    def _nearest_free(self, costs: U8Array, r: int, c: int, res: float
+                      ) -> tuple[int, int] | None:
+        rad = math.floor(self.cfg.goal_nearest_free_max_m / res)
+        if rad <= 0:
+            return None
+        h, w = costs.shape
+        r0, r1, c0, c1 = max(0, r - rad), min(h, r + rad + 1), max(0, c - rad), min(w, c + rad + 1)
+        window = costs[r0:r1, c0:c1]
+        free = self._lut[window] >= 0.0
+        rr, cc = np.mgrid[r0:r1, c0:c1]
+        d2 = (rr - r) ** 2 + (cc - c) ** 2
+        free &= d2 <= rad * rad
+        if not free.any():
+            return None
+        # nearest first, then the cheapest among equally near cells
+        score = d2.astype(np.float64) + window.astype(np.float64) / 1000.0
+        score[~free] = np.inf
+        k = int(np.argmin(score))
+        return (r0 + k // window.shape[1], c0 + k % window.shape[1])
+
+    def _smooth(self, pts: FloatArray, costs: U8Array, res: float, s_r: int, s_c: int,
+                escape_r2: int) -> FloatArray:
+        """A few gradient steps pulling points towards their neighbours' mean (ends fixed).
+
+        A point whose cell would become more expensive than where it started stays put.
+        """
+        h, w = costs.shape
+        orig = pts.copy()
+        cur = pts.copy()
+        cells = np.floor(orig / res).astype(np.int64)
+        cells[:, 0] = np.clip(cells[:, 0], 0, w - 1)
+        cells[:, 1] = np.clip(cells[:, 1], 0, h - 1)
+        orig_cost = costs[cells[:, 1], cells[:, 0]].astype(np.int32)
+        for _ in range(8):
+            nxt = cur.copy()
+            nxt[1:-1] += 0.1 * (orig[1:-1] - cur[1:-1]) \
+                + 0.4 * (cur[:-2] + cur[2:] - 2.0 * cur[1:-1])
+            cur = nxt
+        cc = np.floor(cur / res).astype(np.int64)
+        inside = (cc[:, 0] >= 0) & (cc[:, 0] < w) & (cc[:, 1] >= 0) & (cc[:, 1] < h)
+        cc[:, 0] = np.clip(cc[:, 0], 0, w - 1)
+        cc[:, 1] = np.clip(cc[:, 1], 0, h - 1)
+        new_cost = costs[cc[:, 1], cc[:, 0]].astype(np.int32)
+        ok = inside & (new_cost <= np.maximum(orig_cost, 0)) & (self._lut[new_cost] >= 0)
+        if escape_r2 > 0:
+            near = (cc[:, 1] - s_r) ** 2 + (cc[:, 0] - s_c) ** 2 <= escape_r2
+            ok |= inside & near & (new_cost <= _INSCRIBED) & (new_cost <= orig_cost)
+        ok[0] = ok[-1] = True
+        cur[~ok] = orig[~ok]
+        cur[0], cur[-1] = orig[0], orig[-1]
+        return cur
+
+
+def _extent(origin: Pose2D, res: float, h: int, w: int) -> str:
+    if origin.yaw == 0.0:
+        return (f"x {origin.x:.2f}..{origin.x + w * res:.2f} m, "
+                f"y {origin.y:.2f}..{origin.y + h * res:.2f} m")
+    return f"{w} × {h} cells of {res:g} m from ({origin.x:.2f}, {origin.y:.2f}) m"
+
+
+def _resample(verts: FloatArray, step_m: float) -> FloatArray:
+    """Points along a polyline every ``step_m`` (vertices kept, ends exact)."""
+    out = [verts[:1]]
+    for a, b in itertools.pairwise(verts):
+        seg = float(np.hypot(*(b - a)))
+        if seg <= 1e-12:
+            continue
+        k = max(1, math.ceil(seg / step_m))
+        t = (np.arange(1, k + 1, dtype=np.float64) / k)[:, None]
+        out.append(a + t * (b - a))
+    return np.concatenate(out, axis=0)
+
+
+def _with_headings(world: FloatArray, goal_yaw: float) -> list[Pose2D]:
+    n = world.shape[0]
+    if n == 1:
+        return [Pose2D(float(world[0, 0]), float(world[0, 1]), goal_yaw)]
+    nxt = np.vstack([world[1:], world[-1:]])
+    prv = np.vstack([world[:1], world[:-1]])
+    d = nxt - prv
+    yaws = np.arctan2(d[:, 1], d[:, 0])
+    poses = [Pose2D(float(x), float(y), wrap_angle(float(a)))
+             for (x, y), a in zip(world, yaws, strict=True)]
+    poses[-1] = Pose2D(poses[-1].x, poses[-1].y, wrap_angle(goal_yaw))
+    return poses
