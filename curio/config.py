@@ -79,7 +79,22 @@ class ArduinoConfig(Section):
     baud: int = Field(115200, gt=0)
     cmd_timeout_s: float = Field(0.5, gt=0.0, le=5.0)
     boot_wait_s: float = Field(2.0, ge=0.0, le=10.0)
-    feedback_rate_hz: float = Field(30.0, gt=0.0, le=200.0)
+    feedback_rate_hz: float = Field(30.0, gt=0.0, le=40.0, description="SERVO_POS rate")
+    cmd_rate_hz: float = Field(20.0, gt=0.0, le=50.0, description="SERVO_CMD send rate")
+    mcu_cmd_timeout_s: float = Field(
+        0.5, ge=0.05, le=5.0, description="firmware motion watchdog (wheels stop)"
+    )
+    link_timeout_s: float = Field(
+        0.5, gt=0.0, le=10.0, description="no frame from the Mega this long: reconnect"
+    )
+    reconnect_max_s: float = Field(2.0, gt=0.0, le=60.0, description="reconnect back-off cap")
+    wheel_ids: list[int] = Field(default_factory=lambda: [11, 12, 13, 21, 22, 23])
+    steer_ids: list[int] = Field(default_factory=lambda: [111, 131, 211, 231])
+    steer_trim: list[int] = Field(
+        default_factory=lambda: [-10, -5, 40, 20], description="LX-16A units, 0.24° each"
+    )
+    steer_move_ms: int = Field(50, ge=0, le=30000)
+    low_battery_v: float = Field(6.6, ge=0.0, le=20.0)
 
 
 class LidarConfig(Section):

@@ -1,0 +1,474 @@
+"""The Arduino Mega base driver: ``/cmd_vel`` in, servo commands out, wheel feedback back.
+
+:class:`ArduinoBase` talks the framed protocol of :mod:`curio.drivers.arduino.protocol` over
+USB serial (pyserial-asyncio-fast). Per session it:
+
+1. opens the port — which resets the Mega (DTR auto-reset) — and **sends nothing** until the
+   firmware announces itself (INFO or STATE(BOOT)) or ``boot_wait_s`` passes, so it never
+   streams into the bootloader (the original's runaway-wheels failure, hardware.md §1.2 item 7);
+2. sends SET_CONFIG (servo ids, trims, the firmware watchdog ``mcu_cmd_timeout_s``, rates) and
+   waits for its ACK, then ARM;
+3. every ``1 / cmd_rate_hz`` converts the latest ``/cmd_vel`` with
+   :func:`curio.drivers.kinematics.twist_to_servo_command` and sends SERVO_CMD — with zero
+   duties when ``/cmd_vel`` is older than ``cmd_timeout_s`` or the e-stop is engaged — plus a
+   HEARTBEAT at 5 Hz;
+4. publishes ``/wheels`` (raw LX-16A positions from SERVO_POS; ``None`` for failed reads),
+   ``/battery`` (BATTERY), ``/servo_cmd`` (what it sent) and ``/health``;
+5. re-sends the config and re-arms whenever STATE reports BOOT or the "default config" fault
+   (a silent reset of the Mega), and re-arms after the firmware's link watchdog disarmed it;
+6. declares the link down when no frame arrives for ``link_timeout_s`` or the port fails
+   (unplugged cable), closes it and reconnects by itself with back-off up to
+   ``reconnect_max_s``. Meanwhile the firmware's own watchdog has stopped the wheels.
+
+The latched ``/estop`` is forwarded as the firmware's ESTOP (latched on the board too) and
+released with ARM.
+
+Construction (``curio/drivers/hw_wiring.py``)::
+
+    base = ArduinoBase(cfg.drivers.arduino, cfg.robot, app.bus, app.clock, port=port)
+    app.add(Part("arduino", run=base.run))
+    app.add_halt_hook(base.halt)
+
+``port`` defaults to ``cfg.port``; in emulated mode pass ``ArduinoEmulator.port_path``. All
+timing uses the injected clock; nothing blocks the loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable
+from typing import Any, cast
+
+import serial_asyncio_fast
+
+from curio.bus import Bus
+from curio.clock import Clock
+from curio.config import ArduinoConfig, RobotConfig
+from curio.drivers.arduino import protocol as p
+from curio.drivers.arduino._loop import every, wait_until
+from curio.drivers.kinematics import twist_to_servo_command
+from curio.messages import BatteryState, DriverHealth, EStop, ServoCommand, Twist, WheelEncoders
+from curio.topics import BATTERY, CMD_VEL, ESTOP, HEALTH, SERVO_CMD, WHEELS
+
+__all__ = ["ArduinoBase", "CommandFn"]
+
+log = logging.getLogger("curio.drivers.arduino")
+
+Six = tuple[int | None, int | None, int | None, int | None, int | None, int | None]
+CommandFn = Callable[[float, float, RobotConfig, float], ServoCommand]
+HEARTBEAT_PERIOD_S = 0.2
+HEALTH_PERIOD_S = 1.0
+ACK_TIMEOUT_S = 0.3
+ACK_RETRIES = 3
+PORT_HINT = ("is the Mega plugged in? Run `curio check`; on the Pi the udev rule in deploy/ "
+             "names it /dev/curio-arduino, and the user needs the dialout group")
+
+
+class _LinkLost(Exception):
+    """The session must end (the message says why and what to check)."""
+
+
+class ArduinoBase:
+    """The base driver (see the module docstring).
+
+    Args:
+        cfg: ``cfg.drivers.arduino``.
+        robot: ``cfg.robot`` (geometry and limits for the kinematics).
+        bus: the application bus.
+        clock: the application clock.
+        port: serial device path; defaults to ``cfg.port``.
+        command_fn: twist → servo command (defaults to the kinematics module's).
+    """
+
+    name = "arduino"
+
+    def __init__(self, cfg: ArduinoConfig, robot: RobotConfig, bus: Bus, clock: Clock,
+                 port: str | None = None, *,
+                 command_fn: CommandFn = twist_to_servo_command) -> None:
+        self.cfg = cfg
+        self.robot = robot
+        self.bus = bus
+        self.clock = clock
+        self.port = port or cfg.port
+        self.command_fn = command_fn
+        self.decoder = p.FrameDecoder()
+        self.tx_suspended = False  # test/diagnostic hook: the Pi goes silent
+        self._writer: asyncio.StreamWriter | None = None
+        self._rx_event = asyncio.Event()
+        self._tx_seq = 0
+        self._acks: dict[tuple[int, int], int] = {}
+        self._twist_sub = bus.subscribe(CMD_VEL)
+        self._estop_sub = bus.subscribe(ESTOP)
+        self._twist: Twist | None = None
+        self._twist_rx_s = -1e9
+        self._estop = False
+        self._halted = False
+        # Session state.
+        self.connected = False
+        self.mcu_state: p.McuState | None = None
+        self.mcu_faults = 0
+        self.info: p.Info | None = None
+        self.last_state: p.State | None = None
+        self.rc: p.RcChannels | None = None
+        self.servo_status: p.ServoStatus | None = None
+        self._saw_boot = False
+        self._configured = False
+        self._need_config = False
+        self._last_rx_s: float | None = None
+        self._phase = "starting"
+        # Health.
+        self.last_error = ""
+        self._last_error_s: float | None = None
+        self._health_key: tuple[str, str] | None = None
+        self._next_health_s = 0.0
+        self.counters: dict[str, float] = {
+            "reconnects": 0, "link_losses": 0, "rx_frames": 0, "tx_frames": 0,
+            "bad_payloads": 0, "nacks": 0, "mcu_resets": 0, "watchdog_trips": 0,
+            "servo_read_failures": 0, "mcu_rx_crc_err": 0, "rtt_ms": -1.0,
+        }
+
+    # --- public -------------------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Connect, configure, arm and drive until cancelled; reconnect after any failure."""
+        backoff_s = 0.1
+        sessions = 0
+        while True:
+            if sessions:
+                self.counters["reconnects"] += 1
+            sessions += 1
+            try:
+                await self._session()
+                backoff_s = 0.1
+            except _LinkLost as exc:
+                self._error(str(exc))
+                self.counters["link_losses"] += 1
+                if self._configured:
+                    backoff_s = 0.1
+            except OSError as exc:
+                self._error(f"cannot use {self.port}: {exc}; {PORT_HINT}")
+            self._phase = "disconnected"
+            self.publish_health(force=True)
+            await self.clock.sleep(backoff_s)
+            backoff_s = min(self.cfg.reconnect_max_s, backoff_s * 2.0)
+
+    async def halt(self) -> None:
+        """Stop the wheels now and disarm (the app's first shutdown step); stays stopped."""
+        self._halted = True
+        if self._writer is None:
+            return
+        steer = (p.STEER_UNCHANGED,) * 4
+        self._send(p.ServoCmd((0,) * 6, steer, 0))
+        self._send(p.Arm(False))
+        drained = asyncio.ensure_future(self._writer.drain())
+        timer = asyncio.ensure_future(self.clock.sleep(0.2))
+        try:
+            await asyncio.wait({drained, timer}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            drained.cancel()
+            timer.cancel()
+
+    def health(self) -> DriverHealth:
+        """The driver's health now: state, what is wrong and what to do, counters."""
+        state, message = self._assess()
+        counters = dict(self.counters)
+        st = self.decoder.stats
+        counters.update(crc_errors=st.crc_errors, resyncs=st.resyncs,
+                        garbage_bytes=st.garbage_bytes, length_errors=st.length_errors)
+        counters["mcu_state"] = -1 if self.mcu_state is None else int(self.mcu_state)
+        return DriverHealth(stamp=self.clock.now(), name=self.name, state=state,
+                            message=message, counters=counters)
+
+    def publish_health(self, force: bool = False) -> None:
+        """Publish ``/health`` (when forced, when due, or when the state or message changed)."""
+        h = self.health()
+        key = (h.state, h.message)
+        now = self.clock.now()
+        if force or key != self._health_key or now >= self._next_health_s:
+            self._health_key = key
+            self._next_health_s = now + HEALTH_PERIOD_S
+            self.bus.publish(HEALTH, h)
+
+    # --- health -------------------------------------------------------------------------------
+
+    def _error(self, text: str) -> None:
+        self.last_error = text
+        self._last_error_s = self.clock.now()
+        log.warning("arduino: %s", text)
+
+    def _assess(self) -> tuple[str, str]:
+        recent = ""
+        if self.last_error and self._last_error_s is not None:
+            recent = f" (recovered from: {self.last_error})"
+        if self._phase == "disconnected":
+            return "error", f"link down: {self.last_error or 'not connected'}; reconnecting"
+        if self._phase == "starting":
+            return "starting", f"opening {self.port}"
+        if self._phase == "booting":
+            return "starting", (f"waiting out the Mega's boot window (up to "
+                                f"{self.cfg.boot_wait_s:g} s) before sending anything")
+        if self._phase == "configuring":
+            return "starting", "sending SET_CONFIG and ARM"
+        if self._halted:
+            return "off", "halted: wheels stopped and disarmed"
+        if self.mcu_state == p.McuState.ESTOP:
+            return "degraded", "e-stop latched on the Mega; release the e-stop to re-arm"
+        if self.mcu_state == p.McuState.TIMEOUT:
+            return "degraded", ("the Mega's watchdog stopped the wheels: no valid SERVO_CMD for "
+                                f"{self.cfg.mcu_cmd_timeout_s:g} s (commands lost or corrupted; "
+                                "check the USB cable)")
+        if self.mcu_state != p.McuState.ARMED:
+            name = "unknown" if self.mcu_state is None else self.mcu_state.name
+            return "degraded", f"the Mega is {name}, not armed; re-arming"
+        if self.mcu_faults & p.Fault.SERVO_READ:
+            return "degraded", ("a servo did not answer a position read: check the servo bus "
+                                "cable, the BusLinker and the servo ids" + recent)
+        return "ok", "armed, commands flowing" + recent
+
+    # --- session ------------------------------------------------------------------------------
+
+    async def _session(self) -> None:
+        self._phase = "starting"
+        self.publish_health()
+        reader, writer = await serial_asyncio_fast.open_serial_connection(
+            url=self.port, baudrate=self.cfg.baud)
+        self._writer = writer
+        self.decoder.reset()
+        self._acks.clear()
+        self.connected = True
+        self.mcu_state = None
+        self.mcu_faults = 0
+        self.info = None
+        self._saw_boot = False
+        self._configured = False
+        self._need_config = False
+        self._last_rx_s = None
+        opened_s = self.clock.now()
+        reader_task = asyncio.ensure_future(self._read_loop(reader))
+        try:
+            self._phase = "booting"
+            self.publish_health()
+            await wait_until(self.clock, lambda: self._saw_boot or reader_task.done(),
+                             self.cfg.boot_wait_s, self._rx_event)
+            self._check_reader(reader_task)
+            if self._last_rx_s is None:
+                raise _LinkLost(f"nothing heard from {self.port} within boot_wait_s = "
+                                f"{self.cfg.boot_wait_s:g} s: wrong port, sketch not flashed "
+                                "(see firmware/README.md), or wrong baud rate")
+            self._phase = "configuring"
+            self.publish_health()
+            await self._configure(reader_task)
+            self._phase = "running"
+            next_heartbeat_s = 0.0
+            async for now in every(self.clock, 1.0 / self.cfg.cmd_rate_hz):
+                self._check_reader(reader_task)
+                last = self._last_rx_s if self._last_rx_s is not None else opened_s
+                if now - last > self.cfg.link_timeout_s:
+                    raise _LinkLost(f"no frame from the Mega for {now - last:.2f} s "
+                                    "(stalled or reset board, or a bad cable)")
+                if self._need_config:
+                    self._phase = "configuring"
+                    await self._configure(reader_task)
+                    self._phase = "running"
+                self._handle_estop()
+                if self.mcu_state == p.McuState.DISARMED and not self._estop and \
+                        not self._halted:
+                    await self._arm(reader_task)
+                if now >= next_heartbeat_s:
+                    next_heartbeat_s = now + HEARTBEAT_PERIOD_S
+                    self._send(p.Heartbeat(self._host_ms()))
+                self._command(now)
+                self.publish_health()
+        finally:
+            reader_task.cancel()
+            with contextlib.suppress(BaseException):
+                await reader_task
+            writer.close()
+            self._writer = None
+            self.connected = False
+
+    def _check_reader(self, task: asyncio.Future[None]) -> None:
+        if not task.done():
+            return
+        exc = task.exception() if not task.cancelled() else None
+        if isinstance(exc, _LinkLost):
+            raise exc
+        raise _LinkLost(f"serial port {self.port} failed: {exc!r}; {PORT_HINT}")
+
+    async def _read_loop(self, reader: asyncio.StreamReader) -> None:
+        while True:
+            data = await reader.read(4096)
+            if not data:
+                raise _LinkLost(f"{self.port} closed (cable unplugged?); {PORT_HINT}")
+            for frame in self.decoder.feed(data):
+                self._on_frame(frame)
+            self._rx_event.set()
+
+    async def _request(self, msg: p.Message, reader_task: asyncio.Future[None]) -> int:
+        """Send ``msg`` and wait for its ACK (retrying); return the ACK status."""
+        for _ in range(ACK_RETRIES):
+            seq = self._send(msg)
+            key = (seq, int(msg.MSG_ID))
+
+            def answered(key: tuple[int, int] = key) -> bool:
+                return key in self._acks or reader_task.done()
+
+            await wait_until(self.clock, answered, ACK_TIMEOUT_S, self._rx_event)
+            self._check_reader(reader_task)
+            if key in self._acks:
+                return self._acks.pop(key)
+        raise _LinkLost(f"no ACK to {msg.MSG_ID.name} after {ACK_RETRIES} tries "
+                        f"({ACK_TIMEOUT_S:g} s each): is this the Curio firmware?")
+
+    def _set_config_msg(self) -> p.SetConfig:
+        c = self.cfg
+        return p.SetConfig(wheel_ids=tuple(c.wheel_ids), steer_ids=tuple(c.steer_ids),
+                           steer_trim=tuple(c.steer_trim),
+                           cmd_timeout_ms=round(c.mcu_cmd_timeout_s * 1000),
+                           pos_rate_hz=round(c.feedback_rate_hz), status_rate_hz=1,
+                           steer_move_ms=c.steer_move_ms)
+
+    async def _configure(self, reader_task: asyncio.Future[None]) -> None:
+        msg = self._set_config_msg()
+        problems = msg.problems()
+        if problems:
+            raise _LinkLost("drivers.arduino config not accepted by the firmware: "
+                            + "; ".join(problems))
+        self._need_config = False
+        status = await self._request(msg, reader_task)
+        if status != p.AckStatus.OK:
+            if status == p.AckStatus.WRONG_STATE:  # armed already: disarm, then configure
+                await self._request(p.Arm(False), reader_task)
+                status = await self._request(msg, reader_task)
+            if status != p.AckStatus.OK:
+                raise _LinkLost(f"the Mega refused SET_CONFIG ({p.AckStatus(status).name}); "
+                                "check drivers.arduino wheel_ids, steer_ids, steer_trim")
+        self._configured = True
+        if not self._estop and not self._halted:
+            await self._arm(reader_task)
+
+    async def _arm(self, reader_task: asyncio.Future[None]) -> None:
+        status = await self._request(p.Arm(True), reader_task)
+        if status != p.AckStatus.OK:
+            self.counters["nacks"] += 1
+            self._error(f"the Mega refused ARM ({p.AckStatus(status).name})")
+
+    def _handle_estop(self) -> None:
+        for msg in self._estop_sub.drain():
+            if isinstance(msg, EStop):
+                if msg.engaged and not self._estop:
+                    self._estop = True
+                    self._send(p.Estop())
+                elif not msg.engaged and self._estop:
+                    self._estop = False
+        if self._estop and self.mcu_state not in (p.McuState.ESTOP, None):
+            self._send(p.Estop())
+        if not self._estop and self.mcu_state == p.McuState.ESTOP and not self._halted:
+            self._send(p.Arm(True))
+
+    def _command(self, now: float) -> None:
+        for twist in self._twist_sub.drain():
+            self._twist = twist
+            self._twist_rx_s = now
+        v, w = (self._twist.linear_mps, self._twist.angular_radps) if self._twist else (0.0, 0.0)
+        try:
+            cmd = self.command_fn(v, w, self.robot, now)
+        except ValueError as exc:
+            self._error(f"bad /cmd_vel ({v}, {w}): {exc}; sending a stop")
+            cmd = self.command_fn(0.0, 0.0, self.robot, now)
+        stale = now - self._twist_rx_s > self.cfg.cmd_timeout_s
+        if stale or self._estop or self._halted:
+            cmd = ServoCommand(stamp=now, wheel_duty=(0, 0, 0, 0, 0, 0),
+                               steer_position=cmd.steer_position,
+                               steer_move_time_ms=cmd.steer_move_time_ms)
+        cmd = ServoCommand(stamp=now, wheel_duty=cmd.wheel_duty,
+                           steer_position=cmd.steer_position,
+                           steer_move_time_ms=self.cfg.steer_move_ms)
+        if self.mcu_state in (p.McuState.ARMED, p.McuState.TIMEOUT):
+            moving = any(cmd.wheel_duty)
+            self._send(p.ServoCmd(cmd.wheel_duty, cmd.steer_position, 1 if moving else 0))
+            self.bus.publish(SERVO_CMD, cmd)
+
+    # --- I/O ----------------------------------------------------------------------------------
+
+    def _host_ms(self) -> int:
+        return int(self.clock.now() * 1000.0) & 0xFFFFFFFF
+
+    def _send(self, msg: p.Message) -> int:
+        seq = self._tx_seq
+        self._tx_seq = (seq + 1) & 0xFF
+        if self._writer is None or self.tx_suspended:
+            return seq
+        self._writer.write(p.encode(msg, seq))
+        self.counters["tx_frames"] += 1
+        return seq
+
+    def _on_frame(self, frame: p.Frame) -> None:
+        now = self.clock.now()
+        self._last_rx_s = now
+        self.counters["rx_frames"] += 1
+        try:
+            msg: Any = p.decode_message(frame)
+        except p.ProtocolError as exc:
+            self.counters["bad_payloads"] += 1
+            log.debug("arduino: bad payload: %s", exc)
+            return
+        if isinstance(msg, p.ServoPos):
+            positions = tuple(msg.wheel_pos[i] if msg.wheel_valid(i) else None
+                              for i in range(6))
+            if msg.valid_mask != 0x3FF:
+                self.counters["servo_read_failures"] += 1
+            self.bus.publish(WHEELS, WheelEncoders(stamp=now, positions=cast(Six, positions)))
+        elif isinstance(msg, p.State):
+            self._on_state(msg)
+        elif isinstance(msg, p.Ack):
+            if msg.status != p.AckStatus.OK:
+                self.counters["nacks"] += 1
+                log.debug("arduino: NACK %s for id 0x%02X", msg.status, msg.acked_id)
+            self._acks[(msg.acked_seq, msg.acked_id)] = msg.status
+            if len(self._acks) > 64:
+                self._acks.pop(next(iter(self._acks)))
+        elif isinstance(msg, p.Battery):
+            volts = msg.servo_vin_mv / 1000.0
+            self.bus.publish(BATTERY, BatteryState(stamp=now, voltage_v=volts,
+                                                   low=volts < self.cfg.low_battery_v))
+        elif isinstance(msg, p.Info):
+            self.info = msg
+            self._saw_boot = True
+            if msg.proto_ver != p.PROTO_VERSION:
+                self._error(f"firmware speaks protocol {msg.proto_ver}, this driver "
+                            f"{p.PROTO_VERSION}: re-flash firmware/ (see firmware/README.md)")
+        elif isinstance(msg, p.ServoStatus):
+            self.servo_status = msg
+        elif isinstance(msg, p.RcChannels):
+            self.rc = msg
+        elif isinstance(msg, p.Log):
+            log.info("mega: %s", msg.text)
+
+    def _on_state(self, msg: p.State) -> None:
+        try:
+            state = p.McuState(msg.state)
+        except ValueError:
+            self.counters["bad_payloads"] += 1
+            return
+        previous = self.mcu_state
+        self.last_state = msg
+        self.mcu_state = state
+        self.mcu_faults = msg.faults
+        self.counters["mcu_rx_crc_err"] = msg.rx_crc_err
+        if msg.last_host_ms:
+            self.counters["rtt_ms"] = float((self._host_ms() - msg.last_host_ms) & 0xFFFFFFFF)
+        if state == p.McuState.BOOT:
+            self._saw_boot = True
+        if state == p.McuState.TIMEOUT and previous != p.McuState.TIMEOUT:
+            self.counters["watchdog_trips"] += 1
+            self._error("the Mega's motion watchdog stopped the wheels (commands not arriving)")
+        rebooted = state == p.McuState.BOOT or bool(msg.faults & p.Fault.DEFAULT_CONFIG)
+        if rebooted and self._configured and not self._need_config:
+            self.counters["mcu_resets"] += 1
+            self._error("the Mega reset (running its default config): re-sending config, "
+                        "re-arming")
+            self._need_config = True
+            self._configured = False
