@@ -103,6 +103,16 @@ class LidarConfig(Section):
     port: str = "/dev/curio-lidar"
     baud: int = Field(115200, gt=0)
     stall_timeout_s: float = Field(1.0, gt=0.0, le=10.0)
+    reply_timeout_s: float = Field(1.0, gt=0.0, le=10.0, description="GET_INFO/HEALTH answer")
+    reset_wait_s: float = Field(0.5, ge=0.0, le=5.0, description="after RESET (A1 banner)")
+    reconnect_s: float = Field(1.0, gt=0.0, le=30.0, description="between session attempts")
+    beams: int = Field(360, ge=90, le=2000, description="fixed angle bins per LaserScan")
+    range_min_m: float = Field(0.15, gt=0.0)
+    range_max_m: float = Field(12.0, gt=0.0, le=40.0)
+    angle_offset_rad: float = Field(
+        0.0, ge=-6.3, le=6.3, description="added to pi - raw angle (mounting, hardware.md §8)"
+    )
+    min_nodes_per_scan: int = Field(20, ge=1, description="shorter revolutions are dropped")
 
 
 class ImuConfig(Section):
@@ -263,6 +273,28 @@ class ControllerConfig(Section):
     lookahead_m: float = Field(0.6, gt=0.0)
     progress_timeout_s: float = Field(10.0, gt=0.0)
     progress_min_distance_m: float = Field(0.1, gt=0.0)
+    min_lookahead_m: float = Field(0.35, gt=0.0, description="lookahead near the goal / slow")
+    rotate_enter_rad: float = Field(
+        0.8, gt=0.0, le=math.pi, description="heading error above which Curio turns in place")
+    rotate_exit_rad: float = Field(0.25, gt=0.0, le=math.pi)
+    min_turning_radius_m: float = Field(
+        0.45, ge=0.0, description="arcs tighter than this are not driven (Curio's corner servos "
+        "swing 180 deg when the radius crosses 0.235 m); turn in place instead")
+    max_curvature_rate_per_s: float = Field(
+        4.0, gt=0.0, description="how fast the commanded curvature (1/m) may change per second "
+        "(the steering servos need time to swing)")
+    steer_settle_s: float = Field(
+        0.3, ge=0.0, description="pause between turning in place and driving off")
+    approach_decel_mps2: float = Field(
+        0.3, gt=0.0, description="speed profile towards the goal: v <= sqrt(2 a d)")
+    min_speed_mps: float = Field(0.05, ge=0.0)
+    slow_clearance_m: float = Field(
+        0.25, ge=0.0, description="slow down when an obstacle is nearer than this to the "
+        "footprint")
+    slow_min_fraction: float = Field(0.5, gt=0.0, le=1.0)
+    collision_horizon_s: float = Field(1.2, gt=0.0)
+    blocked_timeout_s: float = Field(
+        3.0, gt=0.0, description="no admissible command for this long: the path is blocked")
 
 
 class SafetyConfig(Section):

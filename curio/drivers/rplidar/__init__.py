@@ -1,0 +1,1 @@
+"""RPLidar A1: pure protocol, asyncio driver and a byte-exact pty emulator."""

@@ -1,0 +1,394 @@
+"""The RPLidar A1 driver: asyncio serial I/O, one ``LaserScan`` per revolution on ``/scan``.
+
+Life cycle of one session (:meth:`RplidarDriver.run` repeats sessions for ever):
+
+1. open the port (``pyserial-asyncio-fast``); a missing device is reported with what to check;
+2. STOP, flush, GET_INFO (model, firmware), GET_HEALTH; a protection stop (status 2) is cleared
+   with RESET and checked again;
+3. motor on (the A1's motor follows DTR: cleared = spinning; a pseudo-terminal has no DTR, so an
+   injectable ``motor`` hook is called as well), SCAN, check the descriptor;
+4. stream: bytes go through :class:`~curio.drivers.rplidar.protocol.NodeStreamDecoder`
+   (resynchronising after bad bytes) and :class:`~curio.drivers.rplidar.protocol.ScanAssembler`;
+   each revolution is binned into ``beams`` fixed angles in the ``laser`` frame (``pi - raw``,
+   as ``rplidar_ros`` does) and published, stamped with the clock time its first node arrived.
+
+The session ends on an unplugged device (the port reports EIO), on a stall (no revolution for
+``stall_timeout_s``) or on an answer that makes no sense; the driver then publishes ``/health``
+``error`` with what happened and what to do plus an event ``driver.lidar_lost``, stops
+publishing scans — the safety stage stops the rover when the latest scan is older than its
+timeout — and starts a new session every ``reconnect_s`` until the lidar is back
+(``driver.lidar_recovered``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from curio.bus import Bus
+from curio.clock import Clock
+from curio.config import LidarConfig
+from curio.drivers.health import every, wait_event
+from curio.drivers.rplidar import protocol as p
+from curio.messages import DriverHealth, Event, LaserScan
+from curio.topics import EVENTS, HEALTH, SCAN
+
+__all__ = ["LidarFault", "RplidarDriver"]
+
+log = logging.getLogger("curio.drivers.rplidar")
+
+MotorHook = Callable[[bool], None]
+
+
+class LidarFault(Exception):
+    """A session-ending problem, phrased for the person who has to fix it."""
+
+
+class _Proto(asyncio.Protocol):
+    def __init__(self, driver: RplidarDriver) -> None:
+        self.driver = driver
+
+    def data_received(self, data: bytes) -> None:
+        self.driver._on_data(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.driver._on_lost(exc)
+
+
+class RplidarDriver:
+    """Talks to an RPLidar A1 and publishes ``/scan``, ``/health`` and events.
+
+    Args:
+        cfg: ``drivers.lidar`` (port, baud, stall timeout, beams, angle offset...).
+        clock: the application clock.
+        bus: the application bus.
+        port: overrides ``cfg.port`` (the emulator's pty in emulated mode).
+        motor: called with True/False to start/stop the motor where DTR cannot (a pty).
+    """
+
+    name = "lidar"
+
+    def __init__(
+        self,
+        cfg: LidarConfig,
+        clock: Clock,
+        bus: Bus,
+        *,
+        port: str | None = None,
+        motor: MotorHook | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.clock = clock
+        self.bus = bus
+        self.port = port or cfg.port
+        self.motor = motor
+        self.info: p.DeviceInfo | None = None
+        self.health: p.HealthStatus | None = None
+        self.state = "starting"
+        self.message = ""
+        self.counters: dict[str, float] = {
+            "scans": 0,
+            "sessions": 0,
+            "resync_bytes": 0,
+            "stalls": 0,
+            "unplugs": 0,
+            "resets": 0,
+            "short_scans": 0,
+        }
+        self._transport: Any = None
+        self._rx = bytearray()
+        self._rx_event = asyncio.Event()
+        self._lost = False
+        self._mode = "reply"  # reply | descriptor | stream
+        self._decoder = p.NodeStreamDecoder()
+        self._assembler = p.ScanAssembler(min_nodes=cfg.min_nodes_per_scan)
+        self._rev_start: float | None = None
+        self._last_scan_at = -math.inf
+        self._down_since: float | None = None
+
+    # --- the long-lived part ------------------------------------------------------------------
+    async def run(self) -> None:
+        """Run sessions for ever; each failure is reported and retried."""
+        health_task = asyncio.ensure_future(self._health_loop())
+        try:
+            while True:
+                try:
+                    await self._session()
+                except LidarFault as exc:
+                    self._report_down(str(exc))
+                finally:
+                    await self._close_port()
+                await self.clock.sleep(self.cfg.reconnect_s)
+        finally:
+            health_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await health_task
+
+    async def close(self) -> None:
+        """Stop scanning and the motor, close the port."""
+        await self._close_port(stop=True)
+
+    # --- one session --------------------------------------------------------------------------
+    async def _session(self) -> None:
+        self.counters["sessions"] += 1
+        await self._open()
+        await self._stop_and_flush()
+        self.info = p.DeviceInfo.decode(
+            await self._request(p.Cmd.GET_INFO, p.INFO_DESCRIPTOR, 20, "GET_INFO")
+        )
+        health = await self._get_health()
+        if health.status == p.HealthLevel.ERROR:
+            self._set_state(
+                "error",
+                f"the lidar reported a protection stop (error code 0x{health.error_code:04X}): "
+                "sent RESET; if this repeats the laser or motor needs service",
+            )
+            await self._reset()
+            health = await self._get_health()
+            if health.status == p.HealthLevel.ERROR:
+                raise LidarFault(
+                    f"the lidar stays in protection stop after RESET (error code "
+                    f"0x{health.error_code:04X}): power-cycle it; if it persists the laser or "
+                    "motor is damaged"
+                )
+        self._set_motor(True)
+        await self._start_scan()
+        self._set_state(
+            "degraded" if health.status == p.HealthLevel.WARNING else "ok",
+            f"scanning: {self.info.describe()}"
+            + (f"; health warning 0x{health.error_code:04X}" if health.status else ""),
+        )
+        # Watch the stream until it fails.
+        started = self.clock.now()
+        poll = min(0.1, self.cfg.stall_timeout_s / 4)
+        while True:
+            await self.clock.sleep(poll)
+            if self._lost:
+                self.counters["unplugs"] += 1
+                raise LidarFault(
+                    f"the lidar at {self.port} went away (unplugged?): check its USB cable; "
+                    "retrying"
+                )
+            last = max(self._last_scan_at, started)
+            if self.clock.now() - last > self.cfg.stall_timeout_s:
+                self.counters["stalls"] += 1
+                raise LidarFault(
+                    f"no scan for {self.clock.now() - last:.1f} s (stalled stream or motor "
+                    "stopped): restarting the lidar; if this repeats check the motor and its "
+                    "power (5 V, 1 A)"
+                )
+
+    async def _open(self) -> None:
+        import serial
+        import serial_asyncio_fast
+
+        self._rx.clear()
+        self._lost = False
+        self._mode = "reply"
+        loop = asyncio.get_running_loop()
+        try:
+            transport, _ = await serial_asyncio_fast.create_serial_connection(
+                loop, lambda: _Proto(self), self.port, baudrate=self.cfg.baud
+            )
+        except (OSError, serial.SerialException) as exc:
+            raise LidarFault(
+                f"cannot open the lidar at {self.port} ({exc}): check that it is plugged in, "
+                "that the udev rule makes /dev/curio-lidar (deploy/99-curio.rules), that the "
+                "user is in the 'dialout' group; run `curio check`"
+            ) from exc
+        self._transport = transport
+
+    async def _close_port(self, stop: bool = False) -> None:
+        transport, self._transport = self._transport, None
+        if transport is None:
+            return
+        if stop and not self._lost:
+            with contextlib.suppress(Exception):
+                transport.write(p.encode_request(p.Cmd.STOP))
+            self._set_motor(False, transport)
+        with contextlib.suppress(Exception):
+            transport.close()
+
+    def _write(self, data: bytes) -> None:
+        if self._transport is None or self._lost:
+            raise LidarFault(f"the lidar at {self.port} is not connected")
+        self._transport.write(data)
+
+    async def _stop_and_flush(self) -> None:
+        self._mode = "reply"
+        self._write(p.encode_request(p.Cmd.STOP))
+        await self.clock.sleep(0.01)
+        self._rx.clear()
+        self._decoder.reset()
+        self._assembler.reset()
+
+    async def _reset(self) -> None:
+        self.counters["resets"] += 1
+        self._write(p.encode_request(p.Cmd.RESET))
+        await self.clock.sleep(self.cfg.reset_wait_s)  # the A1 prints a banner meanwhile
+        self._rx.clear()
+
+    async def _get_health(self) -> p.HealthStatus:
+        health = p.HealthStatus.decode(
+            await self._request(p.Cmd.GET_HEALTH, p.HEALTH_DESCRIPTOR, 3, "GET_HEALTH")
+        )
+        self.health = health
+        return health
+
+    async def _request(self, cmd: int, descriptor: bytes, length: int, what: str) -> bytes:
+        self._rx.clear()
+        self._write(p.encode_request(cmd))
+        data = await self._read_exact(p.DESCRIPTOR_LEN + length, what)
+        if data[: p.DESCRIPTOR_LEN] != descriptor:
+            raise LidarFault(
+                f"the device at {self.port} answered {what} with "
+                f"{data[: p.DESCRIPTOR_LEN].hex(' ').upper()} instead of "
+                f"{descriptor.hex(' ').upper()}: is this port really the RPLidar (not the "
+                "Arduino)? Is the baud rate 115200 (A1)?"
+            )
+        return data[p.DESCRIPTOR_LEN :]
+
+    async def _read_exact(self, n: int, what: str) -> bytes:
+        deadline = self.clock.now() + self.cfg.reply_timeout_s
+        while len(self._rx) < n:
+            if self._lost:
+                raise LidarFault(f"the lidar at {self.port} went away during {what}")
+            remaining = deadline - self.clock.now()
+            if remaining <= 0:
+                raise LidarFault(
+                    f"no answer to {what} from {self.port} within {self.cfg.reply_timeout_s} s "
+                    f"(got {len(self._rx)} of {n} bytes): check the port, the cable and that "
+                    "the lidar has power; run `curio check`"
+                )
+            self._rx_event.clear()
+            await wait_event(self.clock, self._rx_event, remaining)
+        data = bytes(self._rx[:n])
+        del self._rx[:n]
+        return data
+
+    async def _start_scan(self) -> None:
+        self._rx.clear()
+        self._decoder.reset()
+        self._assembler.reset()
+        self._rev_start = None
+        self._mode = "descriptor"
+        self._write(p.encode_request(p.Cmd.SCAN))
+        deadline = self.clock.now() + self.cfg.reply_timeout_s
+        while self._mode == "descriptor":
+            if self._lost:
+                raise LidarFault(f"the lidar at {self.port} went away while starting to scan")
+            if self.clock.now() >= deadline:
+                raise LidarFault(
+                    f"no SCAN descriptor from {self.port}: the lidar does not start scanning; "
+                    "power-cycle it"
+                )
+            self._rx_event.clear()
+            await wait_event(self.clock, self._rx_event, deadline - self.clock.now())
+
+    def _set_motor(self, on: bool, transport: Any = None) -> None:
+        transport = transport or self._transport
+        ser = getattr(transport, "serial", None) if transport is not None else None
+        if ser is not None:
+            # A1: DTR cleared = motor spins. A pty has no DTR: ENOTTY.
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                ser.dtr = not on
+        if self.motor is not None:
+            self.motor(on)
+
+    # --- bytes from the port (event-loop callbacks) -------------------------------------------
+    def _on_lost(self, exc: Exception | None) -> None:
+        self._lost = True
+        self._rx_event.set()
+
+    def _on_data(self, data: bytes) -> None:
+        if self._mode == "stream":
+            self._on_stream(data)
+            return
+        self._rx += data
+        if self._mode == "descriptor" and len(self._rx) >= p.DESCRIPTOR_LEN:
+            head = bytes(self._rx[: p.DESCRIPTOR_LEN])
+            if head == p.SCAN_DESCRIPTOR:
+                rest = bytes(self._rx[p.DESCRIPTOR_LEN :])
+                self._rx.clear()
+                self._mode = "stream"
+                self._on_stream(rest)
+            else:
+                # Leftovers of a previous stream: drop bytes until the descriptor lines up.
+                idx = self._rx.find(p.SCAN_DESCRIPTOR[:2], 1)
+                del self._rx[: idx if idx > 0 else max(0, len(self._rx) - 1)]
+        self._rx_event.set()
+
+    def _on_stream(self, data: bytes) -> None:
+        now = self.clock.now()
+        batch = self._decoder.feed(data)
+        self.counters["resync_bytes"] = self._decoder.resync_bytes
+        if len(batch) == 0:
+            return
+        first_start = bool(batch.start.any())
+        for rev in self._assembler.feed(batch):
+            self._publish(rev, now)
+        self.counters["short_scans"] = self._assembler.short_scans
+        if first_start:
+            self._rev_start = now
+
+    def _publish(self, rev: p.NodeBatch, now: float) -> None:
+        beams = self.cfg.beams
+        ranges, intens = p.revolution_to_ranges(
+            rev, beams, self.cfg.range_min_m, self.cfg.range_max_m, self.cfg.angle_offset_rad
+        )
+        start = self._rev_start if self._rev_start is not None else now
+        scan_time = max(1e-3, now - start)
+        scan = LaserScan(
+            stamp=start,
+            angle_min_rad=-math.pi,
+            angle_increment_rad=2 * math.pi / beams,
+            range_min_m=self.cfg.range_min_m,
+            range_max_m=self.cfg.range_max_m,
+            ranges_m=ranges.astype(np.float32),
+            intensities=intens.astype(np.float32),
+            scan_time_s=scan_time,
+            frame_id="laser",
+        )
+        self._last_scan_at = now
+        self.counters["scans"] += 1
+        self.bus.publish(SCAN, scan)
+        if self._down_since is not None:
+            down_s = now - self._down_since
+            self._down_since = None
+            self.bus.publish(
+                EVENTS,
+                Event(now, "driver.lidar_recovered", {"down_s": round(down_s, 3)}),
+            )
+
+    # --- health -------------------------------------------------------------------------------
+    def _set_state(self, state: str, message: str) -> None:
+        changed = (state, message) != (self.state, self.message)
+        self.state, self.message = state, message
+        if changed:
+            (log.info if state == "ok" else log.warning)("lidar %s: %s", state, message)
+            self._publish_health()
+
+    def _report_down(self, message: str) -> None:
+        now = self.clock.now()
+        if self._down_since is None:
+            self._down_since = now
+            self.bus.publish(EVENTS, Event(now, "driver.lidar_lost", {"reason": message}))
+        self._set_state("error", message + " — the rover stays stopped until scans return")
+
+    def _publish_health(self) -> None:
+        self.bus.publish(
+            HEALTH,
+            DriverHealth(
+                self.clock.now(), self.name, self.state, self.message, dict(self.counters)
+            ),
+        )
+
+    async def _health_loop(self) -> None:
+        async for _ in every(self.clock, 1.0):
+            self._publish_health()

@@ -1,0 +1,144 @@
+"""A pseudo-terminal that stands in for a USB serial device (device side of an emulator).
+
+:class:`PtyDevice` opens a pty pair, puts it in raw mode, and publishes the slave under a stable
+symlink (like ``/dev/curio-lidar`` on the rover) so a driver can open ``device.path`` again and
+again. ``unplug()`` closes the pty and removes the link, as pulling the USB cable removes the
+device node (a driver holding it open gets ``EIO``); ``replug()`` makes a fresh pty behind the
+same link. Writes never block: bytes that the kernel buffer cannot take are dropped and counted,
+as a UART drops bytes nobody reads.
+
+The emulator reads the master side with ``loop.add_reader``; the callback it gives is called
+with every chunk of bytes the driver wrote.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import fcntl
+import os
+import shutil
+import tempfile
+import termios
+import tty
+from collections.abc import Callable
+from pathlib import Path
+
+__all__ = ["PtyDevice"]
+
+
+class PtyDevice:
+    """The device end of a serial line on a pseudo-terminal.
+
+    Args:
+        name: the link's file name (e.g. ``curio-lidar``).
+        on_bytes: called on the event loop with each chunk the driver wrote.
+        link_dir: where the symlink lives (a fresh temporary directory by default).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        on_bytes: Callable[[bytes], None],
+        link_dir: Path | None = None,
+    ) -> None:
+        self._own_dir = link_dir is None
+        self._dir = Path(tempfile.mkdtemp(prefix="curio-emu-")) if link_dir is None else link_dir
+        self.path = str(self._dir / name)
+        self._on_bytes = on_bytes
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.bytes_written = 0
+        self.bytes_dropped = 0
+        self.bytes_read = 0
+
+    @property
+    def plugged(self) -> bool:
+        """True while the pty exists."""
+        return self._master is not None
+
+    @property
+    def tty_path(self) -> str | None:
+        """The pty slave's own path (``/dev/pts/N``), or None when unplugged."""
+        return os.ttyname(self._slave) if self._slave is not None else None
+
+    def open(self) -> None:
+        """Create the pty and the link (must run on the event loop that will serve it)."""
+        if self._master is not None:
+            return
+        self._loop = asyncio.get_running_loop()
+        master, slave = os.openpty()
+        tty.setraw(slave, termios.TCSANOW)
+        tty.setraw(master, termios.TCSANOW)
+        flags = fcntl.fcntl(master, fcntl.F_GETFL)
+        fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+        self._master, self._slave = master, slave
+        link = Path(self.path)
+        with contextlib.suppress(FileNotFoundError):
+            link.unlink()
+        link.symlink_to(os.ttyname(slave))
+        self._loop.add_reader(master, self._readable)
+
+    def _readable(self) -> None:
+        if self._master is None:
+            return
+        try:
+            data = os.read(self._master, 65536)
+        except BlockingIOError:
+            return
+        except OSError:
+            return
+        if data:
+            self.bytes_read += len(data)
+            self._on_bytes(data)
+
+    def write(self, data: bytes) -> int:
+        """Send ``data`` to the driver; return the bytes accepted (0 when unplugged)."""
+        if self._master is None or not data:
+            return 0
+        try:
+            n = os.write(self._master, data)
+        except BlockingIOError:
+            n = 0
+        except OSError as exc:  # pragma: no cover - the pty went away under us
+            if exc.errno not in (errno.EIO, errno.EBADF):
+                raise
+            n = 0
+        self.bytes_written += n
+        self.bytes_dropped += len(data) - n
+        return n
+
+    def pending_to_driver(self) -> int:
+        """Bytes written but not yet read by the driver (0 when unplugged)."""
+        if self._slave is None:
+            return 0
+        buf = fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
+        return int.from_bytes(buf, "little")
+
+    def unplug(self) -> None:
+        """Close the pty and remove the link, as pulling the USB cable does."""
+        if self._master is None:
+            return
+        if self._loop is not None:
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._master)
+        with contextlib.suppress(FileNotFoundError):
+            Path(self.path).unlink()
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._master = self._slave = None
+
+    def replug(self) -> None:
+        """A fresh pty behind the same link."""
+        self.unplug()
+        self.open()
+
+    def close(self) -> None:
+        """Unplug and remove the temporary directory."""
+        self.unplug()
+        if self._own_dir:
+            shutil.rmtree(self._dir, ignore_errors=True)
