@@ -1,0 +1,462 @@
+"""The local controller: regulated pure pursuit for Curio, with a sampled fallback.
+
+It follows the global plan (poses in ``map``) from the rover's pose in ``map`` and produces a
+body twist (forward m/s, yaw rate rad/s in ``base_link``) at ``nav.controller.rate_hz``:
+
+* **Turn in place** when the heading error to the lookahead point exceeds ``rotate_enter_rad``
+  (Curio can; hysteresis down to ``rotate_exit_rad``), and at the goal to meet the yaw
+  tolerance.
+* **Pure pursuit** otherwise: curvature ``κ = 2·y / L²`` to the lookahead point at ``L``
+  metres along the plan; arcs tighter than ``min_turning_radius_m`` are not driven (Curio's
+  corner servos would swing 180° when the radius crosses 0.235 m, hardware.md §2.2); the
+  curvature changes at most ``max_curvature_rate_per_s`` per second, and between turning in
+  place and driving the rover pauses ``steer_settle_s`` so the servos can swing.
+* **Regulation**: speed is limited by the curvature, the clearance to obstacles (the costmap's
+  inflation tells the distance; below ``slow_clearance_m`` the speed falls towards
+  ``slow_min_fraction``), and a ``sqrt(2·a·d)`` approach profile to the goal; acceleration
+  limits ``max_accel_mps2`` / ``max_angular_accel_radps2``.
+* **Obstacles not on the map**: the predicted trajectory (``collision_horizon_s``) is checked
+  against the costmap (whose obstacle layer follows every scan). When it collides, a small
+  set of arcs and in-place turns is sampled and scored (progress to the lookahead point,
+  clearance); when none is admissible for ``blocked_timeout_s`` the controller reports
+  ``blocked``.
+* **Goal checker** (``xy_goal_tolerance_m``, latched, then ``yaw_goal_tolerance_rad``) and a
+  **progress checker** (``progress_min_distance_m`` within ``progress_timeout_s``).
+
+:meth:`LocalController.compute` is pure computation (no bus, no awaits) so it is unit-tested and
+benchmarked directly; the navigator calls it.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from curio.config import ControllerConfig, RobotConfig
+from curio.geometry import Pose2D, wrap_angle
+
+__all__ = [
+    "ControlOutput",
+    "ControlStatus",
+    "CostOracle",
+    "LocalController",
+    "ProgressChecker",
+]
+
+F64 = npt.NDArray[np.float64]
+
+LETHAL = 254
+INSCRIBED = 253
+
+
+class CostOracle(Protocol):
+    """What the controller needs from the costmap (``curio.nav.costmap.Costmap`` provides it)."""
+
+    inscribed_radius_m: float
+
+    def footprint_costs(self, poses_in_map: F64) -> npt.NDArray[np.uint8]:
+        """Max cost under the footprint for each ``(N, 3)`` pose."""
+        ...
+
+    def cost_at(self, x_m: float, y_m: float) -> int:
+        """Cost of the cell containing a point."""
+        ...
+
+
+class ControlStatus(enum.Enum):
+    """What the controller is doing."""
+
+    IDLE = "idle"
+    FOLLOWING = "following"
+    ROTATING = "rotating"
+    AVOIDING = "avoiding"
+    GOAL_REACHED = "goal_reached"
+    BLOCKED = "blocked"
+    NO_PROGRESS = "no_progress"
+
+
+@dataclass
+class ControlOutput:
+    """One control cycle's result.
+
+    Attributes:
+        linear_mps: forward speed, ``base_link``.
+        angular_radps: yaw rate, ``base_link``.
+        status: what the controller is doing.
+        trajectory: predicted poses ``(K, 3)`` (x, y, yaw) in ``map``.
+        distance_to_goal_m: straight-line distance to the final pose.
+        distance_remaining_m: along the plan from the nearest plan point to its end.
+        detail: a short human-readable note (why it slows or stops).
+    """
+
+    linear_mps: float
+    angular_radps: float
+    status: ControlStatus
+    trajectory: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+    distance_to_goal_m: float = math.inf
+    distance_remaining_m: float = math.inf
+    detail: str = ""
+
+
+class ProgressChecker:
+    """Reports no progress when the rover has neither moved ``min_distance_m`` nor turned
+    ``min_rotation_rad`` within ``timeout_s`` (clock seconds)."""
+
+    def __init__(self, min_distance_m: float, timeout_s: float,
+                 min_rotation_rad: float = 0.5) -> None:
+        self.min_distance_m = min_distance_m
+        self.min_rotation_rad = min_rotation_rad
+        self.timeout_s = timeout_s
+        self._ref: Pose2D | None = None
+        self._ref_t = 0.0
+
+    def reset(self) -> None:
+        """Forget the reference (a new goal, or after a recovery)."""
+        self._ref = None
+
+    def update(self, pose: Pose2D, now_s: float) -> bool:
+        """Feed a pose; return True while progress is being made (False: stuck)."""
+        if self._ref is None:
+            self._ref, self._ref_t = pose, now_s
+            return True
+        moved = pose.distance_to(self._ref)
+        turned = abs(wrap_angle(pose.yaw - self._ref.yaw))
+        if moved >= self.min_distance_m or turned >= self.min_rotation_rad:
+            self._ref, self._ref_t = pose, now_s
+            return True
+        return now_s - self._ref_t <= self.timeout_s
+
+
+def _approach(current: float, target: float, max_step: float) -> float:
+    if target > current + max_step:
+        return current + max_step
+    if target < current - max_step:
+        return current - max_step
+    return target
+
+
+def rollout(pose: Pose2D, linear_mps: float, angular_radps: float, horizon_s: float,
+            dt_s: float) -> F64:
+    """Poses ``(K, 3)`` in ``map`` reached by holding a twist, starting with ``pose`` itself."""
+    n = max(1, math.ceil(horizon_s / dt_s))
+    t = np.arange(n + 1, dtype=np.float64) * dt_s
+    th = angular_radps * t
+    if abs(angular_radps) < 1e-6:
+        lx = linear_mps * t
+        ly = np.zeros_like(t)
+    else:
+        r = linear_mps / angular_radps
+        lx = r * np.sin(th)
+        ly = r * (1.0 - np.cos(th))
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    out = np.empty((n + 1, 3))
+    out[:, 0] = pose.x + c * lx - s * ly
+    out[:, 1] = pose.y + s * lx + c * ly
+    out[:, 2] = pose.yaw + th
+    return out
+
+
+class LocalController:
+    """Regulated pure pursuit with in-place turns, for Curio (see the module docstring).
+
+    Args:
+        cfg: ``nav.controller``.
+        robot: ``robot`` (footprint, wheel limit).
+        costmap: cost lookups for collision checks and clearance; None disables them.
+    """
+
+    def __init__(self, cfg: ControllerConfig, robot: RobotConfig,
+                 costmap: CostOracle | None = None) -> None:
+        self.cfg = cfg
+        self.robot = robot
+        self.costmap = costmap
+        self.dt_s = 1.0 / cfg.rate_hz
+        self.plan: F64 = np.zeros((0, 3))
+        self._cum: F64 = np.zeros(0)
+        self.goal: Pose2D | None = None
+        self.check_yaw = True
+        self.progress = ProgressChecker(cfg.progress_min_distance_m, cfg.progress_timeout_s)
+        self.reset()
+
+    # --- state ------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the motion state (call when a goal starts or after a recovery moved us)."""
+        self._v = 0.0
+        self._w = 0.0
+        self._kappa = 0.0
+        self._rotating = False
+        self._settle_until = -math.inf
+        self._xy_reached = False
+        self._index = 0
+        self._blocked_since: float | None = None
+        self.progress.reset()
+
+    def set_plan(self, poses: F64 | list[Pose2D], goal: Pose2D | None = None,
+                 check_yaw: bool = True) -> None:
+        """Follow a new plan (``(N, 3)`` array or poses, ``map``) to ``goal`` (default: its end).
+
+        The goal checker's latch and the motion state are kept, so replanning is seamless.
+        """
+        if isinstance(poses, list):
+            arr = np.array([[p.x, p.y, p.yaw] for p in poses], dtype=np.float64).reshape(-1, 3)
+        else:
+            arr = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        new_goal = goal if goal is not None else (
+            Pose2D(*arr[-1]) if len(arr) else None)
+        if self.goal is None or new_goal is None or new_goal.distance_to(self.goal) > 1e-6 \
+                or abs(wrap_angle(new_goal.yaw - self.goal.yaw)) > 1e-6:
+            self._xy_reached = False
+        self.goal = new_goal
+        self.check_yaw = check_yaw and new_goal is not None and math.isfinite(new_goal.yaw)
+        self.plan = arr
+        if len(arr) > 1:
+            seg = np.hypot(np.diff(arr[:, 0]), np.diff(arr[:, 1]))
+            self._cum = np.concatenate([[0.0], np.cumsum(seg)])
+        else:
+            self._cum = np.zeros(len(arr))
+        self._index = 0
+
+    def clear_plan(self) -> None:
+        """Stop following (the next compute returns IDLE and zero)."""
+        self.plan = np.zeros((0, 3))
+        self._cum = np.zeros(0)
+        self.goal = None
+
+    # --- helpers ----------------------------------------------------------------------------
+    def _nearest_index(self, pose: Pose2D) -> int:
+        """Nearest plan index, searched forward from the last one (the plan is pruned)."""
+        plan = self.plan
+        lo = self._index
+        hi = min(len(plan), lo + 200)
+        d = np.hypot(plan[lo:hi, 0] - pose.x, plan[lo:hi, 1] - pose.y)
+        i = lo + int(np.argmin(d))
+        if d.min() > 1.0:  # lost the thread (e.g. after a recovery): search everything
+            dall = np.hypot(plan[:, 0] - pose.x, plan[:, 1] - pose.y)
+            i = int(np.argmin(dall))
+        self._index = i
+        return i
+
+    def _lookahead_point(self, pose: Pose2D, i: int, lookahead_m: float) -> tuple[float, float]:
+        plan = self.plan
+        d = np.hypot(plan[i:, 0] - pose.x, plan[i:, 1] - pose.y)
+        beyond = np.nonzero(d >= lookahead_m)[0]
+        if len(beyond) == 0:
+            return float(plan[-1, 0]), float(plan[-1, 1])
+        j = i + int(beyond[0])
+        if j > i:  # interpolate on the segment that crosses the circle
+            p0, p1 = plan[j - 1, :2], plan[j, :2]
+            d0, d1 = d[j - 1 - i], d[j - i]
+            t = 0.0 if d1 == d0 else (lookahead_m - d0) / (d1 - d0)
+            t = min(1.0, max(0.0, t))
+            q = p0 + t * (p1 - p0)
+            return float(q[0]), float(q[1])
+        return float(plan[j, 0]), float(plan[j, 1])
+
+    def _clearance_m(self, pose: Pose2D) -> float:
+        """Distance from the footprint to the nearest obstacle, estimated from the centre cost."""
+        if self.costmap is None:
+            return math.inf
+        cost = self.costmap.cost_at(pose.x, pose.y)
+        if cost <= 0:
+            return math.inf
+        if cost >= INSCRIBED:
+            return 0.0
+        # cost = 253·exp(−k (d − r_in)) ⇒ d − r_in = −ln(cost/253)/k (the centre's distance
+        # beyond the inscribed radius, i.e. a lower bound of the flank clearance).
+        k = self._cost_scaling
+        return max(0.0, -math.log(cost / 253.0) / k)
+
+    _cost_scaling = 10.0
+
+    def set_cost_scaling(self, cost_scaling_factor: float) -> None:
+        """The costmap's exponential decay rate (to turn costs back into distances)."""
+        self._cost_scaling = cost_scaling_factor
+
+    def _collides(self, traj: F64) -> tuple[bool, int]:
+        """Whether a trajectory's footprint hits a lethal or unknown cell (after its start)."""
+        if self.costmap is None:
+            return False, 0
+        costs = self.costmap.footprint_costs(traj)
+        if costs[0] >= LETHAL:
+            # Already touching a mark (noise, a tight gap): only forbid going deeper.
+            return False, int(costs[0])
+        return bool((costs[1:] >= LETHAL).any()), int(costs.max())
+
+    # --- the control law --------------------------------------------------------------------
+    def compute(self, pose: Pose2D, now_s: float,
+                velocity: tuple[float, float] | None = None) -> ControlOutput:
+        """One control cycle from the rover's ``pose`` in ``map`` at clock time ``now_s``.
+
+        ``velocity`` (measured v, ω) is accepted for interface symmetry; the controller uses
+        its own last command as the state of its acceleration limits (open loop, as the safety
+        stage).
+        """
+        cfg = self.cfg
+        if self.goal is None or len(self.plan) == 0:
+            self._v = self._w = 0.0
+            return ControlOutput(0.0, 0.0, ControlStatus.IDLE)
+        goal = self.goal
+        dist_goal = pose.distance_to(goal)
+        i = self._nearest_index(pose)
+        remaining = float(self._cum[-1] - self._cum[i]) + float(
+            math.hypot(self.plan[i, 0] - pose.x, self.plan[i, 1] - pose.y))
+        if dist_goal <= cfg.xy_goal_tolerance_m:
+            self._xy_reached = True
+        # --- goal: rotate to the final heading, then done.
+        if self._xy_reached:
+            yaw_err = wrap_angle(goal.yaw - pose.yaw) if self.check_yaw else 0.0
+            if abs(yaw_err) <= cfg.yaw_goal_tolerance_rad:
+                self._v = self._w = 0.0
+                return ControlOutput(0.0, 0.0, ControlStatus.GOAL_REACHED,
+                                     distance_to_goal_m=dist_goal, distance_remaining_m=0.0)
+            v, w = self._turn(yaw_err)
+            return self._finish(pose, v, w, ControlStatus.ROTATING, dist_goal, 0.0, now_s,
+                                "final heading")
+        # --- the lookahead point.
+        lookahead = max(cfg.min_lookahead_m, min(cfg.lookahead_m, dist_goal))
+        lx, ly = self._lookahead_point(pose, i, lookahead)
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        dx, dy = lx - pose.x, ly - pose.y
+        x_r = c * dx + s * dy
+        y_r = -s * dx + c * dy
+        heading_err = math.atan2(y_r, x_r)
+        if self._rotating:
+            if abs(heading_err) < cfg.rotate_exit_rad:
+                self._rotating = False
+                self._settle_until = now_s + cfg.steer_settle_s
+        elif abs(heading_err) > cfg.rotate_enter_rad:
+            self._rotating = True
+        if self._rotating:
+            v, w = self._turn(heading_err)
+            out = self._finish(pose, v, w, ControlStatus.ROTATING, dist_goal, remaining, now_s,
+                               "turning towards the path")
+            return out
+        # --- pure pursuit.
+        l2 = x_r * x_r + y_r * y_r
+        kappa = 2.0 * y_r / l2 if l2 > 1e-9 else 0.0
+        kmax = 1.0 / cfg.min_turning_radius_m if cfg.min_turning_radius_m > 0 else 1e9
+        kappa = max(-kmax, min(kmax, kappa))
+        v_target = cfg.max_speed_mps
+        detail = ""
+        # Fastest wheel on this arc (hardware.md §2.2): |v|·max hypot(x κ, 1 − y κ).
+        wheel = max(math.hypot(0.28 * kappa, 1.0 - 0.26 * abs(kappa)),
+                    math.hypot(0.28 * kappa, 1.0 + 0.26 * abs(kappa)))
+        v_target = min(v_target, self.robot.max_wheel_speed_mps / wheel)
+        # Angular limit on the arc.
+        if abs(kappa) > 1e-9:
+            v_target = min(v_target, cfg.max_angular_radps / abs(kappa))
+        # Clearance regulation.
+        clearance = self._clearance_m(pose)
+        if clearance < cfg.slow_clearance_m and cfg.slow_clearance_m > 0:
+            frac = max(cfg.slow_min_fraction, clearance / cfg.slow_clearance_m)
+            v_target *= frac
+            detail = "near an obstacle"
+        # Approach profile to the goal.
+        d_stop = max(0.0, dist_goal - 0.5 * cfg.xy_goal_tolerance_m)
+        v_goal = math.sqrt(2.0 * cfg.approach_decel_mps2 * d_stop)
+        if v_goal < v_target:
+            v_target = max(cfg.min_speed_mps, v_goal)
+            detail = detail or "approaching the goal"
+        if now_s < self._settle_until:
+            v_target = 0.0
+            detail = "steering servos settling"
+        # Curvature rate and acceleration.
+        if abs(self._v) < 1e-3 and abs(self._w) < 1e-3:
+            self._kappa = kappa  # standing still: the servos swing while the speed ramps up
+        else:
+            self._kappa = _approach(self._kappa, kappa, cfg.max_curvature_rate_per_s * self.dt_s)
+        v = _approach(self._v, v_target, cfg.max_accel_mps2 * self.dt_s)
+        w = v * self._kappa
+        status = ControlStatus.FOLLOWING
+        # Check the arc over a distance, not a time: creeping slowly must not make it look safe.
+        check_v = max(v, v_target, 0.5 * cfg.max_speed_mps)
+        traj = rollout(pose, check_v, check_v * self._kappa, cfg.collision_horizon_s, 0.1)
+        hit, _ = self._collides(traj)
+        if hit:
+            alt = self._sample(pose, x_r, y_r, kmax)
+            if alt is None:
+                return self._blocked(pose, dist_goal, remaining, now_s)
+            v_alt, k_alt = alt
+            status = ControlStatus.AVOIDING
+            detail = "avoiding an obstacle"
+            self._kappa = k_alt
+            v = _approach(self._v, v_alt, cfg.max_accel_mps2 * self.dt_s)
+            w = v * self._kappa
+        self._blocked_since = None
+        return self._finish(pose, v, w, status, dist_goal, remaining, now_s, detail)
+
+    def _turn(self, err: float) -> tuple[float, float]:
+        """In place towards ``err`` (radians): first stop driving, then turn."""
+        cfg = self.cfg
+        if abs(self._v) > 1e-3:  # brake along the current arc (the radius is kept)
+            v = _approach(self._v, 0.0, cfg.max_accel_mps2 * self.dt_s)
+            return v, v * self._kappa
+        w_target = math.copysign(min(cfg.max_angular_radps, max(0.25, 1.5 * abs(err))), err)
+        # Decelerate in time: ω ≤ sqrt(2 α |err|).
+        w_target = math.copysign(min(abs(w_target),
+                                     math.sqrt(2.0 * cfg.max_angular_accel_radps2 * 0.5
+                                               * abs(err)) + 0.05), err)
+        w = _approach(self._w, w_target, cfg.max_angular_accel_radps2 * self.dt_s)
+        self._kappa = 0.0
+        self._settle_until = -math.inf
+        return 0.0, w
+
+    def _sample(self, pose: Pose2D, x_r: float, y_r: float,
+                kmax: float) -> tuple[float, float] | None:
+        """Best admissible arc ``(v, κ)`` that makes progress, or None."""
+        cfg = self.cfg
+        target_bearing = math.atan2(y_r, x_r)
+        best: tuple[float, float, float] | None = None
+        kappas = np.linspace(-kmax, kmax, 11)
+        for frac in (1.0, 0.6, 0.3):
+            v = cfg.max_speed_mps * frac
+            for k in kappas:
+                traj = rollout(pose, v, v * k, cfg.collision_horizon_s, 0.1)
+                hit, worst = self._collides(traj)
+                if hit:
+                    continue
+                end = traj[-1]
+                c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+                ex, ey = end[0] - pose.x, end[1] - pose.y
+                # Progress towards the lookahead point and alignment with it.
+                tx, ty = c * x_r - s * y_r, s * x_r + c * y_r
+                norm = math.hypot(tx, ty) or 1.0
+                progress = (ex * tx + ey * ty) / norm
+                align = abs(wrap_angle(float(end[2]) - (pose.yaw + target_bearing)))
+                score = progress - 0.3 * align - 0.1 * worst / 253.0
+                if best is None or score > best[0]:
+                    best = (score, v, float(k))
+            if best is not None and best[0] > 0.05:
+                break
+        if best is not None and best[0] > 0.0:
+            return best[1], best[2]
+        return None
+
+    def _blocked(self, pose: Pose2D, dist_goal: float, remaining: float,
+                 now_s: float) -> ControlOutput:
+        if self._blocked_since is None:
+            self._blocked_since = now_s
+        v = _approach(self._v, 0.0, 2.0 * self.cfg.max_accel_mps2 * self.dt_s)
+        w = v * self._kappa
+        self._v, self._w = v, w
+        status = (ControlStatus.BLOCKED
+                  if now_s - self._blocked_since >= self.cfg.blocked_timeout_s
+                  else ControlStatus.AVOIDING)
+        traj = rollout(pose, v, w, self.cfg.collision_horizon_s, 0.1)
+        self.progress.update(pose, now_s)
+        return ControlOutput(v, w, status, traj, dist_goal, remaining,
+                             "no admissible motion: the way is blocked")
+
+    def _finish(self, pose: Pose2D, v: float, w: float, status: ControlStatus,
+                dist_goal: float, remaining: float, now_s: float, detail: str) -> ControlOutput:
+        self._v, self._w = v, w
+        traj = rollout(pose, v, w, self.cfg.collision_horizon_s, 0.1)
+        if not self.progress.update(pose, now_s):
+            return ControlOutput(0.0, 0.0, ControlStatus.NO_PROGRESS, traj, dist_goal,
+                                 remaining, "no progress")
+        return ControlOutput(v, w, status, traj, dist_goal, remaining, detail)

@@ -1,0 +1,168 @@
+"""The local controller: following, turning in place, goal checker, avoidance, progress."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from curio.config import Config
+from curio.geometry import Pose2D, wrap_angle
+from curio.nav.controller import ControlStatus, LocalController, ProgressChecker
+from curio.nav.costmap import Costmap
+from curio.nav.maps import OccupancyGrid
+
+
+def open_grid(size_m: float = 8.0, res: float = 0.05) -> OccupancyGrid:
+    """An empty room with walls, origin at (-size/2, -size/2)."""
+    n = int(size_m / res)
+    data = np.zeros((n, n), dtype=np.int8)
+    data[0, :] = data[-1, :] = data[:, 0] = data[:, -1] = 100
+    return OccupancyGrid(data, res, Pose2D(-size_m / 2, -size_m / 2, 0.0))
+
+
+def straight_plan(x0: float, x1: float, y: float = 0.0, step: float = 0.05) -> np.ndarray:
+    xs = np.arange(x0, x1 + 1e-9, step)
+    return np.stack([xs, np.full_like(xs, y), np.zeros_like(xs)], axis=1)
+
+
+def drive(ctrl: LocalController, pose: Pose2D, seconds: float,
+          stop_on_done: bool = True) -> tuple[Pose2D, list]:
+    """Integrate unicycle kinematics under the controller; return the final pose and log."""
+    dt = ctrl.dt_s
+    log = []
+    t = 0.0
+    for _ in range(int(seconds / dt)):
+        out = ctrl.compute(pose, t)
+        log.append((t, pose, out))
+        if stop_on_done and out.status in (ControlStatus.GOAL_REACHED, ControlStatus.BLOCKED,
+                                           ControlStatus.NO_PROGRESS):
+            break
+        v, w = out.linear_mps, out.angular_radps
+        if abs(w) < 1e-9:
+            pose = Pose2D(pose.x + v * dt * math.cos(pose.yaw),
+                          pose.y + v * dt * math.sin(pose.yaw), pose.yaw)
+        else:
+            r = v / w
+            th = pose.yaw + w * dt
+            pose = Pose2D(pose.x + r * (math.sin(th) - math.sin(pose.yaw)),
+                          pose.y - r * (math.cos(th) - math.cos(pose.yaw)), wrap_angle(th))
+        t += dt
+    return pose, log
+
+
+@pytest.fixture
+def ctrl(cfg: Config) -> LocalController:
+    cm = Costmap(open_grid(), cfg.robot, cfg.nav.costmap)
+    c = LocalController(cfg.nav.controller, cfg.robot, cm)
+    c.set_cost_scaling(cfg.nav.costmap.cost_scaling_factor)
+    return c
+
+
+def test_follows_a_straight_plan_within_limits(ctrl: LocalController, cfg: Config) -> None:
+    ctrl.set_plan(straight_plan(-2.0, 2.0), Pose2D(2.0, 0.0, 0.0))
+    pose, log = drive(ctrl, Pose2D(-2.0, 0.0, 0.0), 40.0)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    assert pose.distance_to(Pose2D(2.0, 0.0)) <= cfg.nav.controller.xy_goal_tolerance_m
+    speeds = [o.linear_mps for _, _, o in log]
+    assert max(speeds) <= cfg.nav.controller.max_speed_mps + 1e-9
+    assert max(speeds) >= 0.9 * cfg.nav.controller.max_speed_mps  # it does get up to speed
+    dv = np.diff(speeds)
+    assert dv.max() <= cfg.nav.controller.max_accel_mps2 * ctrl.dt_s + 1e-9
+    # 4 m at 0.3 m/s is 13.3 s; accelerating and the approach cost little more.
+    assert log[-1][0] < 1.3 * 4.0 / cfg.nav.controller.max_speed_mps
+
+
+def test_turns_in_place_when_facing_away(ctrl: LocalController, cfg: Config) -> None:
+    ctrl.set_plan(straight_plan(0.0, 2.0), Pose2D(2.0, 0.0, 0.0))
+    _pose, log = drive(ctrl, Pose2D(0.0, 0.0, math.pi), 40.0)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    first = [o for _, _, o in log[:10]]
+    assert all(o.linear_mps == 0.0 for o in first)
+    assert all(abs(o.angular_radps) > 0 for o in first[1:])
+    assert first[1].status is ControlStatus.ROTATING
+    # It did not wander off backwards: the path stays near the line.
+    assert max(abs(p.y) for _, p, _ in log) < 0.2
+
+
+def test_never_drives_arcs_tighter_than_the_servo_limit(ctrl: LocalController,
+                                                         cfg: Config) -> None:
+    # An L-shaped plan forces a sharp turn.
+    a = straight_plan(-2.0, 0.0)
+    ys = np.arange(0.05, 2.0, 0.05)
+    b = np.stack([np.zeros_like(ys), ys, np.full_like(ys, math.pi / 2)], axis=1)
+    ctrl.set_plan(np.vstack([a, b]), Pose2D(0.0, 2.0, math.pi / 2))
+    _pose, log = drive(ctrl, Pose2D(-2.0, 0.0, 0.0), 60.0)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    for _, _, o in log:
+        if o.linear_mps > 1e-6 and abs(o.angular_radps) > 1e-9:
+            assert abs(o.linear_mps / o.angular_radps) >= \
+                cfg.nav.controller.min_turning_radius_m - 1e-6
+
+
+def test_final_heading_is_met(ctrl: LocalController, cfg: Config) -> None:
+    ctrl.set_plan(straight_plan(0.0, 1.5), Pose2D(1.5, 0.0, math.pi / 2))
+    pose, log = drive(ctrl, Pose2D(0.0, 0.0, 0.0), 40.0)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    assert abs(wrap_angle(pose.yaw - math.pi / 2)) <= cfg.nav.controller.yaw_goal_tolerance_rad
+    # Without a heading (NaN yaw) it stops as soon as the position is reached.
+    ctrl.reset()
+    ctrl.set_plan(straight_plan(0.0, 1.5), Pose2D(1.5, 0.0, math.nan))
+    pose, log = drive(ctrl, Pose2D(0.0, 0.0, 0.0), 40.0)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    assert abs(pose.yaw) < 0.3
+
+
+def test_avoids_an_unmapped_obstacle_or_reports_blocked(cfg: Config) -> None:
+    grid = open_grid()
+    cm = Costmap(grid, cfg.robot, cfg.nav.costmap)
+    # A wall across the whole room at x = 1 (as the obstacle layer would mark it).
+    blocked = grid.data.copy()
+    col = int((1.0 - grid.origin.x) / grid.resolution_m)
+    blocked[:, col] = 100
+    cm.set_static_map(OccupancyGrid(blocked, grid.resolution_m, grid.origin))
+    ctrl = LocalController(cfg.nav.controller, cfg.robot, cm)
+    ctrl.set_plan(straight_plan(-2.0, 2.5), Pose2D(2.5, 0.0, 0.0))
+    pose, log = drive(ctrl, Pose2D(-2.0, 0.0, 0.0), 60.0)
+    assert log[-1][2].status is ControlStatus.BLOCKED
+    # It stopped short of the wall: the footprint never overlapped it.
+    assert pose.x + 0.33 < 1.0
+    # A box grazing the swept path, with room beside it: the controller swerves round it
+    # without touching it (a box squarely on the plan is the global planner's job).
+    box = grid.data.copy()
+    r0 = int((0.3 - grid.origin.y) / grid.resolution_m)
+    c0 = int((0.3 - grid.origin.x) / grid.resolution_m)
+    box[r0:r0 + 6, c0:c0 + 6] = 100
+    cm2 = Costmap(OccupancyGrid(box, grid.resolution_m, grid.origin), cfg.robot,
+                  cfg.nav.costmap)
+    ctrl2 = LocalController(cfg.nav.controller, cfg.robot, cm2)
+    ctrl2.set_plan(straight_plan(-2.0, 2.5), Pose2D(2.5, 0.0, 0.0))
+    pose, log = drive(ctrl2, Pose2D(-2.0, 0.0, 0.0), 80.0)
+    poses = np.array([[p.x, p.y, p.yaw] for _, p, _ in log])
+    assert (cm2.footprint_costs(poses) < 254).all()
+    assert any(o.status is ControlStatus.AVOIDING for _, _, o in log)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+
+
+def test_progress_checker(cfg: Config) -> None:
+    pc = ProgressChecker(0.1, 10.0)
+    assert pc.update(Pose2D(0, 0, 0), 0.0)
+    assert pc.update(Pose2D(0.05, 0, 0), 9.0)
+    assert not pc.update(Pose2D(0.05, 0, 0), 10.5)
+    assert pc.update(Pose2D(0.2, 0, 0), 11.0)  # moving again resets it
+    assert pc.update(Pose2D(0.2, 0, 0.6), 30.0)  # turning counts as progress
+
+
+def test_no_progress_when_the_rover_does_not_move(ctrl: LocalController, cfg: Config) -> None:
+    ctrl.set_plan(straight_plan(0.0, 3.0), Pose2D(3.0, 0.0, 0.0))
+    out = None
+    for k in range(int((cfg.nav.controller.progress_timeout_s + 1.0) / ctrl.dt_s)):
+        out = ctrl.compute(Pose2D(0.0, 0.0, 0.0), k * ctrl.dt_s)  # wheels spin, nothing moves
+    assert out is not None and out.status is ControlStatus.NO_PROGRESS
+    assert out.linear_mps == 0.0
+
+
+def test_idle_without_a_plan(ctrl: LocalController) -> None:
+    out = ctrl.compute(Pose2D(), 0.0)
+    assert out.status is ControlStatus.IDLE and out.linear_mps == 0.0
