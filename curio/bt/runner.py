@@ -1,0 +1,213 @@
+"""The tick runner: ticks a tree at ``cfg.bt.tick_hz`` on the injected clock, publishes snapshots.
+
+``TreeRunner.run`` is the Part's coroutine: ``async for _ in clock.every(1 / tick_hz)`` it
+ticks the tree once (a tick never awaits), mirrors the follower on the blackboard and, when a
+node's status or a blackboard value changed, publishes a :class:`~curio.messages.TreeSnapshot`
+on TREE. ``close()`` interrupts the tree (every running behaviour gets ``terminate(INVALID)``,
+which cancels its goal) and unregisters the blackboard clients.
+
+py_trees' own ``BehaviourTree.tick_tock`` sleeps on the wall clock and its ``setup`` uses
+signals and a timer thread, so neither is used: setting up a Curio behaviour only registers
+blackboard keys (dependencies come through the constructor) and cannot block.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import py_trees
+from py_trees.behaviour import Behaviour
+from py_trees.common import Status
+
+from curio.bus import Bus
+from curio.clock import Clock
+from curio.config import BtConfig
+from curio.messages import Event, OperatorCommand, TreeSnapshot
+from curio.topics import EVENTS, TREE
+
+from .behaviours import BB_DEFAULTS, Follower2BB, Operator2BB, TreeContext
+from .follower import PathFollower, StatusSink
+from .paths import PathManager
+from .speech import Speaker
+from .trees import build_root, tour_route_from_config
+
+__all__ = ["TreeRunner", "build_tree_runner"]
+
+log = logging.getLogger("curio.bt.runner")
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, float):
+        return round(value, 4)
+    if value is None or isinstance(value, (bool, int, str)):
+        return value
+    return str(value)
+
+
+class TreeRunner:
+    """Ticks one tree; exposes :meth:`tick` (tests, benchmarks) and :meth:`snapshot`.
+
+    Args:
+        root: the tree.
+        ctx: its shared context.
+        operator_feed: the OPERATOR feed inside the tree (for autostart and close).
+        tick_hz: ticks per second (the original: 2).
+    """
+
+    def __init__(self, root: Behaviour, ctx: TreeContext, operator_feed: Operator2BB,
+                 tick_hz: float) -> None:
+        if tick_hz <= 0:
+            raise ValueError(f"tick_hz must be > 0, got {tick_hz}")
+        self.root = root
+        self.ctx = ctx
+        self.operator_feed = operator_feed
+        self.period_s = 1.0 / tick_hz
+        self.tick_count = 0
+        self.snapshots_published = 0
+        self.overruns = 0
+        self._nodes = list(root.iterate())
+        self._ids = {node.id: i for i, node in enumerate(self._nodes)}
+        self._last_signature: tuple[Any, ...] | None = None
+        self._last_snapshot: TreeSnapshot | None = None
+        self._mirror = Follower2BB(ctx, name="Runner")
+        self._closed = False
+        for node in self._nodes:
+            node.setup()
+
+    # --- ticking ----------------------------------------------------------------------------
+
+    def tick(self) -> TreeSnapshot | None:
+        """Tick the tree once; return the snapshot if it was published (something changed)."""
+        self.root.tick_once()
+        self.tick_count += 1
+        self._mirror.refresh()
+        return self._publish_if_changed()
+
+    async def run(self) -> None:
+        """Tick at the configured rate on the injected clock until cancelled."""
+        self.ctx.sink.status("Idle", "idle")
+        warning = self.ctx.paths.load_warning
+        if warning:
+            self.ctx.bus.publish(EVENTS, Event(self.ctx.clock.now(), "paths.load_failed",
+                                               {"message": warning}))
+        clock = self.ctx.clock
+        due = clock.now()
+        while True:
+            await clock.sleep_until(due)
+            self.tick()
+            due += self.period_s
+            now = clock.now()
+            if due <= now:  # overrun: skip the missed ticks instead of bursting
+                self.overruns += 1
+                due = now + self.period_s
+
+    def inject(self, cmd: OperatorCommand) -> None:
+        """Hand a command to the tree as if it came from OPERATOR (next tick)."""
+        self.operator_feed.inject(cmd)
+
+    async def close(self) -> None:
+        """Interrupt the tree (cancel goals) and release the blackboard."""
+        if self._closed:
+            return
+        self._closed = True
+        self.root.stop(Status.INVALID)
+        self.ctx.follower.stop()
+        self.operator_feed.close()
+        for client in [*self.ctx.clients, self._mirror.bb]:
+            client.unregister(clear=True)
+
+    # --- snapshots --------------------------------------------------------------------------
+
+    def blackboard(self) -> dict[str, Any]:
+        """This tree's blackboard, keys without the namespace, values JSON-safe."""
+        prefix = self.ctx.namespace + "/"
+        storage = py_trees.blackboard.Blackboard.storage
+        return {key[len(prefix):]: _json_safe(value) for key, value in sorted(storage.items())
+                if key.startswith(prefix)}
+
+    def _node_dicts(self) -> tuple[dict[str, Any], ...]:
+        out = []
+        for node in self._nodes:
+            parent = node.parent
+            out.append({
+                "id": self._ids[node.id],
+                "name": node.name,
+                "type": type(node).__name__,
+                "status": node.status.value,
+                "parent": self._ids[parent.id] if parent is not None else None,
+                "children": [self._ids[c.id] for c in node.children],
+            })
+        return tuple(out)
+
+    def _signature(self, blackboard: dict[str, Any]) -> tuple[Any, ...]:
+        return (tuple(node.status for node in self._nodes), repr(blackboard))
+
+    def _publish_if_changed(self) -> TreeSnapshot | None:
+        blackboard = self.blackboard()
+        signature = self._signature(blackboard)
+        if signature == self._last_signature:
+            return None
+        self._last_signature = signature
+        snap = TreeSnapshot(self.ctx.clock.now(), self.tick_count, self._node_dicts(),
+                            blackboard)
+        self._last_snapshot = snap
+        self.snapshots_published += 1
+        self.ctx.bus.publish(TREE, snap)
+        return snap
+
+    def snapshot(self) -> TreeSnapshot:
+        """The latest snapshot (built now if nothing was published yet)."""
+        if self._last_snapshot is None:
+            return TreeSnapshot(self.ctx.clock.now(), self.tick_count, self._node_dicts(),
+                                self.blackboard())
+        return self._last_snapshot
+
+    def ascii(self) -> str:
+        """The tree with statuses, as text (py_trees' unicode renderer)."""
+        return str(py_trees.display.unicode_tree(self.root, show_status=True))
+
+
+def build_tree_runner(
+    cfg: BtConfig,
+    bus: Bus,
+    clock: Clock,
+    navigator: Any,
+    paths: PathManager,
+    speaker: Speaker | None = None,
+    *,
+    autostart_path: int | None = None,
+) -> TreeRunner:
+    """Build the configured tree (``cfg.tree``) and its runner.
+
+    Args:
+        cfg: the ``[bt]`` section.
+        bus, clock: the application's.
+        navigator: the navigator (curio/nav/api.py), or None.
+        paths: the path manager.
+        speaker: speaks tour messages (None: silent).
+        autostart_path: a path to select at the first tick (``cfg.autostart_path``); the
+            original drove path 1 at launch unasked (§9.16), Curio only when configured.
+    """
+    sink = StatusSink(bus, clock)
+    follower = PathFollower(navigator, sink, clock,
+                            speak=speaker.say if speaker is not None else None)
+    ctx = TreeContext(cfg=cfg, bus=bus, clock=clock, navigator=navigator, paths=paths,
+                      follower=follower, sink=sink, namespace=f"/curio_{id(follower):x}",
+                      tree_kind=cfg.tree, tour_route=tour_route_from_config(cfg))
+    init = py_trees.blackboard.Client(name="Init", namespace=ctx.namespace)
+    ctx.clients.append(init)
+    for key, value in BB_DEFAULTS.items():
+        init.register_key(key=key, access=py_trees.common.Access.WRITE)
+        init.set(key, value, overwrite=True)
+    operator_feed = Operator2BB(ctx)
+    root = build_root(ctx, operator_feed)
+    runner = TreeRunner(root, ctx, operator_feed, cfg.tick_hz)
+    start = cfg.autostart_path if autostart_path is None else autostart_path
+    if start is not None:
+        runner.inject(OperatorCommand(clock.now(), "select_path", path_id=start,
+                                      source="config"))
+    return runner
