@@ -1,12 +1,191 @@
-"""Simulator wiring: the world, rover physics and simulated sensors (owner: simulator)."""
+"""Simulator wiring: the world, rover physics and simulated sensors (owner: simulator).
+
+``build_sim(app)`` runs when ``cfg.drivers.mode`` is ``sim`` or ``emulated``:
+
+* both modes: the :class:`~curio.sim.world.World` (``app.world``), a physics loop at
+  ``cfg.sim.physics_rate_hz`` that also publishes ``/ground_truth`` (``map``, every physics
+  step, ≥ 20 Hz) and the world's events (``collision``, ``door``) on ``/events``;
+* ``sim`` mode only: :class:`SimBase` (``app.base``: ``/cmd_vel`` → kinematics → ``/servo_cmd``
+  → the world, with the 0.5 s command timeout and a halt hook) and the sensor publishers
+  ``/scan`` (``cfg.sim.lidar_rate_hz``), ``/imu`` (``cfg.sim.imu_rate_hz``), ``/wheels``
+  (``cfg.sim.wheel_feedback_rate_hz``) and ``/battery`` (1 Hz). In ``emulated`` mode the
+  byte-exact device emulators pull from the world instead.
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import logging
+from collections.abc import AsyncIterator
+from typing import TYPE_CHECKING, cast
+
+from curio.bus import Bus
+from curio.clock import Clock
+from curio.config import Config
+from curio.drivers.kinematics import twist_to_servo_command
+from curio.messages import BatteryState, Event, Odometry, ServoCommand, Twist, WheelEncoders
+from curio.sim.world import World
+from curio.topics import (
+    BATTERY,
+    CMD_VEL,
+    EVENTS,
+    GROUND_TRUTH,
+    IMU,
+    SCAN,
+    SERVO_CMD,
+    WHEELS,
+)
 
 if TYPE_CHECKING:
     from curio.app import App
 
+__all__ = ["SimBase", "Simulator", "build_sim"]
+
+log = logging.getLogger("curio.sim")
+
+LOW_BATTERY_V = 6.6
+
+
+def _every(clock: Clock, period_s: float, phase_s: float) -> AsyncIterator[float]:
+    """``clock.every`` (both clocks implement it; the ``Clock`` protocol does not declare it)."""
+    every = clock.every  # type: ignore[attr-defined]
+    return cast(AsyncIterator[float], every(period_s, phase_s=phase_s))
+
+
+class Simulator:
+    """Runs the world's physics on the clock and publishes ground truth, events and (in
+    ``sim`` mode) the sensors."""
+
+    def __init__(self, cfg: Config, bus: Bus, clock: Clock, world: World,
+                 publish_sensors: bool) -> None:
+        self.cfg = cfg
+        self.bus = bus
+        self.clock = clock
+        self.world = world
+        self.publish_sensors = publish_sensors
+        self.physics_steps = 0
+        self.scans = 0
+
+    def _publish_truth(self, stamp: float) -> None:
+        v, w = self.world.truth_twist
+        self.bus.publish(GROUND_TRUTH, Odometry(stamp, self.world.truth_pose, v, w,
+                                                covariance=(0.0,) * 9, frame_id="map"))
+        for kind, detail in self.world.pop_events():
+            self.bus.publish(EVENTS, Event(stamp, kind, detail))
+
+    async def run_physics(self) -> None:
+        """Step the world at ``physics_rate_hz`` and publish ``/ground_truth``."""
+        dt = 1.0 / self.cfg.sim.physics_rate_hz
+        self._publish_truth(self.clock.now())
+        async for t in _every(self.clock, dt, phase_s=dt):
+            self.world.step(dt)
+            self.physics_steps += 1
+            self._publish_truth(t)
+
+    async def run_scan(self) -> None:
+        """Publish one lidar revolution per ``1 / lidar_rate_hz``."""
+        async for t in _every(self.clock, 1.0 / self.cfg.sim.lidar_rate_hz, phase_s=0.005):
+            self.bus.publish(SCAN, self.world.cast_scan(t))
+            self.scans += 1
+
+    async def run_imu(self) -> None:
+        """Publish BNO055 samples at ``imu_rate_hz``."""
+        async for t in _every(self.clock, 1.0 / self.cfg.sim.imu_rate_hz, phase_s=0.001):
+            self.bus.publish(IMU, self.world.imu_sample(t))
+
+    async def run_wheels(self) -> None:
+        """Publish the wheel servo positions at ``wheel_feedback_rate_hz``."""
+        period = 1.0 / self.cfg.sim.wheel_feedback_rate_hz
+        async for t in _every(self.clock, period, phase_s=0.002):
+            p = self.world.wheel_positions()
+            self.bus.publish(WHEELS, WheelEncoders(t, (p[0], p[1], p[2], p[3], p[4], p[5])))
+
+    async def run_battery(self) -> None:
+        """Publish the servo pack voltage once a second."""
+        async for t in _every(self.clock, 1.0, phase_s=0.003):
+            volts = self.world.battery_voltage()
+            self.bus.publish(BATTERY, BatteryState(t, volts, low=volts < LOW_BATTERY_V))
+
+
+class SimBase:
+    """The simulated base driver: ``/cmd_vel`` → servo command → the world.
+
+    Applies the command timeout of the real base (``cfg.drivers.arduino.cmd_timeout_s``): a
+    command older than that stops the wheels; steering keeps the last command's angles.
+    """
+
+    def __init__(self, cfg: Config, bus: Bus, clock: Clock, world: World) -> None:
+        self.cfg = cfg
+        self.bus = bus
+        self.clock = clock
+        self.world = world
+        self.last_cmd: Twist | None = None
+        self.last_cmd_time = -1e9
+        self.timed_out = True
+        self.sent = 0
+        self._sub = bus.subscribe(CMD_VEL, maxsize=1)
+
+    def _send(self, cmd: ServoCommand) -> None:
+        self.world.apply_servo_command(cmd)
+        self.bus.publish(SERVO_CMD, cmd)
+        self.sent += 1
+
+    def _stop_wheels(self, stamp: float) -> None:
+        prev = self.bus.latest(SERVO_CMD)
+        steer = prev.steer_position if prev is not None else (500, 500, 500, 500)
+        self._send(ServoCommand(stamp, (0, 0, 0, 0, 0, 0), steer))
+
+    async def run(self) -> None:
+        """Forward every ``/cmd_vel`` to the servos at once."""
+        async for msg in self._sub:
+            now = self.clock.now()
+            self.last_cmd, self.last_cmd_time, self.timed_out = msg, now, False
+            try:
+                cmd = twist_to_servo_command(msg.linear_mps, msg.angular_radps,
+                                             self.cfg.robot, now)
+            except ValueError as exc:
+                log.warning("ignoring /cmd_vel: %s", exc)
+                continue
+            self._send(cmd)
+
+    async def run_watchdog(self) -> None:
+        """Stop the wheels when no command came for ``cmd_timeout_s``."""
+        timeout = self.cfg.drivers.arduino.cmd_timeout_s
+        async for t in _every(self.clock, 0.05, phase_s=0.004):
+            if not self.timed_out and t - self.last_cmd_time > timeout:
+                self.timed_out = True
+                self._stop_wheels(t)
+
+    async def halt(self) -> None:
+        """Zero every wheel duty now."""
+        self.timed_out = True
+        self._stop_wheels(self.clock.now())
+
+    async def close(self) -> None:
+        """Stop listening."""
+        self._sub.close()
+
 
 def build_sim(app: App) -> None:
-    """Construct this subsystem's parts from ``app.cfg`` and register them on ``app``."""
+    """Construct the world and simulator parts (``sim`` and ``emulated`` modes)."""
+    from curio.app import Part
+
+    cfg = app.cfg
+    if cfg.drivers.mode not in ("sim", "emulated"):
+        return
+    world = World.from_config(cfg)
+    app.world = world
+    sim_mode = cfg.drivers.mode == "sim"
+    simulator = Simulator(cfg, app.bus, app.clock, world, publish_sensors=sim_mode)
+    app.simulator = simulator
+    app.add(Part("sim.physics", run=simulator.run_physics))
+    if not sim_mode:
+        return
+    base = SimBase(cfg, app.bus, app.clock, world)
+    app.base = base
+    app.add(Part("sim.base", run=base.run, close=base.close))
+    app.add(Part("sim.base.watchdog", run=base.run_watchdog))
+    app.add_halt_hook(base.halt)
+    app.add(Part("sim.lidar", run=simulator.run_scan))
+    app.add(Part("sim.imu", run=simulator.run_imu))
+    app.add(Part("sim.wheels", run=simulator.run_wheels))
+    app.add(Part("sim.battery", run=simulator.run_battery))
