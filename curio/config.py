@@ -187,6 +187,10 @@ class EkfConfig(Section):
     imu_yaw_rate_sigma_radps: float = Field(0.01, gt=0.0)
     imu_heading_sigma_rad: float = Field(0.02, gt=0.0)
     gate_mahalanobis: float = Field(5.0, gt=0.0, description="reject measurements beyond this")
+    odom_speed_sigma_mps: float = Field(0.02, gt=0.0)
+    process_accel_sigma_mps2: float = Field(1.0, gt=0.0)
+    process_yaw_accel_sigma_radps2: float = Field(3.0, gt=0.0)
+    gyro_bias_walk_radps: float = Field(0.0005, ge=0.0, description="per sqrt(s)")
 
 
 class LocalizationConfig(Section):

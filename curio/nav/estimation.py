@@ -118,5 +118,16 @@ def build_estimation(app: App) -> None:
     app.map_server.publish()
     start = start_pose(cfg)
 
-    relay = OdomRelay(app.bus, start, relay_odom=True, compose_pose=True)
-    app.add(Part("odom_relay", run=relay.run))
+    relay_odom = not cfg.ekf.enabled
+    compose_pose = not cfg.localization.enabled
+    if cfg.ekf.enabled:
+        from curio.nav.ekf import build_ekf_part
+
+        app.ekf = build_ekf_part(app)
+    if cfg.localization.enabled:
+        from curio.nav.localization import build_localizer_part
+
+        app.localizer = build_localizer_part(app, grid, start)
+    if relay_odom or compose_pose:
+        relay = OdomRelay(app.bus, start, relay_odom=relay_odom, compose_pose=compose_pose)
+        app.add(Part("odom_relay", run=relay.run))

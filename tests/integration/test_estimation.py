@@ -7,6 +7,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from curio.clock import SimClock
 from curio.config import Config
 from curio.geometry import Pose2D
@@ -59,3 +61,53 @@ async def test_relay_publishes_map_odom_and_pose(cfg: Config, shared_maps: Path)
     assert status is not None and status.state == "off"
     for t in tasks:
         t.cancel()
+
+
+async def test_ekf_and_localizer_track_a_drive_on_the_bus(cfg: Config) -> None:
+    """WHEEL_ODOM (drifting) + IMU + SCAN in; POSE out, time-stamped like the odometry."""
+    from curio.geometry import yaw_to_quat
+    from curio.messages import Imu
+    from curio.nav.maps import save_map
+    from curio.topics import IMU, MAP_TO_ODOM, SCAN
+    from tests.unit.test_localization_helpers import cast_scan, room_grid
+
+    grid = room_grid()
+    world = save_map(grid, Path(cfg.data_dir) / "room.yaml")
+    start = Pose2D(1.0, 3.0, 0.0)
+    cfg = cfg.model_copy(update={
+        "sim": cfg.sim.model_copy(update={"world": str(world), "start": start.as_tuple()}),
+    })
+    clock = SimClock()
+    app = FakeApp(cfg, clock)
+    build_estimation(app)  # type: ignore[arg-type]
+    assert app.ekf is not None and app.localizer is not None
+    tasks = [asyncio.create_task(p.run()) for p in app.parts if p.run is not None]
+    rng = np.random.default_rng(2)
+    laser = Pose2D(*cfg.robot.laser_pose)
+    truth = start
+    wheel = Pose2D()
+    errors = []
+    dt = 0.01
+    for i in range(1, 1201):  # 12 s at 0.3 m/s, turning gently
+        t = i * dt
+        v, w = 0.3, 0.15 if i > 400 else 0.0
+        truth = truth @ Pose2D(v * dt, 0.0, w * dt)
+        wheel = wheel @ Pose2D(v * dt * 1.05, 0.0, w * dt + math.radians(2.0) * v * dt)
+        app.bus.publish(IMU, Imu(t, yaw_to_quat(0.0), (0.0, 0.0, w + 0.005)))
+        if i % 3 == 0:
+            app.bus.publish(WHEEL_ODOM, Odometry(t, wheel))
+        if i % 10 == 0:
+            app.bus.publish(SCAN, cast_scan(grid, truth, laser, stamp=t, sigma_m=0.02,
+                                            dropout=0.02, rng=rng))
+        await clock.advance(dt)
+        pose = app.bus.latest(POSE)
+        if pose is not None and i > 200 and i % 10 == 0:
+            errors.append(pose.pose.distance_to(truth))
+            assert abs(pose.stamp - t) <= 0.03
+    assert app.bus.latest(MAP_TO_ODOM) is not None
+    status = app.bus.latest(LOCALIZATION)
+    assert status is not None and status.state == "ok"
+    rmse = math.sqrt(sum(e * e for e in errors) / len(errors))
+    assert rmse < 0.04, rmse
+    for task in tasks:
+        task.cancel()

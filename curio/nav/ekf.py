@@ -1,0 +1,273 @@
+"""Odometry + IMU fusion: an extended Kalman filter in ``odom`` (filterpy inside).
+
+State (``odom`` frame, REP-105): ``x`` m, ``y`` m, ``yaw`` rad, ``v`` m/s (forward speed in
+``base_link``), ``omega`` rad/s (yaw rate) and ``b_gyro`` rad/s (the gyro's z bias, so a biased
+BNO055 does not turn the estimate when the wheels say the rover drives straight).
+
+Process: constant velocity and yaw rate with white acceleration noise
+(``process_accel_sigma_mps2``, ``process_yaw_accel_sigma_radps2``), a slow random walk of the
+bias. Measurements, each gated by its Mahalanobis distance (``gate_mahalanobis``):
+
+* wheel odometry (``WHEEL_ODOM``): the average forward speed and yaw rate over the interval since
+  the previous message, from the pose increment (``odom_speed_sigma_mps``,
+  ``odom_yaw_rate_sigma_radps``). A slipping wheel set that claims a turn the gyro does not see is
+  rejected by the gate.
+* the BNO055 (``IMU``): z angular rate = ``omega + b_gyro`` (``imu_yaw_rate_sigma_radps``); with
+  ``use_imu_heading`` and a calibrated magnetometer, the absolute heading too
+  (``imu_heading_sigma_rad``), offset so that the first accepted heading matches the filter's yaw.
+
+The filter is wrapped by :class:`OdomEkf` so that a change of the filterpy API touches this file
+only. :class:`EkfNode` connects it to the bus and publishes ``ODOM`` (``odom`` → ``base_link``)
+at ``rate_hz``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+from filterpy.kalman import ExtendedKalmanFilter
+
+from curio.bus import Bus
+from curio.clock import Clock
+from curio.config import EkfConfig
+from curio.geometry import Pose2D, quat_to_yaw, wrap_angle
+from curio.messages import Imu, Odometry
+from curio.topics import IMU, ODOM, WHEEL_ODOM
+
+if TYPE_CHECKING:
+    from curio.app import App
+
+__all__ = ["EkfNode", "OdomEkf", "build_ekf_part"]
+
+F64 = npt.NDArray[np.float64]
+
+X, Y, YAW, V, W, B = range(6)
+
+
+class OdomEkf:
+    """The fusion filter, free of any bus or clock: feed it timestamped measurements.
+
+    Attributes:
+        t_s: the time of the state, seconds (None before the first measurement).
+        rejected: measurements rejected by the Mahalanobis gate, by kind.
+        accepted: measurements fused, by kind.
+    """
+
+    def __init__(self, cfg: EkfConfig, imu_yaw_in_base_rad: float = 0.0) -> None:
+        self.cfg = cfg
+        self._kf = ExtendedKalmanFilter(dim_x=6, dim_z=1)
+        self._kf.x = np.zeros(6)
+        self._kf.P = np.diag([1e-9, 1e-9, 1e-9, 0.01, 0.01, 0.01**2])
+        self.t_s: float | None = None
+        self.imu_yaw_in_base_rad = imu_yaw_in_base_rad
+        self._heading_offset: float | None = None
+        self._last_wheel: Odometry | None = None
+        self.rejected: dict[str, int] = {"wheel": 0, "gyro": 0, "heading": 0}
+        self.accepted: dict[str, int] = {"wheel": 0, "gyro": 0, "heading": 0}
+
+    # --- state access ------------------------------------------------------------------------
+    @property
+    def x(self) -> F64:
+        """The state vector (x, y, yaw, v, omega, b_gyro) — a copy."""
+        return np.array(self._kf.x, dtype=np.float64).reshape(6)
+
+    @property
+    def P(self) -> F64:
+        """The state covariance — a copy."""
+        return np.array(self._kf.P, dtype=np.float64)
+
+    def pose(self) -> Pose2D:
+        """``base_link`` in ``odom``."""
+        s = self.x
+        return Pose2D(float(s[X]), float(s[Y]), wrap_angle(float(s[YAW])))
+
+    def odometry_at(self, t_s: float) -> Odometry:
+        """The state extrapolated to ``t_s`` (without changing the filter) as an Odometry."""
+        s, p = self.x, self.P
+        if self.t_s is not None and t_s > self.t_s:
+            s, f = self._propagate(s, t_s - self.t_s)
+            p = f @ p @ f.T + self._q(t_s - self.t_s)
+        cov = p[:3, :3]
+        return Odometry(t_s, Pose2D(float(s[X]), float(s[Y]), wrap_angle(float(s[YAW]))),
+                        float(s[V]), float(s[W]), tuple(float(v) for v in cov.ravel()))
+
+    # --- prediction --------------------------------------------------------------------------
+    @staticmethod
+    def _propagate(s: F64, dt: float) -> tuple[F64, F64]:
+        """Constant (v, omega) motion over ``dt``; return the new state and its Jacobian."""
+        out = s.copy()
+        yaw, v, w = s[YAW], s[V], s[W]
+        mid = yaw + 0.5 * w * dt  # midpoint integration (exact enough at 50 Hz)
+        c, sn = math.cos(mid), math.sin(mid)
+        out[X] = s[X] + v * dt * c
+        out[Y] = s[Y] + v * dt * sn
+        out[YAW] = yaw + w * dt
+        f = np.eye(6)
+        f[X, YAW] = -v * dt * sn
+        f[X, V] = dt * c
+        f[X, W] = -v * dt * sn * 0.5 * dt
+        f[Y, YAW] = v * dt * c
+        f[Y, V] = dt * sn
+        f[Y, W] = v * dt * c * 0.5 * dt
+        f[YAW, W] = dt
+        return out, f
+
+    def _q(self, dt: float) -> F64:
+        qa = self.cfg.process_accel_sigma_mps2**2
+        qw = self.cfg.process_yaw_accel_sigma_radps2**2
+        q = np.zeros((6, 6))
+        # White-acceleration model for (pos, v) and (yaw, omega).
+        q[V, V] = qa * dt
+        q[W, W] = qw * dt
+        q[YAW, YAW] = qw * dt**3 / 3
+        q[YAW, W] = q[W, YAW] = qw * dt**2 / 2
+        q[X, X] = q[Y, Y] = qa * dt**3 / 3 + 1e-8 * dt
+        q[B, B] = self.cfg.gyro_bias_walk_radps**2 * dt
+        return q
+
+    def predict_to(self, t_s: float) -> None:
+        """Advance the state to ``t_s`` (no-op for the first call or a stamp in the past)."""
+        if self.t_s is None:
+            self.t_s = t_s
+            return
+        dt = t_s - self.t_s
+        if dt <= 0:
+            return
+        if dt > 1.0:  # a long gap (paused sensors): do not extrapolate old speeds far
+            self._kf.x[V] = 0.0
+            self._kf.x[W] = 0.0
+        s, f = self._propagate(self.x, dt)
+        self._kf.x = s
+        self._kf.P = f @ self._kf.P @ f.T + self._q(dt)
+        self.t_s = t_s
+
+    # --- measurements ------------------------------------------------------------------------
+    def _update(self, kind: str, z: F64, h: F64, r: F64, angle_rows: tuple[int, ...] = ()) -> bool:
+        """Linear measurement ``z = h @ x`` with covariance ``r``, gated; return if fused."""
+        s = self.x
+        y = z - h @ s
+        for i in angle_rows:
+            y[i] = wrap_angle(float(y[i]))
+        cov = h @ self._kf.P @ h.T + r
+        try:
+            d2 = float(y @ np.linalg.solve(cov, y))
+        except np.linalg.LinAlgError:
+            self.rejected[kind] += 1
+            return False
+        if not math.isfinite(d2) or math.sqrt(max(d2, 0.0)) > self.cfg.gate_mahalanobis:
+            self.rejected[kind] += 1
+            return False
+
+        def residual(a: F64, b: F64) -> F64:
+            out = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+            for i in angle_rows:
+                out[i] = wrap_angle(float(out[i]))
+            return out
+
+        self._kf.update(z, HJacobian=lambda _x: h, Hx=lambda x: h @ np.asarray(x).reshape(6),
+                        R=r, residual=residual)
+        self._kf.x = np.asarray(self._kf.x, dtype=np.float64).reshape(6)
+        self._kf.x[YAW] = wrap_angle(float(self._kf.x[YAW]))
+        self.accepted[kind] += 1
+        return True
+
+    def add_wheel_odometry(self, odom: Odometry) -> bool:
+        """Fuse one wheel-odometry message (the increment since the previous one)."""
+        prev = self._last_wheel
+        self._last_wheel = odom
+        if prev is None:
+            self.predict_to(odom.stamp)
+            return False
+        dt = odom.stamp - prev.stamp
+        if dt <= 0:
+            return False
+        d = prev.pose.inverse() @ odom.pose
+        v = math.copysign(math.hypot(d.x, d.y), d.x) / dt
+        w = d.yaw / dt
+        # The average over [prev, now] is the rate at the interval's middle.
+        self.predict_to(odom.stamp - 0.5 * dt)
+        h = np.zeros((2, 6))
+        h[0, V] = 1.0
+        h[1, W] = 1.0
+        r = np.diag([self.cfg.odom_speed_sigma_mps**2, self.cfg.odom_yaw_rate_sigma_radps**2])
+        ok = self._update("wheel", np.array([v, w]), h, r)
+        if not ok:
+            # The yaw rate is the usual culprit (slip); keep the speed if it alone is sane.
+            ok = self._update("wheel", np.array([v]), h[:1], r[:1, :1])
+        self.predict_to(odom.stamp)
+        return ok
+
+    def add_imu(self, imu: Imu) -> bool:
+        """Fuse the gyro's z rate (and the heading, when enabled and calibrated)."""
+        self.predict_to(imu.stamp)
+        h = np.zeros((1, 6))
+        h[0, W] = 1.0
+        h[0, B] = 1.0
+        r = np.array([[self.cfg.imu_yaw_rate_sigma_radps**2]])
+        ok = self._update("gyro", np.array([imu.angular_velocity_radps[2]]), h, r)
+        if self.cfg.use_imu_heading and imu.orientation_valid and self._calibrated(imu):
+            yaw_base = wrap_angle(quat_to_yaw(imu.orientation_xyzw) - self.imu_yaw_in_base_rad)
+            if self._heading_offset is None:
+                self._heading_offset = wrap_angle(float(self.x[YAW]) - yaw_base)
+            hh = np.zeros((1, 6))
+            hh[0, YAW] = 1.0
+            z = np.array([wrap_angle(yaw_base + self._heading_offset)])
+            # The filter's yaw is unwrapped-by-wrap: compare on the circle.
+            self._update("heading", z, hh, np.array([[self.cfg.imu_heading_sigma_rad**2]]),
+                         angle_rows=(0,))
+        return ok
+
+    @staticmethod
+    def _calibrated(imu: Imu) -> bool:
+        """BNO055 levels (sys, gyro, accel, mag): gyro and magnetometer at 2 or better."""
+        _, gyro, _, mag = imu.calibration
+        return gyro >= 2 and mag >= 2
+
+
+class EkfNode:
+    """Bus adapter: ``WHEEL_ODOM`` + ``IMU`` → ``ODOM`` at ``rate_hz``."""
+
+    def __init__(self, bus: Bus, clock: Clock, ekf: OdomEkf) -> None:
+        self.bus = bus
+        self.clock = clock
+        self.ekf = ekf
+
+    def _drain(self, wheel_sub: object, imu_sub: object) -> None:
+        msgs: list[Odometry | Imu] = [*wheel_sub.drain(), *imu_sub.drain()]  # type: ignore[attr-defined]
+        msgs.sort(key=lambda m: m.stamp)
+        for m in msgs:
+            if isinstance(m, Odometry):
+                self.ekf.add_wheel_odometry(m)
+            else:
+                self.ekf.add_imu(m)
+
+    async def run(self) -> None:
+        """Fuse what arrived and publish ``ODOM`` every period."""
+        wheel_sub = self.bus.subscribe(WHEEL_ODOM, maxsize=256)
+        imu_sub = self.bus.subscribe(IMU, maxsize=512)
+        try:
+            period = 1.0 / self.ekf.cfg.rate_hz
+            due = self.clock.now()
+            while True:
+                await self.clock.sleep_until(due)
+                t = self.clock.now()
+                due = max(due + period, t)
+                self._drain(wheel_sub, imu_sub)
+                if self.ekf.t_s is None:
+                    continue
+                self.bus.publish(ODOM, self.ekf.odometry_at(max(t, self.ekf.t_s)))
+        finally:
+            wheel_sub.close()
+            imu_sub.close()
+
+
+def build_ekf_part(app: App) -> EkfNode:
+    """Construct the EKF node for ``app`` and register its part."""
+    from curio.app import Part
+
+    node = EkfNode(app.bus, app.clock, OdomEkf(app.cfg.ekf, app.cfg.robot.imu_pose[2]))
+    app.add(Part("ekf", run=node.run))
+    return node

@@ -1,0 +1,129 @@
+"""EKF: wheel odometry + gyro fusion, gyro bias, wheel slip, Mahalanobis gating, heading."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from curio.config import EkfConfig
+from curio.geometry import Pose2D, yaw_to_quat
+from curio.messages import Imu, Odometry
+from curio.nav.ekf import OdomEkf
+
+
+def _run(ekf: OdomEkf, seconds: float, v: float, w_true: float, *, gyro_bias: float = 0.0,
+         wheel_w_error: float = 0.0, rng: np.random.Generator | None = None,
+         heading: bool = False, t0: float = 0.0, start: Pose2D = Pose2D()) -> Pose2D:
+    """Drive at (v, w_true) feeding 30 Hz wheel odometry and 100 Hz gyro; return the truth."""
+    truth = start
+    wheel = ekf._last_wheel.pose if ekf._last_wheel is not None else Pose2D()
+    dt = 0.01
+    steps = round(seconds / dt)
+    for i in range(1, steps + 1):
+        t = t0 + i * dt
+        truth = truth @ Pose2D(v * dt, 0.0, w_true * dt)
+        wheel = wheel @ Pose2D(v * dt, 0.0, (w_true + wheel_w_error) * dt)
+        noise = rng.normal(0, 0.002) if rng is not None else 0.0
+        ekf.add_imu(Imu(t, orientation_xyzw=yaw_to_quat(truth.yaw),
+                        angular_velocity_radps=(0.0, 0.0, w_true + gyro_bias + noise),
+                        orientation_valid=heading, calibration=(3, 3, 3, 3)))
+        if i % 3 == 0:
+            ekf.add_wheel_odometry(Odometry(t, wheel, v, w_true + wheel_w_error))
+    return truth
+
+
+def test_straight_drive_integrates_the_wheel_speed() -> None:
+    ekf = OdomEkf(EkfConfig())
+    truth = _run(ekf, 10.0, 0.3, 0.0)
+    pose = ekf.pose()
+    assert pose.x == pytest.approx(truth.x, abs=0.02)
+    assert abs(pose.y) < 0.01
+    assert ekf.x[3] == pytest.approx(0.3, abs=0.01)
+
+
+def test_gyro_bias_is_estimated_and_does_not_turn_the_rover() -> None:
+    ekf = OdomEkf(EkfConfig())
+    rng = np.random.default_rng(1)
+    _run(ekf, 30.0, 0.3, 0.0, gyro_bias=0.01, rng=rng)
+    # A 0.01 rad/s bias integrated blindly would be 17° after 30 s.
+    assert abs(ekf.pose().yaw) < math.radians(2.0)
+    assert ekf.x[5] == pytest.approx(0.01, abs=0.003)
+
+
+def test_wheel_slip_burst_is_outweighed_by_the_gyro() -> None:
+    """Slipping wheels claim a 0.3 rad/s turn for 2 s that the gyro does not see."""
+    ekf = OdomEkf(EkfConfig())
+    _run(ekf, 5.0, 0.3, 0.0)
+    assert ekf.rejected["wheel"] == 0
+    _run(ekf, 2.0, 0.3, 0.0, wheel_w_error=0.3, t0=5.0)
+    _run(ekf, 3.0, 0.3, 0.0, t0=7.0)
+    wheel_only = 0.3 * 2.0
+    assert abs(ekf.pose().yaw) < 0.1 * wheel_only
+    assert ekf.rejected["wheel"] > 0
+
+
+def test_gate_rejects_an_outlier_wheel_message() -> None:
+    ekf = OdomEkf(EkfConfig())
+    _run(ekf, 2.0, 0.2, 0.1)
+    before = ekf.rejected["wheel"]
+    yaw_before = ekf.pose().yaw
+    last = ekf._last_wheel
+    assert last is not None
+    # A glitch: 2 m and 90° in one 33 ms interval.
+    glitch = Odometry(last.stamp + 0.033, last.pose @ Pose2D(2.0, 0.0, math.pi / 2))
+    ekf.add_wheel_odometry(glitch)
+    assert ekf.rejected["wheel"] > before
+    assert abs(ekf.x[3] - 0.2) < 0.05
+    assert abs(ekf.pose().yaw - yaw_before) < 0.05
+
+
+def test_gate_can_be_opened() -> None:
+    ekf = OdomEkf(EkfConfig(gate_mahalanobis=1e9))
+    _run(ekf, 2.0, 0.2, 0.1)
+    last = ekf._last_wheel
+    assert last is not None
+    ekf.add_wheel_odometry(Odometry(last.stamp + 0.033, last.pose @ Pose2D(2.0, 0.0, 0.0)))
+    assert ekf.rejected["wheel"] == 0
+    assert ekf.x[3] > 1.0
+
+
+def test_absolute_heading_corrects_a_drifting_yaw_when_enabled() -> None:
+    cfg = EkfConfig(use_imu_heading=True)
+    ekf = OdomEkf(cfg)
+    # Gyro and wheels both under-read the turn by 10 %; the heading is right.
+    truth = Pose2D()
+    wheel = Pose2D()
+    for i in range(1, 2001):
+        t = i * 0.01
+        truth = truth @ Pose2D(0.003, 0.0, 0.005)
+        wheel = wheel @ Pose2D(0.003, 0.0, 0.0045)
+        ekf.add_imu(Imu(t, orientation_xyzw=yaw_to_quat(truth.yaw + 1.0),
+                        angular_velocity_radps=(0.0, 0.0, 0.45), orientation_valid=True,
+                        calibration=(3, 3, 3, 3)))
+        if i % 3 == 0:
+            ekf.add_wheel_odometry(Odometry(t, wheel))
+    err = abs(math.remainder(ekf.pose().yaw - truth.yaw, 2 * math.pi))
+    assert err < math.radians(3.0)
+    assert ekf.accepted["heading"] > 1000
+
+
+def test_heading_ignored_when_uncalibrated() -> None:
+    ekf = OdomEkf(EkfConfig(use_imu_heading=True))
+    ekf.add_imu(Imu(0.0, orientation_xyzw=yaw_to_quat(1.0), orientation_valid=True,
+                    calibration=(0, 3, 3, 0)))
+    ekf.add_imu(Imu(0.01, orientation_xyzw=yaw_to_quat(1.0), orientation_valid=True,
+                    calibration=(0, 3, 3, 0)))
+    assert ekf.accepted["heading"] == 0
+
+
+def test_odometry_extrapolates_without_changing_the_state() -> None:
+    ekf = OdomEkf(EkfConfig())
+    _run(ekf, 3.0, 0.3, 0.0)
+    x_before = ekf.x.copy()
+    assert ekf.t_s is not None
+    ahead = ekf.odometry_at(ekf.t_s + 1.0)
+    assert ahead.pose.x == pytest.approx(x_before[0] + 0.3, abs=0.01)
+    assert np.array_equal(ekf.x, x_before)
+    assert ahead.frame_id == "odom" and ahead.child_frame_id == "base_link"

@@ -1,0 +1,160 @@
+"""Localisation: distance field, scan matching, tracking with noisy odometry, global search."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from curio.config import LocalizationConfig
+from curio.geometry import Pose2D
+from curio.nav.localization import DistanceField, Localizer, _kld_bound, scan_match, scan_to_points
+from tests.unit.test_localization_helpers import cast_scan, room_grid
+
+LASER = Pose2D(0.152, 0.078, 0.0)
+
+
+def test_distance_field_measures_distance_to_walls() -> None:
+    grid = room_grid()
+    field = DistanceField(grid, 2.0)
+    # A point right of the left wall (wall cells x in [-1, -0.9), last centre at -0.925).
+    d = field.lookup(np.array([0.075]), np.array([4.0]))
+    assert d[0] == pytest.approx(1.0, abs=0.06)
+    # Far outside the grid: the maximum.
+    assert field.lookup(np.array([100.0]), np.array([0.0]))[0] == 2.0
+    v, gx, gy = field.lookup_grad(np.array([-0.5]), np.array([3.0]))
+    assert v[0] == pytest.approx(0.425, abs=0.03)
+    assert gx[0] == pytest.approx(1.0, abs=0.05)   # moving right moves away from the left wall
+    assert abs(gy[0]) < 0.05
+
+
+def test_scan_match_pulls_a_wrong_guess_onto_the_truth() -> None:
+    grid = room_grid()
+    field = DistanceField(grid, 2.0)
+    truth = Pose2D(2.5, 1.5, 0.3)
+    scan = cast_scan(grid, truth, LASER)
+    pts = scan_to_points(scan, LASER, 180)
+    m = scan_match(field, pts, Pose2D(2.62, 1.42, 0.35), iterations=15)
+    assert m.pose.distance_to(truth) < 0.01
+    assert abs(m.pose.yaw - truth.yaw) < math.radians(0.3)
+    assert m.inlier_fraction > 0.9
+
+
+def test_kld_bound_grows_with_bins() -> None:
+    k = np.array([1.0, 2.0, 10.0, 100.0])
+    n = _kld_bound(k, 0.01, 0.99)
+    assert n[0] == 1.0
+    assert np.all(np.diff(n) > 0)
+    assert n[3] > 4000  # many bins need thousands of particles
+
+
+def _drive(loc: Localizer, grid, poses, rng, scale=1.05, drift=math.radians(2.0)):  # type: ignore[no-untyped-def]
+    """Feed the localiser a path with scaled, drifting odometry; return errors (m, rad)."""
+    odom = Pose2D()
+    errs = []
+    for prev, cur in itertools.pairwise(poses):
+        d = prev.inverse() @ cur
+        dist = math.hypot(d.x, d.y)
+        noisy = Pose2D(d.x * scale, d.y * scale, d.yaw + drift * dist)
+        odom = odom @ noisy
+        scan = cast_scan(grid, cur, LASER, sigma_m=0.02, dropout=0.02, rng=rng)
+        loc.update(scan, odom)
+        errs.append((loc.pose.distance_to(cur), abs(math.remainder(loc.pose.yaw - cur.yaw,
+                                                                      2 * math.pi))))
+    return errs
+
+
+def _path(n: int = 120) -> list[Pose2D]:
+    out = []
+    for i in range(n):
+        t = i / n * 2 * math.pi
+        out.append(Pose2D(4.0 + 2.5 * math.cos(t), 3.0 + 1.8 * math.sin(t), t + math.pi / 2))
+    return out
+
+
+def test_tracks_a_loop_with_noisy_odometry_to_centimetres() -> None:
+    grid = room_grid()
+    rng = np.random.default_rng(3)
+    path = _path()
+    loc = Localizer(grid, LocalizationConfig(), LASER, seed=1)
+    loc.initialize(Pose2D(path[0].x + 0.1, path[0].y - 0.1, path[0].yaw + 0.05))
+    errs = _drive(loc, grid, path, rng)
+    pos = np.array([e[0] for e in errs[10:]])
+    yaw = np.array([e[1] for e in errs[10:]])
+    assert math.sqrt(np.mean(pos**2)) < 0.03
+    assert math.sqrt(np.mean(yaw**2)) < math.radians(1.0)
+    assert loc.state == "ok"
+    assert loc.cfg.min_particles <= len(loc.particles) <= 1000
+
+
+def test_pure_particle_filter_without_scan_matching_still_tracks() -> None:
+    grid = room_grid()
+    rng = np.random.default_rng(4)
+    path = _path()
+    cfg = LocalizationConfig(scan_match=False)
+    loc = Localizer(grid, cfg, LASER, seed=2)
+    loc.initialize(path[0])
+    errs = _drive(loc, grid, path, rng)
+    assert max(e[0] for e in errs[10:]) < 0.25
+
+
+def _kidnap(loc: Localizer, rng: np.random.Generator, steps: int = 80) -> tuple[list[str], Pose2D]:
+    grid = loc.grid
+    path = _path(60)
+    loc.initialize(path[0])
+    _drive(loc, grid, path[:20], rng)
+    assert loc.state == "ok"
+    # Teleport: the odometry keeps counting from where it was, the scans come from elsewhere.
+    far = [Pose2D(9.5 + 0.02 * i, 3.5 + 0.01 * i, 2.0 + 0.01 * i) for i in range(steps)]
+    odom = Pose2D(5, 5, 0)
+    states = []
+    for i, cur in enumerate(far):
+        odom = odom @ Pose2D(0.0202 if i else 0.0, 0.0, 0.01)
+        loc.update(cast_scan(grid, cur, LASER, sigma_m=0.02, rng=rng), odom)
+        states.append(loc.state)
+    return states, far[-1]
+
+
+def test_kidnapped_rover_relocalises() -> None:
+    loc = Localizer(room_grid(), LocalizationConfig(), LASER, seed=3)
+    states, truth = _kidnap(loc, np.random.default_rng(5))
+    assert states[0] != "ok"
+    assert loc.state == "ok"
+    # The filter updates every 5 cm of travel, so its pose may lag the last scan by 2 steps.
+    assert loc.pose.distance_to(truth) < 0.1
+
+
+def test_kidnapped_rover_without_recovery_is_declared_lost() -> None:
+    cfg = LocalizationConfig(auto_relocalize=False, recovery_alpha_fast=0.0,
+                             recovery_alpha_slow=0.0)
+    loc = Localizer(room_grid(), cfg, LASER, seed=3)
+    states, truth = _kidnap(loc, np.random.default_rng(5), steps=30)
+    assert states[-1] == "lost"
+    assert loc.pose.distance_to(truth) > 1.0
+
+
+def test_lost_rover_with_global_search_relocalises() -> None:
+    cfg = LocalizationConfig(recovery_alpha_fast=0.0, recovery_alpha_slow=0.0,
+                             global_poses_per_scan=20000)
+    loc = Localizer(room_grid(), cfg, LASER, seed=3)
+    states, truth = _kidnap(loc, np.random.default_rng(5))
+    assert "lost" in states
+    assert loc.state == "ok"
+    assert loc.pose.distance_to(truth) < 0.1
+
+
+def test_global_localization_finds_the_pose() -> None:
+    grid = room_grid()
+    rng = np.random.default_rng(6)
+    loc = Localizer(grid, LocalizationConfig(), LASER, seed=4)
+    loc.global_localization()
+    truth = Pose2D(7.5, 2.0, -2.5)
+    odom = Pose2D()
+    for i in range(40):
+        cur = truth @ Pose2D(0.03 * i, 0.0, 0.0)
+        odom = Pose2D(0.03 * i, 0.0, 0.0)
+        loc.update(cast_scan(grid, cur, LASER, sigma_m=0.02, rng=rng), odom)
+    assert loc.state == "ok"
+    assert loc.pose.distance_to(truth @ Pose2D(0.03 * 39, 0, 0)) < 0.05
