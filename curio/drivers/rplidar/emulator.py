@@ -247,7 +247,7 @@ class RplidarEmulator:
         raw, ranges = raw[order], ranges[order]
         with np.errstate(invalid="ignore"):
             valid = np.isfinite(ranges) & (ranges >= 0.15) & (ranges <= 12.0)
-        dist_q2 = np.where(valid, np.round(np.nan_to_num(ranges) * 4000.0), 0).astype(np.int64)
+        dist_q2 = np.round(np.where(valid, ranges, 0.0) * 4000.0).astype(np.int64)
         quality = np.where(valid, self._rng.integers(10, 48, len(raw)), 0)
         angle_q6 = np.round(raw * 64.0).astype(np.int64) % (360 * 64)
         start = np.zeros(len(raw), dtype=bool)
