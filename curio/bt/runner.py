@@ -48,6 +48,17 @@ def _json_safe(value: Any) -> Any:
     return str(value)
 
 
+def _preorder(root: Behaviour) -> list[Behaviour]:
+    """Every node, parents before children, left to right (snapshot ids follow this order)."""
+    out: list[Behaviour] = []
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        out.append(node)
+        stack.extend(reversed(node.children))
+    return out
+
+
 class TreeRunner:
     """Ticks one tree; exposes :meth:`tick` (tests, benchmarks) and :meth:`snapshot`.
 
@@ -69,7 +80,7 @@ class TreeRunner:
         self.tick_count = 0
         self.snapshots_published = 0
         self.overruns = 0
-        self._nodes = list(root.iterate())
+        self._nodes = _preorder(root)
         self._ids = {node.id: i for i, node in enumerate(self._nodes)}
         self._last_signature: tuple[Any, ...] | None = None
         self._last_snapshot: TreeSnapshot | None = None
@@ -117,7 +128,10 @@ class TreeRunner:
         self.root.stop(Status.INVALID)
         self.ctx.follower.stop()
         self.operator_feed.close()
-        for client in [*self.ctx.clients, self._mirror.bb]:
+        clients = {id(c): c for c in self.ctx.clients}
+        for node in self._nodes:
+            clients.update((id(c), c) for c in node.blackboards)
+        for client in clients.values():
             client.unregister(clear=True)
 
     # --- snapshots --------------------------------------------------------------------------
