@@ -177,8 +177,12 @@ def test_assembler_cuts_revolutions_at_start_flag() -> None:
     revs = asm.feed(dec.feed(data))
     # The partial revolution before the first S is dropped; the last one is still open.
     assert [len(r) for r in revs] == [50, 40]
-    revs2 = asm.feed(dec.feed(p.encode_node(True, 1, 0, 0)))
-    assert revs2 == [] and asm.short_scans == 1  # the 10-node one was too short
+    # A start flag only 10 nodes into a revolution is a false one: it does not cut.
+    assert asm.feed(dec.feed(p.encode_node(True, 1, 0, 0))) == []
+    # Nor does a start flag far from the raw 0° (garbage that passed the check bits).
+    assert asm.feed(dec.feed(p.encode_node(True, 1, 180 * 64, 0) * 30)) == []
+    revs3 = asm.feed(dec.feed(rev_bytes(20)))
+    assert [len(r) for r in revs3] == [10 + 1 + 30]
 
 
 def test_angle_conversion_matches_rplidar_ros() -> None:

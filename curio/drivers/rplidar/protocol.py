@@ -445,9 +445,13 @@ class ScanAssembler:
     ``feed`` returns the revolutions completed by a batch (each as one :class:`NodeBatch`).
     The nodes before the first start flag ever seen are dropped (a partial revolution), and a
     revolution with fewer than ``min_nodes`` nodes is dropped and counted in ``short_scans``.
+    A start flag counts only on a node within ``start_window_deg`` of the raw 0° (where the A1
+    sets it) and after at least ``min_nodes`` nodes of the revolution in progress: a false node
+    made of garbage bytes then almost never cuts a revolution in two.
     """
 
     min_nodes: int = 20
+    start_window_deg: float = 30.0
     _parts: list[NodeBatch] = field(default_factory=list)
     _synced: bool = False
     short_scans: int = 0
@@ -463,11 +467,16 @@ class ScanAssembler:
         out: list[NodeBatch] = []
         if len(batch) == 0:
             return out
-        starts = np.flatnonzero(batch.start)
+        w = self.start_window_deg
+        near_zero = (batch.angle_deg < w) | (batch.angle_deg > 360.0 - w)
+        starts = np.flatnonzero(batch.start & near_zero)
         lo = 0
         for idx in starts:
             i = int(idx)
             if self._synced:
+                in_progress = sum(len(part) for part in self._parts) + (i - lo)
+                if in_progress < self.min_nodes:
+                    continue  # too early for a new revolution: a false start flag
                 if i > lo:
                     self._parts.append(batch.slice(lo, i))
                 rev = NodeBatch.concat(self._parts)
