@@ -227,7 +227,7 @@ def routes(hub_key: web.AppKey[Hub], require_control: Any) -> list[web.RouteDef]
         for x, y, yaw in wps:
             paths.add_waypoint(created.id, x, y, yaw)
         created = paths.get(created.id)
-        hub.broadcast_paths()
+        hub.paths_changed()
         return web.json_response(path_to_json(created), status=201, dumps=_dumps)
 
     async def rename_path(request: web.Request) -> web.Response:
@@ -241,7 +241,7 @@ def routes(hub_key: web.AppKey[Hub], require_control: Any) -> list[web.RouteDef]
         pid = path_id_of(request)
         _must_exist(paths, pid)
         paths.rename(pid, name)
-        hub.broadcast_paths()
+        hub.paths_changed()
         return web.json_response(path_to_json(paths.get(pid)), dumps=_dumps)
 
     async def delete_path(request: web.Request) -> web.Response:
@@ -251,7 +251,7 @@ def routes(hub_key: web.AppKey[Hub], require_control: Any) -> list[web.RouteDef]
         pid = path_id_of(request)
         _must_exist(paths, pid)
         paths.delete(pid)
-        hub.broadcast_paths()
+        hub.paths_changed()
         return web.json_response({"deleted": pid})
 
     async def add_waypoint(request: web.Request) -> web.Response:
@@ -267,7 +267,7 @@ def routes(hub_key: web.AppKey[Hub], require_control: Any) -> list[web.RouteDef]
             raise http_error(web.HTTPBadRequest, str(exc)) from None
         yaw = body.get("yaw_rad")
         paths.add_waypoint(pid, pose.x, pose.y, None if yaw is None else pose.yaw)
-        hub.broadcast_paths()
+        hub.paths_changed()
         return web.json_response(path_to_json(paths.get(pid)), status=201, dumps=_dumps)
 
     async def remove_waypoint(request: web.Request) -> web.Response:
@@ -283,7 +283,7 @@ def routes(hub_key: web.AppKey[Hub], require_control: Any) -> list[web.RouteDef]
             raise http_error(web.HTTPBadRequest,
                              f"waypoint index must be a whole number, got {text!r}") from None
         paths.remove_waypoint(pid, index)
-        hub.broadcast_paths()
+        hub.paths_changed()
         return web.json_response(path_to_json(paths.get(pid)), dumps=_dumps)
 
     async def command(request: web.Request) -> web.Response:
@@ -345,4 +345,7 @@ def _dumps(value: Any) -> str:
 def http_error(cls: type[web.HTTPException], message: str) -> web.HTTPException:
     """An aiohttp HTTP error whose body is ``{"error": message, "status": code}``."""
     body = json.dumps({"error": message, "status": cls.status_code}, ensure_ascii=False)
-    return cls(text=body, content_type="application/json")
+    exc = cls.__new__(cls)
+    # Bypass subclasses' own __init__ (some need extra arguments); the base sets the status.
+    web.HTTPException.__init__(exc, text=body, content_type="application/json")
+    return exc

@@ -36,7 +36,7 @@ from typing import Any
 
 from aiohttp import WSCloseCode, web
 
-from curio.bus import Bus, Topic
+from curio.bus import Bus, Subscription, Topic
 from curio.clock import Clock
 from curio.config import Config
 from curio.geometry import Pose2D
@@ -124,7 +124,7 @@ class CommandError(ValueError):
         self.status = status
 
 
-@dataclass
+@dataclass(eq=False)
 class Client:
     """One connected browser."""
 
@@ -194,54 +194,63 @@ class Hub:
         self.system: dict[str, Any] = {}
         self.commands_published = 0
         self.teleop_published = 0
+        self._paths_listened = False
+        self._subs: list[tuple[Subscription[Any], Callable[[Any], None]]] = []
+        if paths is not None and hasattr(paths, "add_listener"):
+            paths.add_listener(lambda _what, _path_id: self.broadcast_paths())
+            self._paths_listened = True
 
     # --- lifecycle ----------------------------------------------------------------------------
 
+    def open(self) -> None:
+        """Subscribe to every topic now (call before :meth:`run`, so nothing published
+        after start-up is missed)."""
+        if self._subs:
+            return
+        self._sub(SCAN, self._on_scan)
+        self._sub(POSE, self._on_pose)
+        self._sub(ODOM, self._on_odom)
+        self._sub(GROUND_TRUTH, self._on_truth)
+        self._sub(PLAN, lambda m: self._on_path("plan", m, FRAME_PLAN))
+        self._sub(LOCAL_PLAN, lambda m: self._on_path("local_plan", m, FRAME_LOCAL_PLAN))
+        self._sub(OBSTACLES, self._on_obstacles)
+        self._sub(STATUS, self._on_status)
+        self._sub(PROGRESS, self._on_progress)
+        self._sub(EVENTS, self._on_event)
+        self._sub(ESTOP, self._on_estop)
+        self._sub(TREE, self._on_tree)
+        self._sub(HEALTH, self._on_health, maxsize=64)
+        self._sub(LOCALIZATION, self._on_localization)
+        self._sub(BATTERY, self._on_battery)
+        self._sub(BLOCKED, self._on_blocked)
+        self._sub(CMD_VEL, self._on_cmd_vel)
+        for name, topic in GRID_TOPICS.items():
+            self._sub(topic, self._grid_handler(name))
+
+    def _sub(self, topic: Topic[Any], handler: Callable[[Any], None],
+             maxsize: int | None = None) -> None:
+        self._subs.append((self.bus.subscribe(topic, maxsize=maxsize), handler))
+
     async def run(self) -> None:
         """Pump every topic into the clients and run the teleop watchdog (until cancelled)."""
-        async with asyncio.TaskGroup() as tg:
-            self._pump(tg, SCAN, self._on_scan)
-            self._pump(tg, POSE, self._on_pose)
-            self._pump(tg, ODOM, self._on_odom)
-            self._pump(tg, GROUND_TRUTH, self._on_truth)
-            self._pump(tg, PLAN, lambda m: self._on_path("plan", m, FRAME_PLAN))
-            self._pump(tg, LOCAL_PLAN, lambda m: self._on_path("local_plan", m,
-                                                               FRAME_LOCAL_PLAN))
-            self._pump(tg, OBSTACLES, self._on_obstacles)
-            self._pump(tg, STATUS, self._on_status)
-            self._pump(tg, PROGRESS, self._on_progress)
-            self._pump(tg, EVENTS, self._on_event)
-            self._pump(tg, ESTOP, self._on_estop)
-            self._pump(tg, TREE, self._on_tree)
-            self._pump(tg, HEALTH, self._on_health, maxsize=64)
-            self._pump(tg, LOCALIZATION, self._on_localization)
-            self._pump(tg, BATTERY, self._on_battery)
-            self._pump(tg, BLOCKED, self._on_blocked)
-            self._pump(tg, CMD_VEL, self._on_cmd_vel)
-            for name, topic in GRID_TOPICS.items():
-                self._pump(tg, topic, self._grid_handler(name))
-            tg.create_task(self._teleop_watchdog(), name="web.teleop_watchdog")
-
-    def _pump(
-        self,
-        tg: asyncio.TaskGroup,
-        topic: Topic[Any],
-        handler: Callable[[Any], None],
-        maxsize: int | None = None,
-    ) -> None:
-        sub = self.bus.subscribe(topic, maxsize=maxsize)
-
-        async def pump() -> None:
-            try:
-                async for msg in sub:
-                    try:
-                        handler(msg)
-                    except Exception:
-                        log.exception("web hub: cannot forward a %s message", topic.name)
-            finally:
+        self.open()
+        try:
+            async with asyncio.TaskGroup() as tg:
+                for sub, handler in self._subs:
+                    tg.create_task(self._pump(sub, handler), name=f"web.pump{sub.topic.name}")
+                tg.create_task(self._teleop_watchdog(), name="web.teleop_watchdog")
+        finally:
+            for sub, _ in self._subs:
                 sub.close()
+            self._subs.clear()
 
-        tg.create_task(pump(), name=f"web.pump{topic.name}")
+    @staticmethod
+    async def _pump(sub: Subscription[Any], handler: Callable[[Any], None]) -> None:
+        async for msg in sub:
+            try:
+                handler(msg)
+            except Exception:
+                log.exception("web hub: cannot forward a %s message", sub.topic.name)
 
     async def close(self) -> None:
         """Stop any teleop motion and close every client."""
@@ -372,8 +381,13 @@ class Hub:
         return [path_to_json(p) for p in self.paths.list_paths()]
 
     def broadcast_paths(self) -> None:
-        """Tell every client the paths changed (after an edit)."""
+        """Tell every client the paths changed."""
         self._reliable({"t": "paths", "paths": self.paths_json()})
+
+    def paths_changed(self) -> None:
+        """After an edit through the API: broadcast unless the path manager notifies us."""
+        if not self._paths_listened:
+            self.broadcast_paths()
 
     def tree_json(self) -> dict[str, Any] | None:
         """The latest tree snapshot as JSON data."""
@@ -426,11 +440,12 @@ class Hub:
     # --- bus handlers -------------------------------------------------------------------------
 
     def _robot_pose(self) -> Pose2D | None:
-        if self._pose_msg is not None and (
-            self._odom is None or self._odom.stamp - self._pose_stamp_s <= POSE_STALE_S
-        ):
-            return self._pose_msg.pose
-        return self._odom.pose if self._odom is not None else None
+        """The rover in map: the localised pose, or odometry when no pose is fresh."""
+        pose = self.bus.latest(POSE)
+        odom = self.bus.latest(ODOM)
+        if pose is not None and (odom is None or odom.stamp - pose.stamp <= POSE_STALE_S):
+            return pose.pose
+        return odom.pose if odom is not None else None
 
     def _on_scan(self, msg: LaserScan) -> None:
         robot = self._robot_pose()

@@ -330,6 +330,7 @@ def create_app(services: WebServices) -> web.Application:
                 hub.system = monitor.sample(await measure_loop_lag_ms())
                 hub.publish_health()
 
+        hub.open()
         tasks = [asyncio.create_task(hub.run(), name="web.hub"),
                  asyncio.create_task(health_loop(), name="web.health")]
         yield

@@ -1,0 +1,122 @@
+"""Fixtures for the dashboard tests: a fake path manager and a dashboard on a fake app."""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+from aiohttp.test_utils import TestClient
+
+from curio.bus import Bus
+from curio.clock import SimClock
+from curio.config import Config
+from curio.web.hub import Hub
+from curio.web.server import HUB, WebServices, create_app
+
+TOKEN = "test-token-0123456789abcdef"
+
+
+class FakePathError(ValueError):
+    """Same contract as the path manager's PathError: an operator-facing message."""
+
+
+@dataclass
+class FakeWaypoint:
+    x_m: float
+    y_m: float
+    yaw_rad: float | None = None
+
+
+@dataclass
+class FakePath:
+    id: int
+    name: str
+    waypoints: list[FakeWaypoint] = field(default_factory=list)
+
+
+class FakePaths:
+    """In-memory path manager with the interface of ``app.paths``."""
+
+    def __init__(self, n: int = 5) -> None:
+        self.paths = {i: FakePath(i, "Home" if i == 0 else f"Path {i}",
+                                  [FakeWaypoint(float(i), 0.0)]) for i in range(n)}
+        self.next_id = n
+
+    def list_paths(self) -> list[FakePath]:
+        return [self.paths[i] for i in sorted(self.paths)]
+
+    def get(self, path_id: int) -> FakePath:
+        if path_id not in self.paths:
+            raise FakePathError(f"There is no path {path_id}.")
+        return self.paths[path_id]
+
+    def create(self, name: str, waypoints: Any = ()) -> FakePath:
+        if not name.strip():
+            raise FakePathError("A path needs a name.")
+        p = FakePath(self.next_id, name)
+        self.paths[p.id] = p
+        self.next_id += 1
+        return p
+
+    def add_waypoint(self, path_id: int, x_m: float, y_m: float,
+                     yaw_rad: float | None = None) -> FakePath:
+        p = self.get(path_id)
+        p.waypoints.append(FakeWaypoint(x_m, y_m, yaw_rad))
+        return p
+
+    def remove_waypoint(self, path_id: int, index: int) -> FakePath:
+        p = self.get(path_id)
+        if not 0 <= index < len(p.waypoints):
+            raise FakePathError(f"Path {path_id} has no waypoint {index}.")
+        del p.waypoints[index]
+        return p
+
+    def rename(self, path_id: int, name: str) -> FakePath:
+        p = self.get(path_id)
+        if not name.strip():
+            raise FakePathError("A path needs a name.")
+        p.name = name
+        return p
+
+    def delete(self, path_id: int) -> None:
+        if path_id == 0:
+            raise FakePathError("Home (path 0) cannot be deleted.")
+        self.get(path_id)
+        del self.paths[path_id]
+
+
+@dataclass
+class Dash:
+    """A dashboard under test."""
+
+    client: TestClient
+    hub: Hub
+    bus: Bus
+    clock: SimClock
+    paths: FakePaths
+    cfg: Config
+
+    @property
+    def auth(self) -> dict[str, str]:
+        return {"Authorization": f"Bearer {TOKEN}"}
+
+
+MakeDash = Callable[..., Awaitable[Dash]]
+
+
+@pytest.fixture
+def make_dash(aiohttp_client: Any, cfg: Config, bus: Bus) -> MakeDash:
+    """Build the dashboard with fakes; keyword arguments override ``cfg.web`` fields."""
+
+    async def make(**web_overrides: Any) -> Dash:
+        for key, value in web_overrides.items():
+            setattr(cfg.web, key, value)
+        clock = SimClock()
+        paths = FakePaths()
+        app = create_app(WebServices(cfg=cfg, clock=clock, bus=bus, token=TOKEN, paths=paths))
+        client = await aiohttp_client(app)
+        return Dash(client, app[HUB], bus, clock, paths, cfg)
+
+    return make
