@@ -12,6 +12,7 @@ from curio.scenarios.base import Scenario
 # name -> "module:Class"; each subsystem adds its scenarios here.
 SCENARIOS: dict[str, str] = {
     "square": "curio.scenarios.square:SquareScenario",
+    "kidnap": "curio.scenarios.kidnap:KidnapScenario",
 }
 
 
