@@ -346,6 +346,14 @@ class RecoveryConfig(Section):
     step_back_clearance_m: float = Field(0.5, ge=0.0)
     rotate_angle_rad: float = Field(math.pi / 2, gt=0.0)
     wait_s: float = Field(5.0, ge=0.0)
+    clear_radius_m: float = Field(
+        1.5, ge=0.0, description="clear_costmap forgets obstacle marks this near the rover")
+    step_back_timeout_s: float = Field(15.0, gt=0.0)
+    rotate_speed_radps: float = Field(0.6, gt=0.0, le=1.45)
+    rotate_timeout_s: float = Field(10.0, gt=0.0)
+    rate_hz: float = Field(10.0, gt=0.0, le=50.0, description="command rate of the actions")
+    max_rounds: int = Field(
+        2, ge=1, description="how often the whole ladder may be climbed for one goal")
 
 
 class BlockedConfig(Section):
@@ -355,6 +363,18 @@ class BlockedConfig(Section):
     obstacle_angle_rad: float = Field(0.7, gt=0.0, le=math.pi)
     no_progress_s: float = Field(8.0, gt=0.0)
     progress_distance_m: float = Field(0.1, gt=0.0)
+    corridor_margin_m: float = Field(
+        0.1, ge=0.0, description="an obstacle counts only within the footprint's half width "
+        "plus this of the line of travel (walls beside a corridor never block)")
+    rate_hz: float = Field(5.0, gt=0.0, le=50.0, description="BLOCKED publish rate")
+    group_distance_m: float = Field(
+        0.1, gt=0.0, description="extraction: neighbouring points closer than this (plus "
+        "distance_proportion x range) form one group")
+    distance_proportion: float = Field(0.00628, ge=0.0)
+    min_group_points: int = Field(5, ge=2)
+    split_distance_m: float = Field(0.04, gt=0.0, description="split-and-merge tolerance")
+    max_circle_radius_m: float = Field(0.3, gt=0.0, description="shorter groups are circles")
+    radius_enlargement_m: float = Field(0.05, ge=0.0)
 
 
 class NavConfig(Section):

@@ -1,0 +1,538 @@
+"""The navigator: goals with action semantics, driving the planner, controller and recovery.
+
+It implements :class:`curio.nav.api.Navigator`. :meth:`NavigatorNode.send_goal` returns a
+:class:`~curio.nav.api.GoalHandle` at once; the handle moves PENDING → ACTIVE → SUCCEEDED |
+ABORTED (typed ``error``) | PREEMPTED, or straight to REJECTED (a goal outside the map, in an
+obstacle, not a number). A sequence of poses is driven waypoint by waypoint. Feedback on the
+handle: ``distance_remaining_m`` (along the plan, plus the legs still to come) and ``eta_s``.
+
+Each cycle (``nav.controller.rate_hz``) it reads the pose (``/pose``, ``map``), asks the local
+controller for a command and publishes it on ``/cmd_vel_nav`` and the predicted trajectory on
+``/local_plan``. Plans come from the global planner in a worker thread (``asyncio.to_thread``),
+so the loop never blocks: at ``nav.planner.replan_rate_hz``, and at once when the current plan
+runs into a lethal or inscribed cell of the costmap (an obstacle that was not on the map). When
+the rover is stuck (controller blocked, no progress, no path) it climbs the recovery ladder
+(``nav.recovery``) and then aborts with the reason. The operator's ``goto`` and ``cancel``
+commands (``/operator``) act on it; an engaged e-stop cancels the active goal.
+
+Events (``/events``): ``nav.goal_accepted``, ``nav.goal_rejected``, ``nav.waypoint_reached``,
+``nav.goal_succeeded``, ``nav.goal_aborted``, ``nav.goal_preempted``, ``nav.goal_canceled``,
+``nav.path_blocked``, ``nav.recovery`` (from the recovery actions).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from curio.bus import Bus
+from curio.clock import Clock
+from curio.config import Config
+from curio.geometry import Pose2D
+from curio.messages import Event, Path, Twist
+from curio.nav.api import (
+    ControllerFailedError,
+    GoalBlockedError,
+    GoalHandle,
+    GoalOutsideMapError,
+    GoalState,
+    LocalizationLostError,
+    NavError,
+    NoProgressError,
+    StartBlockedError,
+    StartOutsideMapError,
+)
+from curio.nav.controller import ControlStatus, LocalController
+from curio.nav.recovery import Recovery
+from curio.topics import CMD_VEL_NAV, ESTOP, EVENTS, LOCAL_PLAN, LOCALIZATION, OPERATOR, PLAN, POSE
+
+__all__ = ["InvalidGoalError", "NavigatorNode"]
+
+log = logging.getLogger("curio.nav.navigator")
+
+U8 = npt.NDArray[np.uint8]
+INSCRIBED = 253
+LETHAL = 254
+
+
+class InvalidGoalError(NavError):
+    """The goal is not a usable pose (empty, not finite)."""
+
+    code = "invalid_goal"
+
+
+class PlanCostmap(Protocol):
+    """What the navigator needs from the costmap."""
+
+    resolution_m: float
+    origin: Pose2D
+
+    def costs(self) -> U8:
+        """Immutable snapshot of the cost grid."""
+        ...
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, cols)."""
+        ...
+
+    def world_to_cell(self, x_m: float, y_m: float) -> tuple[int, int]:
+        """(row, col) of a point."""
+        ...
+
+    def in_bounds(self, row: int, col: int) -> bool:
+        """Whether a cell is on the grid."""
+        ...
+
+
+class Planner(Protocol):
+    """What the navigator needs from the global planner."""
+
+    def plan(self, start: Pose2D, goal: Pose2D, costs: U8, resolution_m: float,
+             origin: Pose2D) -> list[Pose2D]:
+        """A path from start to goal, or a typed NavError."""
+        ...
+
+
+@dataclass
+class _PlanJob:
+    task: asyncio.Future[list[Pose2D]]
+    goal_id: int
+    index: int
+    reason: str
+
+
+class NavigatorNode:
+    """Goals, planning, control and recovery (see the module docstring).
+
+    Args:
+        cfg: the application config.
+        clock, bus: injected.
+        costmap: the global costmap (snapshots for planning, blocked-path checks).
+        planner: the global planner (runs in a worker thread).
+        controller: the local controller.
+        recovery: the recovery actions; None aborts at once when stuck.
+        plan_in_thread: run the planner in a worker thread (real time). On a simulated clock
+            it runs inline instead, so the result never depends on wall-clock speed and runs
+            stay deterministic.
+    """
+
+    def __init__(self, cfg: Config, clock: Clock, bus: Bus, costmap: PlanCostmap,
+                 planner: Planner, controller: LocalController,
+                 recovery: Recovery | None = None, *, plan_in_thread: bool = True) -> None:
+        self.plan_in_thread = plan_in_thread
+        self.cfg = cfg
+        self.clock = clock
+        self.bus = bus
+        self.costmap = costmap
+        self.planner = planner
+        self.controller = controller
+        self.recovery = recovery
+        self._ids = itertools.count(1)
+        self._active: GoalHandle | None = None
+        self._pending: GoalHandle | None = None
+        self._plan_job: _PlanJob | None = None
+        self._plan: list[Pose2D] = []
+        self._plan_goal_index = -1
+        self._last_plan_t = -math.inf
+        self._recovery_task: asyncio.Task[Any] | None = None
+        self._recovery_rung = 0
+        self._recovery_rounds = 0
+        self._last_error: NavError | None = None
+        self._progress_anchor: Pose2D | None = None
+        self._lost_since: float | None = None
+        self._no_pose_since: float | None = None
+        self._goal_started_s = 0.0
+        self._sent_zero = True
+        self.plan_count = 0
+        self.on_done: list[Callable[[GoalHandle], None]] = []
+
+    # --- the action interface -------------------------------------------------------------
+    @property
+    def active(self) -> GoalHandle | None:
+        """The goal being executed (or about to be), if any."""
+        return self._pending or self._active
+
+    def send_goal(self, poses: Pose2D | list[Pose2D], *, tag: str = "") -> GoalHandle:
+        """Accept a goal or a waypoint sequence (``map``) and return its handle at once.
+
+        A goal with a NaN yaw has no heading requirement. A previous goal is PREEMPTED. An
+        unusable goal comes back REJECTED with ``error`` set (the rover keeps what it was
+        doing).
+        """
+        seq = [poses] if isinstance(poses, Pose2D) else list(poses)
+        handle = GoalHandle(next(self._ids), seq, tag=tag)
+        try:
+            self._validate(seq)
+        except NavError as exc:
+            handle.state = GoalState.REJECTED
+            handle.error = exc
+            handle.history.append(f"rejected: {exc}")
+            self._event("nav.goal_rejected", handle, code=exc.code, message=str(exc))
+            return handle
+        for old in (self._pending, self._active):
+            if old is not None and not old.done:
+                self._finish(old, GoalState.PREEMPTED, None,
+                             f"preempted by goal {handle.goal_id}")
+        self._pending = handle
+        self._active = None
+        handle.history.append("pending")
+        return handle
+
+    def cancel(self, reason: str = "canceled") -> None:
+        """Cancel the active goal (PREEMPTED) and stop the rover."""
+        for h in (self._pending, self._active):
+            if h is not None and not h.done:
+                self._finish(h, GoalState.PREEMPTED, None, reason, kind="nav.goal_canceled")
+        self._pending = None
+        self._active = None
+        self._stop_motion()
+
+    # --- validation -------------------------------------------------------------------------
+    def _validate(self, seq: list[Pose2D]) -> None:
+        if not seq:
+            raise InvalidGoalError("a goal needs at least one pose (x, y[, yaw]) in map")
+        h, w = self.costmap.shape
+        res = self.costmap.resolution_m
+        o = self.costmap.origin
+        extent = (f"x {o.x:.2f}..{o.x + w * res:.2f} m, y {o.y:.2f}..{o.y + h * res:.2f} m")
+        costs = self.costmap.costs()
+        for k, p in enumerate(seq):
+            which = "the goal" if len(seq) == 1 else f"waypoint {k + 1} of {len(seq)}"
+            if not (math.isfinite(p.x) and math.isfinite(p.y)):
+                raise InvalidGoalError(f"{which} ({p.x}, {p.y}) is not a finite position")
+            r, c = self.costmap.world_to_cell(p.x, p.y)
+            if not self.costmap.in_bounds(r, c):
+                raise GoalOutsideMapError(
+                    f"{which} ({p.x:.2f}, {p.y:.2f}) m is outside the map ({extent})")
+            cost = int(costs[r, c])
+            if cost >= INSCRIBED and not self._free_near(costs, r, c):
+                why = {INSCRIBED: "too close to an obstacle for the rover",
+                       LETHAL: "inside an obstacle"}.get(cost, "in unknown space")
+                near = self.cfg.nav.planner.goal_nearest_free_max_m \
+                    if self.cfg.nav.planner.goal_nearest_free else 0.0
+                raise GoalBlockedError(
+                    f"{which} ({p.x:.2f}, {p.y:.2f}) m is {why}, with no free cell within "
+                    f"{near:g} m (nav.planner.goal_nearest_free_max_m)")
+
+    def _free_near(self, costs: U8, r: int, c: int) -> bool:
+        pcfg = self.cfg.nav.planner
+        if not pcfg.goal_nearest_free:
+            return False
+        rad = int(pcfg.goal_nearest_free_max_m / self.costmap.resolution_m)
+        if rad <= 0:
+            return False
+        h, w = costs.shape
+        win = costs[max(0, r - rad):min(h, r + rad + 1), max(0, c - rad):min(w, c + rad + 1)]
+        return bool((win < INSCRIBED).any())
+
+    # --- events and state -------------------------------------------------------------------
+    def _event(self, kind: str, handle: GoalHandle | None = None, **detail: Any) -> None:
+        d: dict[str, Any] = dict(detail)
+        if handle is not None:
+            d.setdefault("goal_id", handle.goal_id)
+            if handle.tag:
+                d.setdefault("tag", handle.tag)
+            d.setdefault("goal", [[round(p.x, 3), round(p.y, 3)] for p in handle.poses])
+        self.bus.publish(EVENTS, Event(self.clock.now(), kind, d))
+
+    def _finish(self, handle: GoalHandle, state: GoalState, error: NavError | None,
+                note: str, kind: str | None = None) -> None:
+        handle.state = state
+        handle.error = error
+        handle.history.append(f"{state.value}: {note}")
+        kinds = {GoalState.SUCCEEDED: "nav.goal_succeeded", GoalState.ABORTED: "nav.goal_aborted",
+                 GoalState.PREEMPTED: "nav.goal_preempted", GoalState.REJECTED: "nav.goal_rejected"}
+        detail: dict[str, Any] = {"note": note,
+                                  "time_s": round(self.clock.now() - self._goal_started_s, 3)}
+        if error is not None:
+            detail["code"] = error.code
+            detail["message"] = str(error)
+        self._event(kind or kinds[state], handle, **detail)
+        if handle is self._active:
+            self._cancel_jobs()
+            self.controller.clear_plan()
+            self._plan = []
+            self.bus.publish(PLAN, Path(self.clock.now(), ()))
+            self._stop_motion()
+        for cb in list(self.on_done):
+            cb(handle)
+
+    def _cancel_jobs(self) -> None:
+        if self._plan_job is not None:
+            self._plan_job.task.cancel()
+            self._plan_job = None
+        if self._recovery_task is not None:
+            self._recovery_task.cancel()
+            self._recovery_task = None
+
+    def _stop_motion(self) -> None:
+        self.bus.publish(CMD_VEL_NAV, Twist(self.clock.now(), 0.0, 0.0, source="navigator"))
+        self._sent_zero = True
+
+    # --- planning ---------------------------------------------------------------------------
+    def _start_plan(self, start: Pose2D, handle: GoalHandle, reason: str) -> None:
+        goal = handle.poses[handle.current_index]
+        costs = self.costmap.costs()
+        res = self.costmap.resolution_m
+        origin = self.costmap.origin
+        planner = self.planner
+        task: asyncio.Future[list[Pose2D]]
+        if self.plan_in_thread:
+            task = asyncio.ensure_future(
+                asyncio.to_thread(planner.plan, start, goal, costs, res, origin))
+        else:
+            task = asyncio.get_running_loop().create_future()
+            try:
+                task.set_result(planner.plan(start, goal, costs, res, origin))
+            except NavError as exc:
+                task.set_exception(exc)
+        self.plan_count += 1
+        self._plan_job = _PlanJob(task, handle.goal_id, handle.current_index, reason)
+        self._last_plan_t = self.clock.now()
+
+    def _plan_blocked(self, pose: Pose2D) -> bool:
+        """Whether the plan ahead (about 3 m) crosses a lethal or inscribed cell."""
+        if len(self.controller.plan) == 0:
+            return False
+        plan = self.controller.plan
+        i0 = self.controller._index
+        ahead = plan[i0:i0 + 60]
+        costs = self.costmap.costs()
+        rows = np.empty(len(ahead), dtype=np.int64)
+        cols = np.empty(len(ahead), dtype=np.int64)
+        for k, (x, y, _) in enumerate(ahead):
+            rows[k], cols[k] = self.costmap.world_to_cell(float(x), float(y))
+        h, w = costs.shape
+        ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        if not ok.all():
+            return True
+        vals = costs[rows, cols]
+        # Ignore the first few poses: the rover itself may sit in an inscribed cell.
+        near = np.hypot(ahead[:, 0] - pose.x, ahead[:, 1] - pose.y) < 0.35
+        return bool(((vals >= INSCRIBED) & (vals != 255) & ~near).any())
+
+    def _take_plan_result(self, handle: GoalHandle) -> NavError | None:
+        job = self._plan_job
+        if job is None or not job.task.done():
+            return None
+        self._plan_job = None
+        if job.goal_id != handle.goal_id or job.index != handle.current_index:
+            return None
+        try:
+            poses = job.task.result()
+        except asyncio.CancelledError:
+            return None
+        except NavError as exc:
+            return exc
+        goal = handle.poses[handle.current_index]
+        self._plan = poses
+        self._plan_goal_index = handle.current_index
+        self.controller.set_plan(poses, goal, check_yaw=math.isfinite(goal.yaw))
+        self.bus.publish(PLAN, Path(self.clock.now(), tuple(poses)))
+        return None
+
+    # --- the cycle --------------------------------------------------------------------------
+    def _activate(self, pose: Pose2D | None) -> None:
+        handle = self._pending
+        if handle is None:
+            return
+        self._pending = None
+        self._active = handle
+        handle.state = GoalState.ACTIVE
+        handle.history.append("active")
+        self._goal_started_s = self.clock.now()
+        self._recovery_rung = 0
+        self._recovery_rounds = 0
+        self._last_error = None
+        self._plan = []
+        self._plan_goal_index = -1
+        self._progress_anchor = pose
+        self.controller.clear_plan()
+        self.controller.reset()
+        self._cancel_jobs()
+        self._event("nav.goal_accepted", handle, waypoints=len(handle.poses))
+
+    def step(self) -> None:
+        """One navigation cycle (synchronous; planning and recovery run as tasks)."""
+        now = self.clock.now()
+        pose_msg = self.bus.latest(POSE)
+        pose = pose_msg.pose if pose_msg is not None else None
+        if self._pending is not None:
+            self._activate(pose)
+        handle = self._active
+        if handle is None or handle.done:
+            if not self._sent_zero:
+                self._stop_motion()
+            return
+        # A recovery action owns the wheels while it runs.
+        if self._recovery_task is not None:
+            if not self._recovery_task.done():
+                return
+            self._recovery_task = None
+            self.controller.reset()
+            self._plan_job = None
+            if pose is not None:
+                self._start_plan(pose, handle, "after recovery")
+            return
+        if pose is None or now - pose_msg.stamp > 1.0:  # type: ignore[union-attr]
+            self._no_pose_since = self._no_pose_since or now
+            self._stop_motion()
+            if now - self._no_pose_since > 10.0:
+                self._finish(handle, GoalState.ABORTED, LocalizationLostError(
+                    "no pose in map for 10 s: localisation is not running"), "no pose")
+            return
+        self._no_pose_since = None
+        loc = self.bus.latest(LOCALIZATION)
+        if loc is not None and loc.state == "lost":
+            self._lost_since = self._lost_since or now
+            self._stop_motion()
+            if now - self._lost_since > 10.0:
+                self._finish(handle, GoalState.ABORTED, LocalizationLostError(
+                    "localisation lost for 10 s: set the pose on the dashboard"), "lost")
+            return
+        self._lost_since = None
+        # Progress resets the recovery ladder.
+        if self._progress_anchor is None or pose.distance_to(self._progress_anchor) > 0.5:
+            self._progress_anchor = pose
+            self._recovery_rung = 0
+        # Planning.
+        err = self._take_plan_result(handle)
+        if err is not None:
+            self._on_plan_error(handle, err, pose)
+            return
+        have_plan = self._plan_goal_index == handle.current_index and len(self._plan) > 0
+        replan_hz = self.cfg.nav.planner.replan_rate_hz
+        if self._plan_job is None:
+            if not have_plan:
+                self._start_plan(pose, handle, "new goal")
+            elif self._plan_blocked(pose):
+                self._event("nav.path_blocked", handle)
+                self._start_plan(pose, handle, "path blocked")
+            elif replan_hz > 0 and now - self._last_plan_t >= 1.0 / replan_hz:
+                self._start_plan(pose, handle, "periodic")
+        if not have_plan:
+            self._stop_motion()
+            return
+        # Control.
+        out = self.controller.compute(pose, now)
+        self.bus.publish(LOCAL_PLAN, Path(now, tuple(Pose2D(float(x), float(y), float(t))
+                                                     for x, y, t in out.trajectory)))
+        later = sum(handle.poses[k].distance_to(handle.poses[k + 1])
+                    for k in range(handle.current_index, len(handle.poses) - 1))
+        handle.distance_remaining_m = out.distance_remaining_m + later
+        handle.eta_s = handle.distance_remaining_m / max(0.05,
+                                                         self.cfg.nav.controller.max_speed_mps)
+        if out.status is ControlStatus.GOAL_REACHED:
+            self._waypoint_reached(handle)
+            return
+        if out.status in (ControlStatus.BLOCKED, ControlStatus.NO_PROGRESS):
+            err2: NavError = (ControllerFailedError(
+                "the way ahead is blocked and the local controller finds no admissible motion")
+                if out.status is ControlStatus.BLOCKED else NoProgressError(
+                f"no progress for {self.cfg.nav.controller.progress_timeout_s:g} s"))
+            self._stuck(handle, err2, pose)
+            return
+        self.bus.publish(CMD_VEL_NAV, Twist(now, out.linear_mps, out.angular_radps,
+                                            source="controller"))
+        self._sent_zero = False
+
+    def _waypoint_reached(self, handle: GoalHandle) -> None:
+        idx = handle.current_index
+        if idx + 1 < len(handle.poses):
+            self._event("nav.waypoint_reached", handle, index=idx)
+            handle.current_index += 1
+            self._plan = []
+            self._plan_goal_index = -1
+            self.controller.clear_plan()
+            if self._plan_job is not None:
+                self._plan_job.task.cancel()
+                self._plan_job = None
+            return
+        handle.distance_remaining_m = 0.0
+        handle.eta_s = 0.0
+        self._finish(handle, GoalState.SUCCEEDED, None, "goal reached")
+
+    def _on_plan_error(self, handle: GoalHandle, err: NavError, pose: Pose2D) -> None:
+        if isinstance(err, (GoalOutsideMapError, StartOutsideMapError)):
+            self._finish(handle, GoalState.ABORTED, err, "cannot plan")
+            return
+        if isinstance(err, StartBlockedError) and self.recovery is not None \
+                and self.recovery.costmap is not None:
+            # Marks under the rover: clear them at once and try again before the ladder.
+            self.recovery.clear_costmap()
+        self._stuck(handle, err, pose)
+
+    def _stuck(self, handle: GoalHandle, err: NavError, pose: Pose2D) -> None:
+        """Climb the recovery ladder, or abort when it is exhausted."""
+        self._last_error = err
+        self._stop_motion()
+        ladder = list(self.cfg.nav.recovery.ladder)
+        if self.recovery is None or not ladder:
+            self._finish(handle, GoalState.ABORTED, err, "stuck, no recovery configured")
+            return
+        if self._recovery_rung >= len(ladder):
+            self._recovery_rounds += 1
+            self._recovery_rung = 0
+            if self._recovery_rounds >= self.cfg.nav.recovery.max_rounds:
+                tried = ", ".join(ladder)
+                final = type(err)(f"{err} (after recovery: {tried})")
+                self._finish(handle, GoalState.ABORTED, final, "recovery exhausted")
+                return
+        step = ladder[self._recovery_rung]
+        self._recovery_rung += 1
+        handle.recoveries += 1
+        handle.history.append(f"recovery {step}: {err.code}")
+        recovery = self.recovery
+        self._recovery_task = asyncio.ensure_future(recovery.run(step))
+
+    # --- task -------------------------------------------------------------------------------
+    def _on_operator(self, cmd: Any) -> None:
+        if cmd.action == "goto":
+            if cmd.goal is None:
+                self._event("nav.goal_rejected", None, code="invalid_goal",
+                            message="goto without a goal pose", source=cmd.source)
+                return
+            self.send_goal(cmd.goal, tag=f"{cmd.source or 'operator'} goto")
+        elif cmd.action == "cancel":
+            self.cancel(f"canceled by {cmd.source or 'the operator'}")
+        elif cmd.action == "estop" and self.active is not None:
+            self.cancel("e-stop")
+
+    async def run(self) -> None:
+        """Run the navigation cycle at ``nav.controller.rate_hz`` until cancelled."""
+        op = self.bus.subscribe(OPERATOR)
+        estop = self.bus.subscribe(ESTOP)
+        period = 1.0 / self.cfg.nav.controller.rate_hz
+        next_t = self.clock.now()
+        try:
+            while True:
+                for cmd in op.drain():
+                    self._on_operator(cmd)
+                for e in estop.drain():
+                    if e.engaged and self.active is not None:
+                        self.cancel("e-stop engaged")
+                self.step()
+                next_t += period
+                if next_t < self.clock.now():  # late: skip ahead, never catch up
+                    next_t = self.clock.now() + period
+                await self.clock.sleep_until(next_t)
+        finally:
+            op.close()
+            estop.close()
+            self._cancel_jobs()
+
+    async def close(self) -> None:
+        """Cancel background work."""
+        self._cancel_jobs()
+        with contextlib.suppress(Exception):
+            self._stop_motion()
