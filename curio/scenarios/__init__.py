@@ -13,6 +13,8 @@ from curio.scenarios.base import Scenario
 SCENARIOS: dict[str, str] = {
     "square": "curio.scenarios.square:SquareScenario",
     "kidnap": "curio.scenarios.kidnap:KidnapScenario",
+    "operator-demo": "curio.scenarios.operator_demo:OperatorDemoScenario",
+    "blocked-door": "curio.scenarios.blocked_door:BlockedDoorScenario",
 }
 
 
