@@ -25,7 +25,7 @@ from PIL import Image
 from curio.fileio import atomic_write_bytes, atomic_write_text
 from curio.geometry import Pose2D
 
-__all__ = ["MapError", "OccupancyGrid", "load_map", "save_map"]
+__all__ = ["MapError", "OccupancyGrid", "load_map", "map_stats", "save_map"]
 
 UNKNOWN = -1
 FREE = 0
@@ -119,6 +119,14 @@ def _field(meta: dict[str, Any], key: str, path: Path, kind: type | tuple[type, 
     return value
 
 
+def _number(meta: dict[str, Any], key: str, path: Path, default: float) -> float:
+    """An optional finite number field."""
+    value = meta.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise MapError(f"{path}: field '{key}' must be a finite number, got {value!r}")
+    return float(value)
+
+
 def load_map(yaml_path: Path | str) -> OccupancyGrid:
     """Load a map_server map (YAML + image).
 
@@ -141,19 +149,23 @@ def load_map(yaml_path: Path | str) -> OccupancyGrid:
         raise MapError(f"{path}: expected a YAML mapping with image, resolution and origin")
 
     image_name = _field(meta, "image", path, str)
+    if not image_name.strip():
+        raise MapError(f"{path}: field 'image' is empty; it must name a PGM or PNG file")
     resolution = float(_field(meta, "resolution", path, (int, float)))
-    if not resolution > 0:
+    if not (math.isfinite(resolution) and resolution > 0):
         raise MapError(f"{path}: field 'resolution' must be > 0 metres per cell, got {resolution}")
     origin = _field(meta, "origin", path, list)
     if len(origin) != 3 or not all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) for v in origin
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        for v in origin
     ):
-        raise MapError(f"{path}: field 'origin' must be [x, y, yaw] (three numbers), got {origin}")
+        raise MapError(f"{path}: field 'origin' must be [x, y, yaw] (three finite numbers), "
+                       f"got {origin}")
     negate = meta.get("negate", 0)
     if negate not in (0, 1, True, False):
         raise MapError(f"{path}: field 'negate' must be 0 or 1, got {negate!r}")
-    occ = float(meta.get("occupied_thresh", 0.65))
-    free = float(meta.get("free_thresh", 0.196))
+    occ = _number(meta, "occupied_thresh", path, 0.65)
+    free = _number(meta, "free_thresh", path, 0.196)
     if not (0.0 <= free < occ <= 1.0):
         raise MapError(f"{path}: thresholds must satisfy 0 <= free_thresh < occupied_thresh <= 1,"
                        f" got free_thresh={free}, occupied_thresh={occ}")
@@ -168,20 +180,40 @@ def load_map(yaml_path: Path | str) -> OccupancyGrid:
         with Image.open(image_path) as img:
             img.load()
             pixels = _to_gray(img)
+            alpha = _alpha(img)
     except FileNotFoundError:
         raise MapError(f"{path}: field 'image' names {image_path}, which does not exist") from None
     except (OSError, ValueError) as exc:
         raise MapError(f"{path}: field 'image': cannot read {image_path} ({exc})") from None
+    if pixels.size == 0:
+        raise MapError(f"{path}: field 'image': {image_path} has no pixels")
 
     data = _pixels_to_occupancy(pixels, mode, bool(negate), occ, free)
+    if mode == "raw":
+        bad = (data > 100) & (data != 255)
+        if bad.any():
+            r, c = (int(v[0]) for v in np.nonzero(bad))
+            raise MapError(f"{path}: field 'mode' is raw, but {image_path.name} has pixel value "
+                           f"{int(data[r, c])} at row {r}, column {c}; raw maps hold 0..100 "
+                           "(occupancy) or 255 (unknown)")
+        data = np.where(data == 255, UNKNOWN, data)
+    elif mode == "scale" and alpha is not None:
+        data = np.where(alpha < 255, UNKNOWN, data)  # map_server: transparent = unknown
     return OccupancyGrid(
-        data=np.ascontiguousarray(data[::-1]),
+        data=np.ascontiguousarray(data[::-1].astype(np.int8)),
         resolution_m=resolution,
         origin=Pose2D(float(origin[0]), float(origin[1]), float(origin[2])),
         occupied_thresh=occ,
         free_thresh=free,
         name=path.name,
     )
+
+
+def _alpha(img: Image.Image) -> npt.NDArray[np.uint8] | None:
+    """The alpha channel, if the image has one."""
+    if img.mode in ("RGBA", "LA") or (img.mode == "P" and "transparency" in img.info):
+        return np.asarray(img.convert("RGBA"), dtype=np.uint8)[:, :, 3]
+    return None
 
 
 def _to_gray(img: Image.Image) -> npt.NDArray[np.float64]:
@@ -199,46 +231,99 @@ def _to_gray(img: Image.Image) -> npt.NDArray[np.float64]:
 
 def _pixels_to_occupancy(
     pixels: npt.NDArray[np.float64], mode: str, negate: bool, occ: float, free: float
-) -> npt.NDArray[np.int8]:
+) -> npt.NDArray[np.int16]:
+    """map_server's conversion; raw mode returns the pixel values (checked by the caller)."""
     if mode == "raw":
-        return np.clip(pixels, -1, 100).astype(np.int8) if not negate else \
-            np.clip(255 - pixels, -1, 100).astype(np.int8)
+        value = 255.0 - pixels if negate else pixels
+        return np.rint(value).astype(np.int16)
     p = pixels / 255.0 if negate else (255.0 - pixels) / 255.0
-    out = np.full(pixels.shape, UNKNOWN, dtype=np.int8)
+    out = np.full(pixels.shape, UNKNOWN, dtype=np.int16)
     out[p > occ] = OCCUPIED
     out[p < free] = FREE
     if mode == "scale":
         mid = (p >= free) & (p <= occ)
-        out[mid] = np.rint(99.0 * (p[mid] - free) / (occ - free)).astype(np.int8)
+        out[mid] = np.rint(99.0 * (p[mid] - free) / (occ - free)).astype(np.int16)
     return out
 
 
-def save_map(grid: OccupancyGrid, yaml_path: Path | str, image_format: str = "pgm") -> Path:
-    """Write ``grid`` as a trinary map_server map (YAML + PGM or PNG), atomically.
+def save_map(grid: OccupancyGrid, yaml_path: Path | str, image_format: str = "pgm",
+             mode: str = "trinary") -> Path:
+    """Write ``grid`` as a map_server map (YAML + PGM or PNG), atomically; return the YAML path.
 
-    Free cells are written 254, occupied 0 and unknown 205, as map_saver does. Returns the YAML
-    path.
+    Modes: ``trinary`` (free 254, occupied 0, unknown 205, as map_saver does), ``scale``
+    (occupancy p written as ``255 − p·255/100``, unknown 205) and ``raw`` (the values 0..100
+    themselves, unknown 255). The image sits beside the YAML with the same stem.
     """
     path = Path(yaml_path)
     if image_format not in ("pgm", "png"):
         raise MapError(f"{path}: image format must be pgm or png, got {image_format!r}")
+    if mode not in ("trinary", "scale", "raw"):
+        raise MapError(f"{path}: mode must be trinary, scale or raw, got {mode!r}")
     image_path = path.with_suffix("." + image_format)
-    pixels = np.full(grid.data.shape, 205, dtype=np.uint8)
-    pixels[grid.free_mask()] = 254
-    pixels[grid.occupied_mask()] = 0
+    data = grid.data.astype(np.int16)
+    if mode == "trinary":
+        pixels = np.full(grid.data.shape, 205, dtype=np.uint8)
+        pixels[grid.free_mask()] = 254
+        pixels[grid.occupied_mask()] = 0
+    elif mode == "scale":
+        # The inverse of map_server's scale mode: 0 → 254, 100 → 0, 1..99 → the grey whose
+        # occupancy falls at that point between free_thresh and occupied_thresh. Unknown cells
+        # are transparent, which only PNG can store.
+        unknown = data < 0
+        if unknown.any() and image_format != "png":
+            raise MapError(f"{path}: scale mode marks unknown cells as transparent; "
+                           f"{int(unknown.sum())} unknown cells need image format png")
+        lo, hi = grid.free_thresh, grid.occupied_thresh
+        occ = lo + np.clip(data, 0, 100) / 99.0 * (hi - lo)
+        exact = 255.0 * (1.0 - occ)
+        pixels = np.floor(exact + 0.5)
+        for candidate in (np.floor(exact), np.ceil(exact)):  # the grey that decodes back
+            back = _pixels_to_occupancy(candidate, "scale", False, hi, lo)
+            pixels = np.where(back == data, candidate, pixels)
+        pixels = np.clip(pixels, 0, 255).astype(np.uint8)
+        pixels[data <= 0] = 254
+        pixels[data >= 100] = 0
+        if unknown.any():
+            alpha = np.where(unknown, 0, 255).astype(np.uint8)
+            la = np.stack([pixels[::-1], alpha[::-1]], axis=2)
+            buf = io.BytesIO()
+            Image.fromarray(np.ascontiguousarray(la), mode="LA").save(buf, format="PNG")
+            atomic_write_bytes(image_path, buf.getvalue())
+            return _write_yaml(grid, path, image_path, mode)
+    else:
+        pixels = np.where(data < 0, 255, np.clip(data, 0, 100)).astype(np.uint8)
     buf = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(pixels[::-1]), mode="L").save(
         buf, format="PPM" if image_format == "pgm" else "PNG"
     )
     atomic_write_bytes(image_path, buf.getvalue())
+    return _write_yaml(grid, path, image_path, mode)
+
+
+def _write_yaml(grid: OccupancyGrid, path: Path, image_path: Path, mode: str) -> Path:
     meta = (
         f"image: {image_path.name}\n"
-        f"mode: trinary\n"
-        f"resolution: {grid.resolution_m:g}\n"
-        f"origin: [{grid.origin.x:g}, {grid.origin.y:g}, {grid.origin.yaw:g}]\n"
+        f"mode: {mode}\n"
+        f"resolution: {grid.resolution_m!r}\n"
+        f"origin: [{grid.origin.x!r}, {grid.origin.y!r}, {grid.origin.yaw!r}]\n"
         f"negate: 0\n"
-        f"occupied_thresh: {grid.occupied_thresh:g}\n"
-        f"free_thresh: {grid.free_thresh:g}\n"
+        f"occupied_thresh: {grid.occupied_thresh!r}\n"
+        f"free_thresh: {grid.free_thresh!r}\n"
     )
     atomic_write_text(path, meta)
     return path
+
+
+def map_stats(grid: OccupancyGrid) -> dict[str, float]:
+    """Size and content of a grid: cells, metres, and free / occupied / unknown percentages."""
+    n = max(1, grid.data.size)
+    return {
+        "width_cells": float(grid.width),
+        "height_cells": float(grid.height),
+        "width_m": grid.size_m[0],
+        "height_m": grid.size_m[1],
+        "resolution_m": grid.resolution_m,
+        "free_pct": 100.0 * float(np.count_nonzero(grid.free_mask())) / n,
+        "occupied_pct": 100.0 * float(np.count_nonzero(grid.occupied_mask())) / n,
+        "unknown_pct": 100.0 * float(np.count_nonzero(grid.unknown_mask())) / n,
+    }
