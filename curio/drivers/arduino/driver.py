@@ -126,7 +126,7 @@ class ArduinoBase:
         self.counters: dict[str, float] = {
             "reconnects": 0, "link_losses": 0, "rx_frames": 0, "tx_frames": 0,
             "bad_payloads": 0, "nacks": 0, "mcu_resets": 0, "watchdog_trips": 0,
-            "servo_read_failures": 0, "mcu_rx_crc_err": 0, "rtt_ms": -1.0,
+            "servo_read_failures": 0, "mcu_rx_crc_err": 0, "heartbeat_echo_age_ms": -1.0,
         }
 
     # --- public -------------------------------------------------------------------------------
@@ -459,7 +459,7 @@ class ArduinoBase:
         self.mcu_faults = msg.faults
         self.counters["mcu_rx_crc_err"] = msg.rx_crc_err
         if msg.last_host_ms:
-            self.counters["rtt_ms"] = float((self._host_ms() - msg.last_host_ms) & 0xFFFFFFFF)
+            self.counters["heartbeat_echo_age_ms"] = float((self._host_ms() - msg.last_host_ms) & 0xFFFFFFFF)
         if state == p.McuState.BOOT:
             self._saw_boot = True
         if state == p.McuState.TIMEOUT and previous != p.McuState.TIMEOUT:

@@ -73,6 +73,7 @@ FW_MINOR = 0
 FW_BUILD = 20261121
 LINK_TIMEOUT_MS = 2000
 STATE_PERIOD_MS = 100
+INTER_BYTE_TIMEOUT_MS = 20
 RESET_POWER_ON = 0x01
 RESET_EXTERNAL = 0x02
 Six = tuple[int, int, int, int, int, int]
@@ -141,6 +142,7 @@ class FirmwareModel:
     rx_ok: int = 0
     reset_cause: int = RESET_POWER_ON
     tx_seq: int = 0
+    last_byte_ms: int = 0
     next_control_ms: int = 0
     next_state_ms: int = 0
     next_status_ms: int = 0
@@ -198,6 +200,9 @@ class FirmwareModel:
 
     def on_bytes(self, data: bytes, now_ms: int) -> None:
         """Feed bytes received from the host."""
+        if self.decoder.pending and now_ms - self.last_byte_ms > INTER_BYTE_TIMEOUT_MS:
+            self.decoder.reset()  # a frame cut short: drop it, as the firmware does
+        self.last_byte_ms = now_ms
         before = self.decoder.stats.crc_errors
         frames = self.decoder.feed(data)
         self.rx_crc_err = (self.rx_crc_err + self.decoder.stats.crc_errors - before) & 0xFFFF
