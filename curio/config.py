@@ -255,7 +255,9 @@ class PlannerConfig(Section):
     replan_rate_hz: float = Field(1.0, ge=0.0, description="0 = only when needed")
     goal_nearest_free: bool = True
     goal_nearest_free_max_m: float = Field(0.5, ge=0.0)
-    heuristic_weight: float = Field(1.0, ge=1.0, le=5.0)
+    heuristic_weight: float = Field(
+        1.2, ge=1.0, le=5.0,
+        description="weighted A*: path cost at most this × the optimum; 1 = optimal, slower")
     cost_penalty: float = Field(
         3.0, ge=0.0, le=50.0,
         description="traversal cost per metre = 1 + cost_penalty * cost / 252 (keeps off walls)")

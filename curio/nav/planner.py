@@ -62,6 +62,13 @@ def path_length_m(poses: list[Pose2D]) -> float:
     return float(sum(a.distance_to(b) for a, b in itertools.pairwise(poses)))
 
 
+def _polyline_length(xy: FloatArray) -> float:
+    if xy.shape[0] < 2:
+        return 0.0
+    d = np.diff(xy, axis=0)
+    return float(np.hypot(d[:, 0], d[:, 1]).sum())
+
+
 @dataclass(frozen=True)
 class PlanResult:
     """A plan with the figures that describe it.
@@ -126,9 +133,10 @@ class GlobalPlanner:
     def plan_detailed(self, start: Pose2D, goal: Pose2D, costs: U8Array, resolution_m: float,
                       origin: Pose2D) -> PlanResult:
         """Like :meth:`plan`, returning the figures of the search too."""
-        costs = np.ascontiguousarray(costs, dtype=np.uint8)
+        costs = np.ascontiguousarray(costs, dtype=np.uint8).view()
         if costs.ndim != 2 or costs.size == 0:
             raise ValueError(f"costs must be a non-empty 2-D uint8 grid, got shape {costs.shape}")
+        costs.setflags(write=False)  # one compiled signature for every caller; never written
         if not resolution_m > 0.0:
             raise ValueError(f"resolution_m must be > 0, got {resolution_m}")
         h, w = costs.shape
@@ -211,7 +219,7 @@ class GlobalPlanner:
             pts = self._smooth(pts, costs, resolution_m, s_r, s_c, escape_r2)
         world = origin.transform_points(pts)
         poses = _with_headings(world, plan_goal.yaw)
-        return PlanResult(poses=poses, length_m=path_length_m(poses), cost=total_cost,
+        return PlanResult(poses=poses, length_m=_polyline_length(world), cost=total_cost,
                           expansions=int(expansions), goal=plan_goal, goal_moved=goal_moved,
                           grid_path=np.stack([rows, cols], axis=1))
 
@@ -266,7 +274,18 @@ class GlobalPlanner:
         ok[0] = ok[-1] = True
         cur[~ok] = orig[~ok]
         cur[0], cur[-1] = orig[0], orig[-1]
-        return cur
+        # Segments between moved points must stay traversable too: put back the ends of any
+        # segment that is not, until all are.
+        for _ in range(6):
+            rc = np.stack([cur[:, 1] / res - 0.5, cur[:, 0] / res - 0.5], axis=1)
+            seg_ok = kern.segments_clear(costs, self._lut, rc, escape_r2, s_r, s_c)
+            if seg_ok.all():
+                return cur
+            bad = np.zeros(cur.shape[0], dtype=bool)
+            bad[:-1] |= ~seg_ok
+            bad[1:] |= ~seg_ok
+            cur[bad] = orig[bad]
+        return orig
 
 
 def _extent(origin: Pose2D, res: float, h: int, w: int) -> str:
@@ -292,12 +311,11 @@ def _resample(verts: FloatArray, step_m: float) -> FloatArray:
 def _with_headings(world: FloatArray, goal_yaw: float) -> list[Pose2D]:
     n = world.shape[0]
     if n == 1:
-        return [Pose2D(float(world[0, 0]), float(world[0, 1]), goal_yaw)]
+        return [Pose2D(float(world[0, 0]), float(world[0, 1]), wrap_angle(goal_yaw))]
     nxt = np.vstack([world[1:], world[-1:]])
     prv = np.vstack([world[:1], world[:-1]])
     d = nxt - prv
     yaws = np.arctan2(d[:, 1], d[:, 0])
-    poses = [Pose2D(float(x), float(y), wrap_angle(float(a)))
-             for (x, y), a in zip(world, yaws, strict=True)]
-    poses[-1] = Pose2D(poses[-1].x, poses[-1].y, wrap_angle(goal_yaw))
-    return poses
+    yaws[yaws >= np.pi] -= 2.0 * np.pi  # [-π, π) like wrap_angle
+    yaws[-1] = wrap_angle(goal_yaw)
+    return list(map(Pose2D, world[:, 0].tolist(), world[:, 1].tolist(), yaws.tolist()))

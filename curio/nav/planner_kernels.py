@@ -17,59 +17,23 @@ import math
 import numpy as np
 from numba import njit  # type: ignore[import-untyped]
 
-__all__ = ["astar", "line_cost", "shortcut", "trace_path"]
+__all__ = ["astar", "line_cost", "segments_clear", "shortcut", "trace_path"]
 
 _SQRT2 = math.sqrt(2.0)
 _DR = np.array([-1, -1, -1, 0, 0, 1, 1, 1], dtype=np.int64)
 _DC = np.array([-1, 0, 1, -1, 1, -1, 0, 1], dtype=np.int64)
-_DL = np.array([_SQRT2, 1.0, _SQRT2, 1.0, 1.0, _SQRT2, 1.0, _SQRT2], dtype=np.float64)
 
 
-@njit(cache=True, nogil=True)  # type: ignore[misc]
-def _heap_push(keys, vals, size, key, val):  # type: ignore[no-untyped-def]
-    if size >= keys.shape[0]:
-        nk = np.empty(keys.shape[0] * 2, dtype=keys.dtype)
-        nv = np.empty(vals.shape[0] * 2, dtype=vals.dtype)
-        nk[:size] = keys[:size]
-        nv[:size] = vals[:size]
-        keys = nk
-        vals = nv
-    i = size
-    size += 1
-    while i > 0:
-        parent = (i - 1) >> 1
-        if keys[parent] <= key:
-            break
-        keys[i] = keys[parent]
-        vals[i] = vals[parent]
-        i = parent
-    keys[i] = key
-    vals[i] = val
-    return keys, vals, size
-
-
-@njit(cache=True, nogil=True)  # type: ignore[misc]
-def _heap_pop(keys, vals, size):  # type: ignore[no-untyped-def]
-    top = vals[0]
-    size -= 1
-    if size > 0:
-        key = keys[size]
-        val = vals[size]
-        i = 0
-        while True:
-            child = 2 * i + 1
-            if child >= size:
-                break
-            if child + 1 < size and keys[child + 1] < keys[child]:
-                child += 1
-            if keys[child] >= key:
-                break
-            keys[i] = keys[child]
-            vals[i] = vals[child]
-            i = child
-        keys[i] = key
-        vals[i] = val
-    return top, size
+@njit(cache=True, nogil=True, inline="always")  # type: ignore[misc]
+def _passable(flat, lut, v, w, escape_r2, start_r, start_c):  # type: ignore[no-untyped-def]
+    raw = flat[v]
+    if lut[raw] >= 0.0:
+        return True
+    if raw == 253 and escape_r2 > 0:
+        vr = v // w
+        vc = v - vr * w
+        return (vr - start_r) ** 2 + (vc - start_c) ** 2 <= escape_r2
+    return False
 
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
@@ -87,58 +51,85 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
             obstacle can drive out; 0 disables.
         g: ``(H*W,)`` float64 scratch, zero-filled (cost-to-come; valid where ``parent > 0``).
         parent: ``(H*W,)`` uint8 scratch, zero-filled; 0 unseen, 1..8 the direction index + 1
-            of the step that reached the cell, 9 the start.
+            of the step that reached the cell, 9 the start, +16 once the cell is closed.
+
+    Diagonal steps are not allowed past the corner of a non-traversable cell.
 
     Returns:
         ``(found, expansions)``.
     """
     h, w = costs.shape
-    n = h * w
-    closed = np.zeros(n, dtype=np.uint8)
-    dr = _DR
-    dc = _DC
-    dl = _DL
+    flat = costs.ravel()
     sqrt2m2 = _SQRT2 - 2.0
     wt = weight * (1.0 + 1e-4)  # slight tie-break towards the goal
     start = start_r * w + start_c
     goal = goal_r * w + goal_c
-    keys = np.empty(1 << 14, dtype=np.float64)
-    vals = np.empty(1 << 14, dtype=np.int64)
+    cap = 1 << 14
+    keys = np.empty(cap, dtype=np.float64)
+    vals = np.empty(cap, dtype=np.int64)
     size = 0
     g[start] = 0.0
     parent[start] = 9
     dx0 = abs(start_c - goal_c)
     dy0 = abs(start_r - goal_r)
-    h0 = dx0 + dy0 + sqrt2m2 * min(dx0, dy0)
-    keys, vals, size = _heap_push(keys, vals, size, wt * h0, start)
+    keys[0] = wt * (dx0 + dy0 + sqrt2m2 * min(dx0, dy0))
+    vals[0] = start
+    size = 1
     expansions = 0
     lut252 = lut[252]
+    offs = np.empty(8, dtype=np.int64)
+    for k in range(8):
+        offs[k] = _DR[k] * w + _DC[k]
     while size > 0:
-        u, size = _heap_pop(keys, vals, size)
-        if closed[u]:
+        # ---- pop
+        u = vals[0]
+        size -= 1
+        if size > 0:
+            key = keys[size]
+            val = vals[size]
+            i = 0
+            while True:
+                child = 2 * i + 1
+                if child >= size:
+                    break
+                if child + 1 < size and keys[child + 1] < keys[child]:
+                    child += 1
+                if keys[child] >= key:
+                    break
+                keys[i] = keys[child]
+                vals[i] = vals[child]
+                i = child
+            keys[i] = key
+            vals[i] = val
+        if parent[u] >= 16:
             continue
         if u == goal:
             return True, expansions
-        closed[u] = 1
+        parent[u] += 16
         expansions += 1
         ur = u // w
         uc = u - ur * w
-        cu = lut[costs[ur, uc]]
+        cu = lut[flat[u]]
         if cu < 0.0:  # the start inside the inscribed zone
             cu = lut252
         gu = g[u]
+        interior = ur > 0 and ur < h - 1 and uc > 0 and uc < w - 1
         for k in range(8):
-            vr = ur + dr[k]
-            vc = uc + dc[k]
-            if vr < 0 or vr >= h or vc < 0 or vc >= w:
+            if not interior:
+                vr = ur + _DR[k]
+                vc = uc + _DC[k]
+                if vr < 0 or vr >= h or vc < 0 or vc >= w:
+                    continue
+            v = u + offs[k]
+            pv = parent[v]
+            if pv >= 16:
                 continue
-            v = vr * w + vc
-            if closed[v]:
-                continue
-            cv_raw = costs[vr, vc]
+            cv_raw = flat[v]
             cv = lut[cv_raw]
             if cv < 0.0:
                 if cv_raw == 253 and escape_r2 > 0:
+                    vr = v // w
+                    vc = v - vr * w
                     er = vr - start_r
                     ec = vc - start_c
                     if er * er + ec * ec <= escape_r2:
@@ -147,14 +138,43 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
                         continue
                 else:
                     continue
-            ng = gu + dl[k] * 0.5 * (cu + cv)
-            if parent[v] == 0 or ng < g[v]:
+            step = 1.0
+            if k == 0 or k == 2 or k == 5 or k == 7:
+                # a diagonal step may not cut the corner of a blocked cell
+                if not _passable(flat, lut, u + _DR[k] * w, w, escape_r2, start_r, start_c):
+                    continue
+                if not _passable(flat, lut, u + _DC[k], w, escape_r2, start_r, start_c):
+                    continue
+                step = _SQRT2
+            ng = gu + step * 0.5 * (cu + cv)
+            if pv == 0 or ng < g[v]:
                 g[v] = ng
                 parent[v] = k + 1
+                vr = v // w
+                vc = v - vr * w
                 dx = abs(vc - goal_c)
                 dy = abs(vr - goal_r)
-                hv = dx + dy + sqrt2m2 * min(dx, dy)
-                keys, vals, size = _heap_push(keys, vals, size, ng + wt * hv, v)
+                f = ng + wt * (dx + dy + sqrt2m2 * min(dx, dy))
+                # ---- push
+                if size >= cap:
+                    cap *= 2
+                    nk = np.empty(cap, dtype=np.float64)
+                    nv = np.empty(cap, dtype=np.int64)
+                    nk[:size] = keys[:size]
+                    nv[:size] = vals[:size]
+                    keys = nk
+                    vals = nv
+                i = size
+                size += 1
+                while i > 0:
+                    par = (i - 1) >> 1
+                    if keys[par] <= f:
+                        break
+                    keys[i] = keys[par]
+                    vals[i] = vals[par]
+                    i = par
+                keys[i] = f
+                vals[i] = v
     return False, expansions
 
 
@@ -166,7 +186,7 @@ def trace_path(parent, w, goal_r, goal_c):  # type: ignore[no-untyped-def]
     c = goal_c
     while True:
         n += 1
-        p = parent[r * w + c]
+        p = parent[r * w + c] & 15
         if p == 9 or p == 0:
             break
         r -= _DR[p - 1]
@@ -178,7 +198,7 @@ def trace_path(parent, w, goal_r, goal_c):  # type: ignore[no-untyped-def]
     for i in range(n - 1, -1, -1):
         rows[i] = r
         cols[i] = c
-        p = parent[r * w + c]
+        p = parent[r * w + c] & 15
         if p == 9 or p == 0:
             break
         r -= _DR[p - 1]
@@ -188,38 +208,92 @@ def trace_path(parent, w, goal_r, goal_c):  # type: ignore[no-untyped-def]
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
 def line_cost(costs, lut, r0, c0, r1, c1, escape_r2, sr, sc):  # type: ignore[no-untyped-def]
-    """Traversal cost of the straight segment between two cell centres (−1 if blocked).
+    """Traversal cost of the straight segment between two grid points (−1 if blocked).
 
-    Samples every 0.25 cell; each sample's cell contributes ``lut[cost] × 0.25`` (cells).
-    Inscribed cells within ``escape_r2`` of ``(sr, sc)`` count as 252, as in :func:`astar`.
+    Points are in index space (cell ``k`` spans ``[k − 0.5, k + 0.5)``; cell centres are
+    integers). Walks every cell the segment passes through (Amanatides–Woo) and adds the length
+    inside it (in cells) × ``lut[cost]``: the exact line integral of the cost field. Where the
+    segment passes exactly through a cell corner, the two cells beside the corner must be
+    traversable too (the same no-corner-cutting rule as :func:`astar`). Inscribed cells within
+    ``escape_r2`` of ``(sr, sc)`` count as 252, as in :func:`astar`.
     """
+    h, w = costs.shape
     dr = r1 - r0
     dc = c1 - c0
     length = math.sqrt(dr * dr + dc * dc)
+    r = math.floor(r0 + 0.5)
+    c = math.floor(c0 + 0.5)
+    lut252 = lut[252]
     if length == 0.0:
-        return 0.0
-    n = math.ceil(length / 0.25)
-    step = length / n
+        if r < 0 or r >= h or c < 0 or c >= w:
+            return -1.0
+        if _passable(costs.ravel(), lut, r * w + c, w, escape_r2, sr, sc):
+            return 0.0
+        return -1.0
+    step_r = 1 if dr > 0 else -1
+    step_c = 1 if dc > 0 else -1
+    inf = math.inf
+    if dr != 0.0:
+        tdelta_r = 1.0 / abs(dr)
+        tmax_r = ((r + 0.5 * step_r) - r0) / dr
+    else:
+        tdelta_r = inf
+        tmax_r = inf
+    if dc != 0.0:
+        tdelta_c = 1.0 / abs(dc)
+        tmax_c = ((c + 0.5 * step_c) - c0) / dc
+    else:
+        tdelta_c = inf
+        tmax_c = inf
+    t = 0.0
     total = 0.0
-    h, w = costs.shape
-    for i in range(n + 1):
-        t = i / n
-        fr = r0 + t * dr
-        fc = c0 + t * dc
-        r = math.floor(fr + 0.5)
-        c = math.floor(fc + 0.5)
+    while True:
         if r < 0 or r >= h or c < 0 or c >= w:
             return -1.0
         raw = costs[r, c]
         cv = lut[raw]
         if cv < 0.0:
             if raw == 253 and escape_r2 > 0 and (r - sr) ** 2 + (c - sc) ** 2 <= escape_r2:
-                cv = lut[252]
+                cv = lut252
             else:
                 return -1.0
-        wgt = 0.5 if (i == 0 or i == n) else 1.0
-        total += cv * step * wgt
+        t_next = min(tmax_r, tmax_c, 1.0)
+        total += (t_next - t) * length * cv
+        if t_next >= 1.0:
+            break
+        if abs(tmax_r - tmax_c) <= 1e-9:
+            # through a corner: the cells on both sides of it must be traversable
+            for rr, cc in ((r + step_r, c), (r, c + step_c)):
+                if rr < 0 or rr >= h or cc < 0 or cc >= w:
+                    return -1.0
+                if not _passable(costs.ravel(), lut, rr * w + cc, w, escape_r2, sr, sc):
+                    return -1.0
+            r += step_r
+            c += step_c
+            t = tmax_r
+            tmax_r += tdelta_r
+            tmax_c += tdelta_c
+        elif tmax_r < tmax_c:
+            r += step_r
+            t = tmax_r
+            tmax_r += tdelta_r
+        else:
+            c += step_c
+            t = tmax_c
+            tmax_c += tdelta_c
     return total
+
+
+@njit(cache=True, nogil=True)  # type: ignore[misc]
+def segments_clear(costs, lut, pts_rc, escape_r2, sr, sc):  # type: ignore[no-untyped-def]
+    """For a polyline of ``(N, 2)`` float grid points, whether each of its N − 1 segments is
+    traversable (see :func:`line_cost`)."""
+    n = pts_rc.shape[0]
+    out = np.empty(max(0, n - 1), dtype=np.bool_)
+    for i in range(n - 1):
+        out[i] = line_cost(costs, lut, pts_rc[i, 0], pts_rc[i, 1], pts_rc[i + 1, 0],
+                           pts_rc[i + 1, 1], escape_r2, sr, sc) >= 0.0
+    return out
 
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
@@ -251,7 +325,8 @@ def shortcut(costs, lut, rows, cols, g, w, escape_r2, max_fail,  # type: ignore[
         end = min(n, a + max_span + 1)
         while j < end:
             gj = g[rows[j] * w + cols[j]]
-            lc = line_cost(costs, lut, rows[a], cols[a], rows[j], cols[j], escape_r2, sr, sc)
+            lc = line_cost(costs, lut, float(rows[a]), float(cols[a]), float(rows[j]),
+                           float(cols[j]), escape_r2, sr, sc)
             if lc >= 0.0 and lc <= (gj - ga) * (1.0 + 1e-9) + 1e-9:
                 best = j
                 fails = 0
