@@ -122,6 +122,16 @@ class ImuConfig(Section):
     address: int = Field(0x28, description="0x28 (ADR low) or 0x29 (ADR high)")
     rate_hz: float = Field(100.0, gt=0.0, le=200.0)
     calibration_file: str = "bno055_calibration.json"
+    mode: Literal["imu", "ndof"] = Field(
+        "imu", description="imu: accel+gyro, relative heading (no magnetometer near servos)"
+    )
+    axis_map_config: int = Field(0x24, ge=0, le=0x3F, description="AXIS_MAP_CONFIG (0x24 = P1)")
+    axis_map_sign: int = Field(0x00, ge=0, le=0x07, description="AXIS_MAP_SIGN")
+    external_crystal: bool = Field(False, description="board has the 32.768 kHz crystal")
+    boot_timeout_s: float = Field(2.0, gt=0.0, le=10.0, description="wait for CHIP_ID 0xA0")
+    reconnect_s: float = Field(1.0, gt=0.0, le=30.0)
+    max_consecutive_errors: int = Field(10, ge=1, description="failed reads before re-init")
+    error_rate_warn: float = Field(0.01, ge=0.0, le=1.0, description="health degraded above")
 
     @field_validator("address")
     @classmethod
