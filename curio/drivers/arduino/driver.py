@@ -105,6 +105,7 @@ class ArduinoBase:
         self._twist_rx_s = -1e9
         self._estop = False
         self._halted = False
+        self._opened_before = False
         # Session state.
         self.connected = False
         self.mcu_state: p.McuState | None = None
@@ -134,11 +135,7 @@ class ArduinoBase:
     async def run(self) -> None:
         """Connect, configure, arm and drive until cancelled; reconnect after any failure."""
         backoff_s = 0.1
-        sessions = 0
         while True:
-            if sessions:
-                self.counters["reconnects"] += 1
-            sessions += 1
             try:
                 await self._session()
                 backoff_s = 0.1
@@ -235,6 +232,9 @@ class ArduinoBase:
         reader, writer = await serial_asyncio_fast.open_serial_connection(
             url=self.port, baudrate=self.cfg.baud)
         self._writer = writer
+        if self._opened_before:
+            self.counters["reconnects"] += 1
+        self._opened_before = True
         self.decoder.reset()
         self._acks.clear()
         self.connected = True
@@ -288,6 +288,7 @@ class ArduinoBase:
             writer.close()
             self._writer = None
             self.connected = False
+            self.mcu_state = None  # unknown until the board speaks again
 
     def _check_reader(self, task: asyncio.Future[None]) -> None:
         if not task.done():
@@ -459,7 +460,8 @@ class ArduinoBase:
         self.mcu_faults = msg.faults
         self.counters["mcu_rx_crc_err"] = msg.rx_crc_err
         if msg.last_host_ms:
-            self.counters["heartbeat_echo_age_ms"] = float((self._host_ms() - msg.last_host_ms) & 0xFFFFFFFF)
+            age_ms = (self._host_ms() - msg.last_host_ms) & 0xFFFFFFFF
+            self.counters["heartbeat_echo_age_ms"] = float(age_ms)
         if state == p.McuState.BOOT:
             self._saw_boot = True
         if state == p.McuState.TIMEOUT and previous != p.McuState.TIMEOUT:
