@@ -23,7 +23,8 @@ Every subject plans the same pairs on the same costs. The per-cell traversal cos
 
 Figures: time per plan (median, mean, p99 in ms, wall clock), success rate, mean path length,
 and ratios: time against Curio's (median) and path length against MCP's (mean of per-pair
-ratios). Path length is the Euclidean length of the returned polyline.
+ratios). Path length is the Euclidean length of the returned polyline. For Curio,
+``grid_path_vs_mcp`` also compares its raw A* cell path (before shortcutting and smoothing).
 """
 
 from __future__ import annotations
@@ -209,6 +210,7 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
     c_times: list[float] = []
     c_ok: list[bool] = []
     c_len: dict[int, float] = {}
+    c_raw_len: dict[int, float] = {}  # the A* cell path before shortcutting and smoothing
     for i, (s, g) in enumerate(pairs):
         t0 = wall_perf_counter()
         try:
@@ -221,10 +223,14 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
         c_times.append((wall_perf_counter() - t0) * 1e3)
         c_ok.append(True)
         c_len[i] = result.length_m
+        c_raw_len[i] = cell_path_length_m(result.grid_path, res)
 
     # --- skimage MCP_Geometric (reference optimum)
-    from skimage.graph import MCP_Geometric
-
+    try:
+        from skimage.graph import MCP_Geometric
+    except ImportError:
+        raise SystemExit("the planner benchmark's peers are missing: "
+                         "pip install 'curio[bench]' (pyastar2d, scikit-image)") from None
     mcp_costs = np.where(traversable, cell_w, np.inf)
     m_times: list[float] = []
     m_ok: list[bool] = []
@@ -241,7 +247,11 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
             m_len[i] = cell_path_length_m(np.asarray(path, dtype=np.int64), res)
 
     # --- pyastar2d
-    import pyastar2d
+    try:
+        import pyastar2d
+    except ImportError:
+        raise SystemExit("the planner benchmark's peers are missing: "
+                         "pip install 'curio[bench]' (pyastar2d, scikit-image)") from None
 
     py_w = np.where(traversable, cell_w, np.inf).astype(np.float32)
     p_times: list[float] = []
@@ -271,6 +281,8 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
 
     curio_median = float(np.median(c_times))
     rows.append(_summary("curio", c_times, c_ok, c_len, m_len, curio_median))
+    raw_ratios = [c_raw_len[i] / m_len[i] for i in c_raw_len if i in m_len and m_len[i] > 0]
+    rows[0]["grid_path_vs_mcp"] = float(np.mean(raw_ratios)) if raw_ratios else float("nan")
     rows.append(_summary("pyastar2d", p_times, p_ok, p_len, m_len, curio_median))
     rows.append(_summary("skimage_mcp", m_times, m_ok, m_len, m_len, curio_median))
     rows.append(_summary("python_heapq", h_times, h_ok, h_len, m_len, curio_median,

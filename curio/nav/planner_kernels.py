@@ -66,7 +66,7 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
     goal = goal_r * w + goal_c
     cap = 1 << 14
     keys = np.empty(cap, dtype=np.float64)
-    vals = np.empty(cap, dtype=np.int64)
+    vals = np.empty(cap, dtype=np.int32)
     size = 0
     g[start] = 0.0
     parent[start] = 9
@@ -115,11 +115,10 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
         gu = g[u]
         interior = ur > 0 and ur < h - 1 and uc > 0 and uc < w - 1
         for k in range(8):
-            if not interior:
-                vr = ur + _DR[k]
-                vc = uc + _DC[k]
-                if vr < 0 or vr >= h or vc < 0 or vc >= w:
-                    continue
+            vr = ur + _DR[k]
+            vc = uc + _DC[k]
+            if not interior and (vr < 0 or vr >= h or vc < 0 or vc >= w):
+                continue
             v = u + offs[k]
             pv = parent[v]
             if pv >= 16:
@@ -128,8 +127,6 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
             cv = lut[cv_raw]
             if cv < 0.0:
                 if cv_raw == 253 and escape_r2 > 0:
-                    vr = v // w
-                    vc = v - vr * w
                     er = vr - start_r
                     ec = vc - start_c
                     if er * er + ec * ec <= escape_r2:
@@ -150,8 +147,6 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
             if pv == 0 or ng < g[v]:
                 g[v] = ng
                 parent[v] = k + 1
-                vr = v // w
-                vc = v - vr * w
                 dx = abs(vc - goal_c)
                 dy = abs(vr - goal_r)
                 f = ng + wt * (dx + dy + sqrt2m2 * min(dx, dy))
@@ -159,7 +154,7 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
                 if size >= cap:
                     cap *= 2
                     nk = np.empty(cap, dtype=np.float64)
-                    nv = np.empty(cap, dtype=np.int64)
+                    nv = np.empty(cap, dtype=np.int32)
                     nk[:size] = keys[:size]
                     nv[:size] = vals[:size]
                     keys = nk
