@@ -202,6 +202,11 @@
     view.dirty = true;
   }
 
+  function describeIds(ids) {
+    const contiguous = ids.length > 2 && ids.every((v, i) => v === ids[0] + i);
+    return contiguous ? ids[0] + "–" + ids[ids.length - 1] : ids.join(", ");
+  }
+
   function editPath() { return S.paths.find((p) => p.id === S.editPathId) || null; }
 
   function renderWaypoints() {
@@ -721,6 +726,11 @@
     if (text === "") { showMsg(msg, "Type a path number first (e.g. 1), then press Enter.", "error"); return; }
     if (!/^\d+$/.test(text)) {
       showMsg(msg, "“" + text + "” is not a path number. Type a whole number like 1.", "error");
+      return;
+    }
+    const ids = S.paths.map((p) => p.id).sort((a, b) => a - b);
+    if (ids.length && !ids.includes(Number(text))) {
+      showMsg(msg, "There is no path " + Number(text) + "; paths are " + describeIds(ids), "error");
       return;
     }
     if (await command("select_path", { path_id: Number(text) }, msg)) {

@@ -1,0 +1,269 @@
+"""End-to-end: the whole App on a real-time SimClock, driven through a real headless Chromium.
+
+Playwright drives Debian's ``/usr/bin/chromium`` (never ``playwright install``). Screenshots
+go to ``artifacts/screenshots/`` (gitignored). These tests need the simulator, estimation,
+navigation and the behaviour tree; each one says which parts it drives.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import shutil
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from playwright import async_api as playwright_api
+
+from curio.app import App
+from curio.clock import SimClock
+from curio.config import REPO_ROOT, Config, load_config
+from curio.topics import CMD_VEL, GROUND_TRUTH
+
+pytestmark = [pytest.mark.browser]
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run"]
+SHOTS = REPO_ROOT / "artifacts" / "screenshots"
+SPEED = 2.0  # simulated seconds per wall second
+
+if shutil.which(CHROMIUM) is None:  # pragma: no cover - the README's test command installs it
+    pytest.fail(f"{CHROMIUM} is missing: apt-get install chromium", pytrace=False)
+
+
+def make_cfg(data_dir: Path, *extra: str) -> Config:
+    return load_config(REPO_ROOT / "config.toml", [
+        f'data_dir="{data_dir}"', "web.enabled=true", "web.port=0", "bt.speak=false",
+        *extra])
+
+
+@contextlib.asynccontextmanager
+async def running_app(cfg: Config) -> AsyncIterator[tuple[App, SimClock]]:
+    clock = SimClock(speed=SPEED)
+    app = App(cfg, clock, web=True)
+    await app.start()
+    runner = asyncio.create_task(clock.run(), name="sim-clock")
+    try:
+        yield app, clock
+        assert app.failed_parts() == []
+    finally:
+        await app.stop()
+        runner.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await runner
+
+
+class Browser:
+    """A page plus every console error and uncaught exception it produced."""
+
+    def __init__(self, page: Any) -> None:
+        self.page = page
+        self.errors: list[str] = []
+        page.on("console", lambda m: self.errors.append(f"console.{m.type}: {m.text}")
+                if m.type == "error" else None)
+        page.on("pageerror", lambda e: self.errors.append(f"pageerror: {e}"))
+
+    async def shot(self, name: str) -> Path:
+        SHOTS.mkdir(parents=True, exist_ok=True)
+        path = SHOTS / f"{name}.png"
+        await self.page.screenshot(path=str(path))
+        return path
+
+    async def state(self, expr: str) -> Any:
+        return await self.page.evaluate(f"() => {expr}")
+
+    async def wait_js(self, expr: str, timeout_s: float = 20.0) -> None:
+        await self.page.wait_for_function(f"() => {expr}", timeout=timeout_s * 1000)
+
+    async def click_map(self, x_m: float, y_m: float, drag_to: tuple[float, float] | None = None
+                        ) -> None:
+        """Click the map canvas at map point (x_m, y_m) with the real mouse."""
+        box = await self.page.locator("#map").bounding_box()
+        sx, sy = await self.page.evaluate(f"() => window.curio.toScreen({x_m}, {y_m})")
+        mouse = self.page.mouse
+        await mouse.move(box["x"] + sx, box["y"] + sy)
+        await mouse.down()
+        if drag_to is not None:
+            tx, ty = await self.page.evaluate(
+                f"() => window.curio.toScreen({drag_to[0]}, {drag_to[1]})")
+            await mouse.move(box["x"] + tx, box["y"] + ty, steps=5)
+        await mouse.up()
+
+
+@contextlib.asynccontextmanager
+async def browser_on(url: str) -> AsyncIterator[Browser]:
+    async with playwright_api.async_playwright() as p:
+        chromium = await p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            page = await chromium.new_page(viewport={"width": 1400, "height": 900})
+            b = Browser(page)
+            await page.goto(url)
+            await b.wait_js("window.curio && window.curio.S.connected && window.curio.S.status")
+            yield b
+        finally:
+            await chromium.close()
+
+
+def truth_xy(app: App) -> tuple[float, float]:
+    gt = app.bus.latest(GROUND_TRUTH)
+    assert gt is not None, "the simulator publishes no ground truth"
+    return gt.pose.x, gt.pose.y
+
+
+async def test_operator_controls_drive_the_rover(tmp_path: Path) -> None:
+    """Page loads cleanly; a goal clicked on the map moves the rover; Pause/Resume; Go Home;
+    a bad path number shows an error. Drives: sim, estimation, navigation, behaviour tree."""
+    async with running_app(make_cfg(tmp_path / "data")) as (app, clock):
+        assert app.web_url is not None and "token=" in app.web_url
+        async with browser_on(app.web_url) as b:
+            page = b.page
+            assert await page.text_content("#mode") == "You can control"
+            await b.wait_js("window.curio.S.images.map && window.curio.S.pose")
+            await b.shot("01-loaded")
+
+            # A bad path number: a visible, specific message, nothing sent.
+            await page.fill("#pathInput", "7")
+            await page.press("#pathInput", "Enter")
+            await b.wait_js("document.querySelector('#pathMsg').textContent.includes('no path 7')")
+            assert "paths are 0–2" in (await page.text_content("#pathMsg") or "")
+            assert "error" in (await page.get_attribute("#pathMsg", "class") or "")
+            await page.fill("#pathInput", "two")
+            await page.click("#pathEnter")
+            await b.wait_js("document.querySelector('#pathMsg').textContent.includes('not a path')")
+            await b.shot("02-bad-path-number")
+
+            # Send the rover to a point by clicking the map.
+            start = truth_xy(app)
+            await page.click("[data-tool=goal]")
+            await b.click_map(start[0] + 2.0, start[1])
+            await b.wait_js("window.curio.S.status.state === 'moving'")
+            await b.wait_js(f"window.curio.S.pose && Math.hypot(window.curio.S.pose.x - {start[0]},"
+                            f" window.curio.S.pose.y - {start[1]}) > 0.3", timeout_s=30)
+            await b.shot("03-moving")
+
+            # Pause: the button and the badge follow the rover's real state.
+            await page.click("#pause")
+            await b.wait_js("window.curio.S.status.state === 'paused'")
+            await b.wait_js("document.querySelector('#pause').textContent.includes('Resume')")
+            assert await page.text_content("#stateBadge") == "Paused"
+            await clock.sleep(1.0)
+            x0 = truth_xy(app)
+            await clock.sleep(1.0)
+            assert math.dist(x0, truth_xy(app)) < 0.05, "the rover kept moving while paused"
+            await b.shot("04-paused")
+            await page.click("#pause")
+            await b.wait_js("window.curio.S.status.state !== 'paused'")
+            await b.wait_js("document.querySelector('#pause').textContent.includes('Pause')")
+
+            # Go Home sends it home.
+            await page.click("#goHome")
+            await b.wait_js("window.curio.S.status.state === 'going_home'")
+            await b.shot("05-going-home")
+            home = app.cfg.robot.home
+            assert await clock.wait_until(
+                lambda: math.dist(truth_xy(app), home[:2]) < 0.35, timeout_s=90.0), \
+                f"not home: {truth_xy(app)}"
+            await b.wait_js("window.curio.S.status.state === 'arrived'", timeout_s=30)
+            await b.shot("06-home")
+            assert b.errors == []
+
+
+async def test_clicked_waypoints_survive_a_restart(tmp_path: Path) -> None:
+    """Path editor: a new path and two clicked waypoints persist. Drives: behaviour tree
+    (path manager), simulator (map)."""
+    data = tmp_path / "data"
+    async with running_app(make_cfg(data)) as (app, _clock), browser_on(app.web_url or "") as b:
+        page = b.page
+        await b.wait_js("window.curio.S.images.map")
+        await page.click("#pathsCard summary")
+        await page.click("#newPath")
+        await b.wait_js("window.curio.S.editPathId !== null")
+        new_id = await b.state("window.curio.S.editPathId")
+        assert await b.state("document.querySelector('.tool.active').dataset.tool") \
+                == "waypoint"
+        await b.click_map(1.0, 0.5)
+        await b.wait_js(f"window.curio.S.paths.find(p => p.id === {new_id})"
+                        ".waypoints.length === 1")
+        await b.click_map(2.0, 1.0, drag_to=(2.0, 2.0))  # drag: the waypoint faces +y
+        await b.wait_js(f"window.curio.S.paths.find(p => p.id === {new_id})"
+                        ".waypoints.length === 2")
+        await page.fill("#pathName", "Lab visit")
+        await page.click("#renamePath")
+        await b.wait_js(f"window.curio.S.paths.find(p => p.id === {new_id}).name === "
+                        "'Lab visit'")
+        await b.shot("07-path-editor")
+        assert b.errors == []
+
+    async with running_app(make_cfg(data)) as (app, _clock):
+        saved = app.paths.get(new_id)
+        assert saved.name == "Lab visit"
+        assert [(round(w.x_m, 1), round(w.y_m, 1)) for w in saved.waypoints] == \
+            [(1.0, 0.5), (2.0, 1.0)]
+        assert saved.waypoints[0].yaw_rad is None
+        assert saved.waypoints[1].yaw_rad == pytest.approx(math.pi / 2, abs=0.05)
+        async with browser_on(app.web_url or "") as b:
+            text = await b.page.text_content("#pathList")
+            assert f"{new_id}: Lab visit" in (text or "")
+
+
+async def test_blocked_door_shows_help_me_then_thanks(tmp_path: Path) -> None:
+    """The library door closes in front of the rover driving a path typed by number: HELP ME
+    blinks; the door reopens: Thanks!. Drives: sim world (doors), navigation (blocked
+    detector), behaviour tree (path follower, Ask4Help)."""
+    door_xy = (1.55, 9.575)  # the library door of the default world; its only way in
+    cfg = make_cfg(tmp_path / "data", "sim.start=[1.55, 6.3, 1.5708]")
+    async with running_app(cfg) as (app, clock):
+        pid = app.paths.create("Library").id
+        app.paths.add_waypoint(pid, 1.2, 11.5)
+        async with browser_on(app.web_url or "") as b:
+            page = b.page
+            await b.wait_js("window.curio.S.images.map && window.curio.S.pose")
+            await b.wait_js(f"window.curio.S.paths.some(p => p.id === {pid})")
+            await page.fill("#pathInput", str(pid))
+            await page.press("#pathInput", "Enter")
+            await b.wait_js("window.curio.S.status.state === 'moving'")
+            assert await clock.wait_until(
+                lambda: math.dist(truth_xy(app), door_xy) < 2.6, timeout_s=30.0)
+            app.world.set_door("library", False)
+            await b.wait_js("document.querySelector('#help').textContent === 'HELP ME!'",
+                            timeout_s=60)
+            assert "active" in (await page.get_attribute("#help", "class") or "")
+            assert await page.is_visible("#helpDone")
+            assert await page.text_content("#stateBadge") == "Needs help"
+            await b.shot("08-help-me")
+            app.world.set_door("library", True)
+            await b.wait_js("document.querySelector('#help').textContent === 'Thanks!'",
+                            timeout_s=60)
+            await b.shot("09-thanks")
+            assert b.errors == []
+
+
+async def test_teleop_moves_and_release_stops(tmp_path: Path) -> None:
+    """Hold the joystick forward: the rover drives; let go: it stops. Drives: sim, safety
+    stage (navigation)."""
+    async with running_app(make_cfg(tmp_path / "data")) as (app, clock), \
+            browser_on(app.web_url or "") as b:
+        page = b.page
+        await b.wait_js("window.curio.S.pose")
+        start = truth_xy(app)
+        joy = await page.locator("#joystick").bounding_box()
+        cx, cy = joy["x"] + joy["width"] / 2, joy["y"] + joy["height"] / 2
+        await page.mouse.move(cx, cy)
+        await page.mouse.down()
+        await page.mouse.move(cx, cy - joy["height"] * 0.4, steps=4)
+        assert await clock.wait_until(
+            lambda: math.dist(start, truth_xy(app)) > 0.15, timeout_s=10.0), \
+            "the rover did not move under teleop"
+        await b.shot("10-teleop")
+        await page.mouse.up()
+        await clock.sleep(1.0)  # deadman: stopped within the safety timeout and ramp
+        cmd = app.bus.latest(CMD_VEL)
+        assert cmd is not None and abs(cmd.linear_mps) < 1e-3
+        held = truth_xy(app)
+        await clock.sleep(1.0)
+        assert math.dist(held, truth_xy(app)) < 0.02, "the rover kept moving after release"
+        assert b.errors == []
