@@ -171,14 +171,15 @@ class MatchResult:
 
 def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: int = 8,
                max_residual_m: float = 0.15, inlier_m: float = 0.1,
-               sigma_m: float = 0.03) -> MatchResult:
+               sigma_m: float = 0.03, surface_offset_m: float | None = None) -> MatchResult:
     """Refine ``guess`` so that ``points`` (``base_link``) fall on wall faces (Gauss–Newton).
 
     The residual of a point is its interpolated distance to the nearest occupied cell centre
-    minus half a cell (the wall face); points further than ``max_residual_m`` from a face are
+    minus ``surface_offset_m`` (default half a cell: the face of a wall drawn as cells; 0 for
+    maps built from scan end points); points further than ``max_residual_m`` from a face are
     ignored (unmapped obstacles, glass, people), the rest are Huber-weighted.
     """
-    half = 0.5 * field.resolution_m
+    half = 0.5 * field.resolution_m if surface_offset_m is None else surface_offset_m
     x, y, th = guess.x, guess.y, guess.yaw
     px, py = points[:, 0], points[:, 1]
     converged = False
