@@ -1,0 +1,189 @@
+"""``curio map``: build maps from logs, inspect and convert map_server maps.
+
+Commands::
+
+    curio map build --log FILE --out MAP.yaml [--trajectory T.csv] [--resolution M]
+                    [--max-range M] [--format pgm|png] [--quiet]
+    curio map info MAP.yaml
+    curio map convert IN.yaml OUT.yaml [--format pgm|png] [--mode trinary|scale|raw]
+
+``--log`` takes a CARMEN log (FLASER / ROBOTLASER1 / ODOM lines, e.g. the public Freiburg and
+MIT logs) or a Curio run log (``.jsonl``, see :mod:`curio.nav.carmen`). The trajectory CSV has
+the header ``t,x,y,yaw`` (seconds, metres, metres, radians; the corrected pose of every scan in
+the map frame). Exit codes: 0 success, 1 failure, 2 bad arguments or unreadable input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+from pathlib import Path
+from typing import TextIO
+
+from curio.fileio import atomic_write_text
+from curio.nav.carmen import LogError, read_log
+from curio.nav.maps import MapError, load_map, map_stats, save_map
+
+__all__ = ["main"]
+
+
+class _Progress:
+    """A one-line text progress bar on a terminal stream (silent when not a TTY or quiet)."""
+
+    def __init__(self, total: int, stream: TextIO, enabled: bool) -> None:
+        self.total = max(1, total)
+        self.stream = stream
+        self.enabled = enabled
+        self._last = -1
+
+    def __call__(self, n: int) -> None:
+        if not self.enabled:
+            return
+        pct = min(100, int(100 * n / self.total))
+        if pct == self._last:
+            return
+        self._last = pct
+        filled = pct * 30 // 100
+        self.stream.write(f"\r  [{'#' * filled}{'.' * (30 - filled)}] {pct:3d}% "
+                          f"{n}/{self.total} scans")
+        if pct >= 100:
+            self.stream.write("\n")
+        self.stream.flush()
+
+
+def _count_scans(path: Path) -> int:
+    n = 0
+    try:
+        with path.open("r", encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if line.startswith(("FLASER", "ROBOTLASER")) or '"type": "scan"' in line:
+                    n += 1
+    except OSError:
+        return 0
+    return n
+
+
+def _build(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    from curio.clock import wall_perf_counter
+    from curio.nav.mapping import MapperParams, build_map_from_log
+
+    log_path = Path(args.log)
+    if not log_path.is_file():
+        err.write(f"curio map build: --log: no such file: {log_path}\n")
+        return 2
+    if args.resolution <= 0 or args.max_range <= 0:
+        err.write("curio map build: --resolution and --max-range must be > 0\n")
+        return 2
+    out_path = Path(args.out)
+    if out_path.suffix not in (".yaml", ".yml"):
+        err.write(f"curio map build: --out must name a .yaml file, got {out_path}\n")
+        return 2
+    total = _count_scans(log_path)
+    progress = _Progress(total, err, enabled=not args.quiet and total > 200)
+    params = MapperParams(resolution_m=args.resolution, max_range_m=args.max_range)
+    t0 = wall_perf_counter()
+    try:
+        mapper = build_map_from_log(read_log(log_path), params, progress)
+    except LogError as exc:
+        err.write(f"\ncurio map build: {exc}\n")
+        return 2
+    grid = mapper.occupancy()
+    grid.name = out_path.name
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    save_map(grid, out_path, image_format=args.format)
+    if args.trajectory:
+        buf = io.StringIO()
+        buf.write("t,x,y,yaw\n")
+        for t, p in mapper.trajectory:
+            buf.write(f"{t:.6f},{p.x:.4f},{p.y:.4f},{p.yaw:.5f}\n")
+        atomic_write_text(Path(args.trajectory), buf.getvalue())
+    wall = wall_perf_counter() - t0
+    span = mapper.trajectory[-1][0] - mapper.trajectory[0][0] if mapper.trajectory else 0.0
+    stats = map_stats(grid)
+    out.write(f"built {out_path} from {mapper.scans} scans ({span:.0f} s of log) in {wall:.1f} s"
+              f" ({span / wall if wall > 0 else 0:.1f}x real time)\n")
+    out.write(f"  {grid.width} x {grid.height} cells at {grid.resolution_m:g} m, "
+              f"{len(mapper.keyframes)} keyframes, {len(mapper.loop_edges)} loop closures, "
+              f"{mapper.matched} scans matched\n")
+    out.write(f"  free {stats['free_pct']:.1f} %, occupied {stats['occupied_pct']:.1f} %, "
+              f"unknown {stats['unknown_pct']:.1f} %\n")
+    if args.trajectory:
+        out.write(f"  trajectory: {args.trajectory}\n")
+    return 0
+
+
+def _info(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    try:
+        grid = load_map(args.map)
+    except MapError as exc:
+        err.write(f"curio map info: {exc}\n")
+        return 2
+    s = map_stats(grid)
+    o = grid.origin
+    out.write(f"{args.map}\n")
+    out.write(f"  size        {grid.width} x {grid.height} cells, {s['width_m']:.2f} x "
+              f"{s['height_m']:.2f} m\n")
+    out.write(f"  resolution  {grid.resolution_m:g} m/cell\n")
+    out.write(f"  origin      x {o.x:g} m, y {o.y:g} m, yaw {o.yaw:g} rad\n")
+    out.write(f"  thresholds  free <= {grid.free_thresh:g}, occupied >= {grid.occupied_thresh:g}\n")
+    out.write(f"  free        {s['free_pct']:.1f} %\n")
+    out.write(f"  occupied    {s['occupied_pct']:.1f} %\n")
+    out.write(f"  unknown     {s['unknown_pct']:.1f} %\n")
+    return 0
+
+
+def _convert(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    dst = Path(args.dst)
+    if dst.suffix not in (".yaml", ".yml"):
+        err.write(f"curio map convert: the output must name a .yaml file, got {dst}\n")
+        return 2
+    if dst.resolve() == Path(args.src).resolve():
+        err.write("curio map convert: the output must differ from the input\n")
+        return 2
+    try:
+        grid = load_map(args.src)
+        save_map(grid, dst, image_format=args.format, mode=args.mode)
+    except MapError as exc:
+        err.write(f"curio map convert: {exc}\n")
+        return 2
+    out.write(f"wrote {dst} and {dst.with_suffix('.' + args.format).name} ({args.mode})\n")
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="curio map", description="Build, inspect and convert maps.")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    b = sub.add_parser("build", help="build a map from a CARMEN log or a Curio run log")
+    b.add_argument("--log", required=True, help="CARMEN .clf/.log or Curio .jsonl run log")
+    b.add_argument("--out", required=True, help="map YAML to write (image beside it)")
+    b.add_argument("--trajectory", help="write the corrected trajectory as CSV t,x,y,yaw")
+    b.add_argument("--resolution", type=float, default=0.05, help="metres per cell (0.05)")
+    b.add_argument("--max-range", type=float, default=25.0,
+                   help="use ranges up to this many metres (25)")
+    b.add_argument("--format", choices=("pgm", "png"), default="pgm")
+    b.add_argument("--quiet", action="store_true", help="no progress bar")
+    i = sub.add_parser("info", help="size, resolution, origin and content of a map")
+    i.add_argument("map", help="map YAML")
+    c = sub.add_parser("convert", help="rewrite a map (pgm <-> png, another mode)")
+    c.add_argument("src", help="input map YAML")
+    c.add_argument("dst", help="output map YAML")
+    c.add_argument("--format", choices=("pgm", "png"), default="png")
+    c.add_argument("--mode", choices=("trinary", "scale", "raw"), default="trinary")
+    return p
+
+
+def main(argv: list[str] | None = None, out: TextIO | None = None,
+         err: TextIO | None = None) -> int:
+    """Run ``curio map`` with ``argv`` (without the ``map`` word); return the exit code."""
+    out = out or sys.stdout
+    err = err or sys.stderr
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as exc:
+        return 0 if exc.code == 0 else 2
+    if args.cmd == "build":
+        return _build(args, out, err)
+    if args.cmd == "info":
+        return _info(args, out, err)
+    return _convert(args, out, err)
