@@ -409,7 +409,7 @@
     const img = new Image();
     img.onload = () => {
       S.images[g.name] = { img, meta: g };
-      if (g.name === "map" && !view.fitted) fitView();
+      if (g.name === "map" && !view.fitted) closeView();
       view.dirty = true;
     };
     img.src = g.url;
@@ -474,6 +474,13 @@
     view.fitted = true; view.dirty = true;
   }
 
+  function closeView() {
+    fitView();
+    if (!S.pose || W === 0) return;
+    const minScale = W / 16;  // at least 16 m across, so the rover is easy to see
+    if (view.scale < minScale) { view.scale = minScale; view.cx = S.pose.x; view.cy = S.pose.y; }
+  }
+
   function followRover() {
     if (!S.pose || W === 0) return;
     const [sx, sy] = toScreen(S.pose.x, S.pose.y);
@@ -510,6 +517,12 @@
   }
 
   function drawRobot(p, fill, stroke, label) {
+    if (label) {
+      const [hx0, hy0] = toScreen(p.x, p.y);
+      ctx.beginPath(); ctx.arc(hx0, hy0, 22, 0, 2 * Math.PI);
+      ctx.fillStyle = "rgba(37,99,235,.15)"; ctx.fill();
+      ctx.strokeStyle = "rgba(37,99,235,.6)"; ctx.lineWidth = 1.5; ctx.stroke();
+    }
     const fp = (S.robot && S.robot.footprint) || [[0.33, 0.31], [0.33, -0.31], [-0.33, -0.31], [-0.33, 0.31]];
     const c = Math.cos(p.yaw), s = Math.sin(p.yaw);
     ctx.beginPath();
@@ -557,8 +570,8 @@
     if ($("showCostmap").checked) { drawGrid("costmap", 0.55); drawGrid("local_costmap", 0.55); }
     // 1 m scale bar
     const bar = view.scale;
-    ctx.fillStyle = "#111827"; ctx.fillRect(12, H - 44, Math.min(bar, W / 2), 3);
-    ctx.font = "12px system-ui, sans-serif"; ctx.fillText("1 m", 12, H - 50);
+    ctx.fillStyle = "#111827"; ctx.fillRect(12, H - 40, Math.min(bar, W / 2), 3);
+    ctx.font = "12px system-ui, sans-serif"; ctx.fillText("1 m", 12, H - 46);
     if ($("showPaths").checked) {
       for (const p of S.paths) {
         const sel = p.id === S.editPathId;
@@ -573,14 +586,14 @@
     polyline(S.plan, "#16a34a", 3);
     polyline(S.localPlan, "#06b6d4", 2);
     if (S.obstacles) {
-      ctx.strokeStyle = "#ea580c"; ctx.lineWidth = 3;
+      ctx.strokeStyle = "rgba(234,88,12,.8)"; ctx.lineWidth = 2;
       for (const [[x1, y1], [x2, y2]] of S.obstacles.segments || []) {
         const [a, b] = toScreen(x1, y1), [c, d] = toScreen(x2, y2);
         ctx.beginPath(); ctx.moveTo(a, b); ctx.lineTo(c, d); ctx.stroke();
       }
       for (const [x, y, r] of S.obstacles.circles || []) {
         const [a, b] = toScreen(x, y);
-        ctx.beginPath(); ctx.arc(a, b, Math.max(3, r * view.scale), 0, 2 * Math.PI); ctx.stroke();
+        ctx.beginPath(); ctx.arc(a, b, Math.max(2, r * view.scale), 0, 2 * Math.PI); ctx.stroke();
       }
     }
     if (S.scan && $("showScan").checked) {
