@@ -304,11 +304,12 @@ def _write_yaml(grid: OccupancyGrid, path: Path, image_path: Path, mode: str) ->
     meta = (
         f"image: {image_path.name}\n"
         f"mode: {mode}\n"
-        f"resolution: {grid.resolution_m!r}\n"
-        f"origin: [{grid.origin.x!r}, {grid.origin.y!r}, {grid.origin.yaw!r}]\n"
+        f"resolution: {float(grid.resolution_m)!r}\n"
+        f"origin: [{float(grid.origin.x)!r}, {float(grid.origin.y)!r}, "
+        f"{float(grid.origin.yaw)!r}]\n"
         f"negate: 0\n"
-        f"occupied_thresh: {grid.occupied_thresh!r}\n"
-        f"free_thresh: {grid.free_thresh!r}\n"
+        f"occupied_thresh: {float(grid.occupied_thresh)!r}\n"
+        f"free_thresh: {float(grid.free_thresh)!r}\n"
     )
     atomic_write_text(path, meta)
     return path

@@ -182,3 +182,10 @@ def test_save_rejects_bad_format(tmp_path: Path) -> None:
         save_map(grid, tmp_path / "x.yaml", image_format="jpg")
     with pytest.raises(MapError, match="trinary, scale or raw"):
         save_map(grid, tmp_path / "x.yaml", mode="weird")
+
+
+def test_numpy_scalars_in_the_origin_are_written_as_plain_numbers(tmp_path: Path) -> None:
+    grid = OccupancyGrid(np.zeros((2, 2), dtype=np.int8), float(np.float64(0.05)),
+                         Pose2D(np.float64(-6.95), np.float64(1.25), 0.0))  # type: ignore[arg-type]
+    back = load_map(save_map(grid, tmp_path / "n.yaml"))
+    assert back.origin.x == pytest.approx(-6.95)
