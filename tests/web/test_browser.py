@@ -213,33 +213,37 @@ async def test_clicked_waypoints_survive_a_restart(tmp_path: Path) -> None:
 async def test_blocked_door_shows_help_me_then_thanks(tmp_path: Path) -> None:
     """The library door closes in front of the rover driving a path typed by number: HELP ME
     blinks; the door reopens: Thanks!. Drives: sim world (doors), navigation (blocked
-    detector), behaviour tree (path follower, Ask4Help)."""
-    door_xy = (1.55, 9.575)  # the library door of the default world; its only way in
-    cfg = make_cfg(tmp_path / "data", "sim.start=[1.55, 6.3, 1.5708]")
-    async with running_app(cfg) as (app, clock):
+    detector), behaviour tree (path follower, Ask4Help).
+
+    The recovery ladder is cut to ``wait`` and the no-progress time to 2 s so that the help
+    request comes before the navigator gives the goal up (with the default ladder the
+    navigator's own recoveries reverse away from the door and the goal is aborted instead).
+    """
+    cfg = make_cfg(tmp_path / "data", "sim.start=[1.55, 7.9, 1.5708]",
+                   "nav.blocked.no_progress_s=2", 'nav.recovery.ladder=["wait"]',
+                   "nav.recovery.wait_s=10")
+    async with running_app(cfg) as (app, clock), browser_on(app.web_url or "") as b:
         pid = app.paths.create("Library").id
         app.paths.add_waypoint(pid, 1.2, 11.5)
-        async with browser_on(app.web_url or "") as b:
-            page = b.page
-            await b.wait_js("window.curio.S.images.map && window.curio.S.pose")
-            await b.wait_js(f"window.curio.S.paths.some(p => p.id === {pid})")
-            await page.fill("#pathInput", str(pid))
-            await page.press("#pathInput", "Enter")
-            await b.wait_js("window.curio.S.status.state === 'moving'")
-            assert await clock.wait_until(
-                lambda: math.dist(truth_xy(app), door_xy) < 2.6, timeout_s=30.0)
-            app.world.set_door("library", False)
-            await b.wait_js("document.querySelector('#help').textContent === 'HELP ME!'",
-                            timeout_s=60)
-            assert "active" in (await page.get_attribute("#help", "class") or "")
-            assert await page.is_visible("#helpDone")
-            assert await page.text_content("#stateBadge") == "Needs help"
-            await b.shot("08-help-me")
-            app.world.set_door("library", True)
-            await b.wait_js("document.querySelector('#help').textContent === 'Thanks!'",
-                            timeout_s=60)
-            await b.shot("09-thanks")
-            assert b.errors == []
+        page = b.page
+        await b.wait_js("window.curio.S.images.map && window.curio.S.pose")
+        await b.wait_js(f"window.curio.S.paths.some(p => p.id === {pid})")
+        await page.fill("#pathInput", str(pid))
+        await page.press("#pathInput", "Enter")
+        await b.wait_js("window.curio.S.status.state === 'moving'")
+        assert await clock.wait_until(lambda: truth_xy(app)[1] > 8.1, timeout_s=20.0)
+        app.world.set_door("library", False)
+        await b.wait_js("document.querySelector('#help').textContent === 'HELP ME!'",
+                        timeout_s=60)
+        assert "active" in (await page.get_attribute("#help", "class") or "")
+        assert await page.is_visible("#helpDone")
+        assert await page.text_content("#stateBadge") == "Needs help"
+        await b.shot("08-help-me")
+        app.world.set_door("library", True)
+        await b.wait_js("document.querySelector('#help').textContent === 'Thanks!'",
+                        timeout_s=60)
+        await b.shot("09-thanks")
+        assert b.errors == []
 
 
 async def test_teleop_moves_and_release_stops(tmp_path: Path) -> None:
