@@ -247,8 +247,8 @@ async def test_blocked_door_shows_help_me_then_thanks(tmp_path: Path) -> None:
 
 
 async def test_teleop_moves_and_release_stops(tmp_path: Path) -> None:
-    """Hold the joystick forward: the rover drives; let go: it stops. Drives: sim, safety
-    stage (navigation)."""
+    """Hold the joystick forward: the rover drives; let go: it stops; the e-stop latches and
+    releases. Drives: sim, safety stage (navigation)."""
     async with running_app(make_cfg(tmp_path / "data")) as (app, clock), \
             browser_on(app.web_url or "") as b:
         page = b.page
@@ -270,4 +270,21 @@ async def test_teleop_moves_and_release_stops(tmp_path: Path) -> None:
         held = truth_xy(app)
         await clock.sleep(1.0)
         assert math.dist(held, truth_xy(app)) < 0.02, "the rover kept moving after release"
+
+        # The always-visible e-stop latches; teleop cannot move the rover until released.
+        await page.click("#estop")
+        await b.wait_js("window.curio.S.estop && window.curio.S.estop.engaged")
+        assert await page.is_visible("#estopBanner")
+        assert await page.text_content("#stateBadge") == "E-STOP"
+        await b.shot("11-estop")
+        held = truth_xy(app)
+        await page.mouse.move(cx, cy)
+        await page.mouse.down()
+        await page.mouse.move(cx, cy - joy["height"] * 0.4, steps=4)
+        await clock.sleep(1.5)
+        await page.mouse.up()
+        assert math.dist(held, truth_xy(app)) < 0.02, "the rover moved during an e-stop"
+        await page.click("#releaseEstop")
+        await b.wait_js("window.curio.S.estop && !window.curio.S.estop.engaged")
+        assert not await page.is_visible("#estopBanner")
         assert b.errors == []
