@@ -303,6 +303,7 @@ async def run_scenario(
                 await script_task
         await _settle_final_events(clock)
         stop_collect.set()
+        collector.cancel()  # its clock sleep would never fire: the clock has stopped
         with contextlib.suppress(asyncio.CancelledError):
             await collector
         await app.stop()
