@@ -28,9 +28,10 @@ from __future__ import annotations
 
 import math
 
+from curio.bus import Topic
 from curio.config import Config
 from curio.geometry import Pose2D, angle_diff
-from curio.messages import Twist
+from curio.messages import Odometry, Twist
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, ScenarioFailed
 from curio.topics import CMD_VEL_NAV, GROUND_TRUTH, ODOM, WHEEL_ODOM
 
@@ -118,20 +119,20 @@ class SquareScenario(Scenario):
                   f"{abs(yaw_err):.3f} rad <= {bound_yaw:.3f} rad")
 
 
-def _pose(ctx: ScenarioContext, topic: object) -> Pose2D:
+def _pose(ctx: ScenarioContext, topic: Topic[Odometry]) -> Pose2D:
     pose = _pose_or_none(ctx, topic)
     if pose is None:
         raise ScenarioFailed("a pose topic went silent")
     return pose
 
 
-def _pose_or_none(ctx: ScenarioContext, topic: object) -> Pose2D | None:
-    msg = ctx.bus.latest(topic)  # type: ignore[call-overload]
-    return None if msg is None else msg.pose  # type: ignore[no-any-return]
+def _pose_or_none(ctx: ScenarioContext, topic: Topic[Odometry]) -> Pose2D | None:
+    msg = ctx.bus.latest(topic)
+    return None if msg is None else msg.pose
 
 
 def _relative_error(ctx: ScenarioContext, truth0: Pose2D, est0: Pose2D,
-                    topic: object) -> tuple[float, float]:
+                    topic: Topic[Odometry]) -> tuple[float, float]:
     """Position (m) and heading (rad) error of the estimate's motion since the start."""
     truth_rel = _pose(ctx, GROUND_TRUTH).relative_to(truth0)
     est_rel = _pose(ctx, topic).relative_to(est0)
