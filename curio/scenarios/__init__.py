@@ -12,6 +12,8 @@ from curio.scenarios.base import Scenario
 # name -> "module:Class"; each subsystem adds its scenarios here.
 SCENARIOS: dict[str, str] = {
     "square": "curio.scenarios.square:SquareScenario",
+    "goto": "curio.scenarios.goto:GotoScenario",
+    "tour": "curio.scenarios.tour:TourScenario",
     "kidnap": "curio.scenarios.kidnap:KidnapScenario",
     "operator-demo": "curio.scenarios.operator_demo:OperatorDemoScenario",
     "blocked-door": "curio.scenarios.blocked_door:BlockedDoorScenario",
