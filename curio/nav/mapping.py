@@ -76,7 +76,9 @@ class MapperParams:
     loop_min_travel_m: float = 10.0
     loop_search_m: float = 1.2
     loop_search_rad: float = 0.35
-    loop_min_inliers: float = 0.75
+    loop_min_inliers: float = 0.8
+    loop_drift_fraction: float = 0.03
+    loop_drift_rad_per_m: float = 0.003
     loop_neighbours: int = 12
     loop_cooldown: int = 15
     odom_sigma_xy_m: float = 0.05
@@ -331,9 +333,9 @@ class ScanMapper:
             pts = points
             if len(pts) > self.p.match_beams:
                 pts = pts[np.linspace(0, len(pts) - 1, self.p.match_beams).astype(np.int64)]
-            m = scan_match(self._field, pts, guess, iterations=10, max_residual_m=0.4,
+            m = scan_match(self._field, pts, guess, iterations=20, max_residual_m=0.4,
                            inlier_m=0.1, surface_offset_m=0.0)
-            m = scan_match(self._field, pts, m.pose, iterations=6, max_residual_m=0.12,
+            m = scan_match(self._field, pts, m.pose, iterations=15, max_residual_m=0.12,
                            inlier_m=0.08, surface_offset_m=0.0)
             if m.inlier_fraction >= self.p.min_inlier_fraction and m.pose.distance_to(guess) < 0.6:
                 pose = m.pose
@@ -407,6 +409,16 @@ class ScanMapper:
         m = scan_match(fld, cur.points, m.pose, iterations=8, max_residual_m=0.12,
                        inlier_m=0.08, surface_offset_m=0.0)
         if m.inlier_fraction < self.p.loop_min_inliers:
+            return False
+        # Gate: the correction must be of the size scan-matching drift can reach over the
+        # distance travelled since the old keyframe (a false match in a look-alike place jumps).
+        travel = cur.travel_m - self.keyframes[best_j].travel_m
+        shift = m.pose.distance_to(cur.pose)
+        turn = abs(wrap_angle(m.pose.yaw - cur.pose.yaw))
+        if (shift > 0.15 + self.p.loop_drift_fraction * travel
+                or turn > 0.05 + self.p.loop_drift_rad_per_m * travel):
+            log.debug("loop candidate %d -> %d rejected: shift %.2f m, turn %.3f rad", best_j, k,
+                      shift, turn)
             return False
         z = self.keyframes[best_j].pose.inverse() @ m.pose
         self.loop_edges.append((best_j, k, z))
