@@ -102,11 +102,11 @@ async def _run_app(n_clients: int, rate_hz: float, duration_s: float) -> dict[st
                 lateness.append(max(0.0, wall_perf_counter() - due))
                 due += period
             cpu, wall = process_cpu_time() - cpu0, wall_perf_counter() - wall0
+            clients = len(app.web.hub.clients)
             row: dict[str, Any] = {}
             if proc is not None and result_q is not None:
                 row.update(await asyncio.to_thread(result_q.get, True, 30.0))
                 await asyncio.to_thread(proc.join, 10.0)
-            clients = len(app.web.hub.clients) if n_clients else 0
         finally:
             await app.stop()
     lat_ms = np.array(lateness) * 1000.0

@@ -21,7 +21,7 @@ from playwright import async_api as playwright_api
 from curio.app import App
 from curio.clock import SimClock
 from curio.config import REPO_ROOT, Config, load_config
-from curio.topics import CMD_VEL, GROUND_TRUTH
+from curio.topics import CMD_VEL, GROUND_TRUTH, INITIAL_POSE
 
 pytestmark = [pytest.mark.browser]
 
@@ -124,6 +124,11 @@ async def test_operator_controls_drive_the_rover(tmp_path: Path) -> None:
             assert await page.text_content("#mode") == "You can control"
             await b.wait_js("window.curio.S.images.map && window.curio.S.pose")
             await b.shot("01-loaded")
+            # The costmap overlay is fetched (as a PNG) only when it is switched on.
+            assert await b.state("!window.curio.S.images.costmap")
+            await page.check("#showCostmap")
+            await b.wait_js("!!window.curio.S.images.costmap")
+            await page.uncheck("#showCostmap")
 
             # A bad path number: a visible, specific message, nothing sent.
             await page.fill("#pathInput", "7")
@@ -173,10 +178,10 @@ async def test_operator_controls_drive_the_rover(tmp_path: Path) -> None:
 
 
 async def test_clicked_waypoints_survive_a_restart(tmp_path: Path) -> None:
-    """Path editor: a new path and two clicked waypoints persist. Drives: behaviour tree
-    (path manager), simulator (map)."""
+    """Path editor: a new path and two clicked waypoints persist; the pose tool publishes an
+    initial pose. Drives: behaviour tree (path manager), simulator (map)."""
     data = tmp_path / "data"
-    async with running_app(make_cfg(data)) as (app, _clock), browser_on(app.web_url or "") as b:
+    async with running_app(make_cfg(data)) as (app, clock), browser_on(app.web_url or "") as b:
         page = b.page
         await b.wait_js("window.curio.S.images.map")
         await page.click("#pathsCard summary")
@@ -191,6 +196,14 @@ async def test_clicked_waypoints_survive_a_restart(tmp_path: Path) -> None:
         await b.click_map(2.0, 1.0, drag_to=(2.0, 2.0))  # drag: the waypoint faces +y
         await b.wait_js(f"window.curio.S.paths.find(p => p.id === {new_id})"
                         ".waypoints.length === 2")
+        # Drag with the pose tool: an initial pose in map, facing the drag direction.
+        poses = app.bus.subscribe(INITIAL_POSE)
+        await page.click("[data-tool=pose]")
+        await b.click_map(0.0, 0.0, drag_to=(-1.0, 0.0))
+        assert await clock.wait_until(lambda: len(poses) > 0, timeout_s=10.0)
+        (initial,) = poses.drain()
+        assert (initial.pose.x, initial.pose.y) == pytest.approx((0.0, 0.0), abs=0.05)
+        assert abs(abs(initial.pose.yaw) - math.pi) < 0.05
         await page.fill("#pathName", "Lab visit")
         await page.click("#renamePath")
         await b.wait_js(f"window.curio.S.paths.find(p => p.id === {new_id}).name === "
