@@ -346,6 +346,7 @@ class Bno055Driver:
         finally:
             await self._write(r.Reg.OPR_MODE, self._mode)
             await self.clock.sleep(0.02)
+            self._prev = None  # IMU mode restarts its relative heading at the switch
         profile = r.CalibrationProfile(bytes(raw))
         problem = profile.problem()
         if problem is not None:
@@ -374,8 +375,12 @@ class Bno055Driver:
         return r.decode_block(bytes(block[1:]), self._unit_sel, self.calibration)
 
     async def _read_sample(self) -> r.Sample | None:
-        """One reading. A failed, implausible or jumpy one is re-read once; the re-read is
-        kept if it is plausible and either agrees with the first or does not jump."""
+        """One reading; a failed, implausible or jumpy one is re-read once.
+
+        A jump that the re-read confirms is real motion (the chip's output registers change at
+        100 Hz, so two reads a moment apart agree); one the re-read contradicts was a corrupted
+        read (the Pi's clock-stretching bug) and is counted in ``suspect_readings``.
+        """
         first = await self._read_once()
         why = "I/O error" if first is None else r.check_sample(first, fusion_running=True)
         if why is None and first is not None and self._prev is not None:
@@ -384,21 +389,25 @@ class Bno055Driver:
             self._note(True)
             self._prev = first
             return first
-        if first is not None:
+        second = await self._read_once()
+        if second is not None and r.check_sample(second, fusion_running=True) is None:
+            first_plausible = first is not None and r.check_sample(first, True) is None
+            if first_plausible and first is not None and r.sample_jump(first, second) is None:
+                self._note(True)  # a real, confirmed change
+                self._prev = second
+                return second
+            if first is not None:
+                self.counters["suspect_readings"] += 1
+                self._note(False)
+            if self._prev is None or r.sample_jump(self._prev, second) is None:
+                self._prev = second
+                return second
+        elif first is not None:
             self.counters["suspect_readings"] += 1
             self._note(False)
-        second = await self._read_once()
-        ok = second is not None and r.check_sample(second, fusion_running=True) is None
-        if ok and second is not None and self._prev is not None:
-            ok = r.sample_jump(self._prev, second) is None or (
-                first is not None and r.sample_jump(first, second) is None
-            )
-        if not ok or second is None:
-            self.counters["dropped_samples"] += 1
-            log.debug("BNO055 reading dropped: %s", why)
-            return None
-        self._prev = second
-        return second
+        self.counters["dropped_samples"] += 1
+        log.debug("BNO055 reading dropped: %s", why)
+        return None
 
     async def _stream(self) -> None:
         period = 1.0 / self.cfg.rate_hz
