@@ -21,7 +21,8 @@ Every subject plans the same pairs on the same costs. The per-cell traversal cos
 * ``python_heapq``: a plain-Python ``heapq`` A* with the same cost model as Curio's search,
   run on the first few pairs only (it is slow; the row says how many).
 
-Figures: time per plan (median, mean, p99 in ms, wall clock), success rate, mean path length,
+Figures: time per plan (median, mean, p99 in ms, wall clock; ``cpu_median_ms``/``cpu_mean_ms``
+the same in thread CPU time, which a busy machine disturbs less), success rate, mean path length,
 and ratios: time against Curio's (median) and path length against MCP's (mean of per-pair
 ratios). Path length is the Euclidean length of the returned polyline. For Curio,
 ``grid_path_vs_mcp`` also compares its raw A* cell path (before shortcutting and smoothing).
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -155,10 +157,11 @@ def heapq_astar(weights: npt.NDArray[np.float64], start: tuple[int, int],
     return None
 
 
-def _summary(subject: str, times_ms: list[float], ok: list[bool], lengths: dict[int, float],
-             mcp_lengths: dict[int, float], curio_median_ms: float | None,
-             note: str = "") -> dict[str, Any]:
+def _summary(subject: str, times_ms: list[float], cpu_ms: list[float], ok: list[bool],
+             lengths: dict[int, float], mcp_lengths: dict[int, float],
+             curio_median_ms: float | None, note: str = "") -> dict[str, Any]:
     t = np.asarray(times_ms, dtype=np.float64)
+    cpu = np.asarray(cpu_ms, dtype=np.float64)
     ratios = [lengths[i] / mcp_lengths[i] for i in lengths if i in mcp_lengths
               and mcp_lengths[i] > 0]
     median = float(np.median(t)) if t.size else float("nan")
@@ -169,6 +172,8 @@ def _summary(subject: str, times_ms: list[float], ok: list[bool], lengths: dict[
         "median_ms": median,
         "mean_ms": float(t.mean()) if t.size else float("nan"),
         "p99_ms": float(np.percentile(t, 99)) if t.size else float("nan"),
+        "cpu_median_ms": float(np.median(cpu)) if cpu.size else float("nan"),
+        "cpu_mean_ms": float(cpu.mean()) if cpu.size else float("nan"),
         "mean_length_m": float(np.mean(list(lengths.values()))) if lengths else float("nan"),
         "length_vs_mcp": float(np.mean(ratios)) if ratios else float("nan"),
         "time_vs_curio": (median / curio_median_ms) if curio_median_ms else 1.0,
@@ -204,89 +209,76 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
         x, y = origin.transform_point((cell[1] + 0.5) * res, (cell[0] + 0.5) * res)
         return Pose2D(x, y, 0.0)
 
-    rows: list[dict[str, Any]] = []
-    # --- curio
-    planner.warm_up()
-    c_times: list[float] = []
-    c_ok: list[bool] = []
-    c_len: dict[int, float] = {}
-    c_raw_len: dict[int, float] = {}  # the A* cell path before shortcutting and smoothing
-    for i, (s, g) in enumerate(pairs):
-        t0 = wall_perf_counter()
-        try:
-            result = planner.plan_detailed(centre(s), centre(g), costs, res, origin)
-        except NavError as exc:
-            c_times.append((wall_perf_counter() - t0) * 1e3)
-            c_ok.append(False)
-            print(f"  curio failed on pair {i}: {exc}")
-            continue
-        c_times.append((wall_perf_counter() - t0) * 1e3)
-        c_ok.append(True)
-        c_len[i] = result.length_m
-        c_raw_len[i] = cell_path_length_m(result.grid_path, res)
-
-    # --- skimage MCP_Geometric (reference optimum)
     try:
+        import pyastar2d
         from skimage.graph import MCP_Geometric
     except ImportError:
         raise SystemExit("the planner benchmark's peers are missing: "
                          "pip install 'curio[bench]' (pyastar2d, scikit-image)") from None
     mcp_costs = np.where(traversable, cell_w, np.inf)
-    m_times: list[float] = []
-    m_ok: list[bool] = []
-    m_len: dict[int, float] = {}
-    for i, (s, g) in enumerate(pairs):
-        t0 = wall_perf_counter()
-        mcp = MCP_Geometric(mcp_costs, fully_connected=True)
-        cum, _ = mcp.find_costs([s], [g])
-        ok = bool(np.isfinite(cum[g]))
-        path = mcp.traceback(g) if ok else []
-        m_times.append((wall_perf_counter() - t0) * 1e3)
-        m_ok.append(ok)
-        if ok:
-            m_len[i] = cell_path_length_m(np.asarray(path, dtype=np.int64), res)
-
-    # --- pyastar2d
-    try:
-        import pyastar2d
-    except ImportError:
-        raise SystemExit("the planner benchmark's peers are missing: "
-                         "pip install 'curio[bench]' (pyastar2d, scikit-image)") from None
-
     py_w = np.where(traversable, cell_w, np.inf).astype(np.float32)
-    p_times: list[float] = []
-    p_ok: list[bool] = []
-    p_len: dict[int, float] = {}
-    for i, (s, g) in enumerate(pairs):
-        t0 = wall_perf_counter()
-        path = pyastar2d.astar_path(py_w, s, g, allow_diagonal=True)
-        p_times.append((wall_perf_counter() - t0) * 1e3)
-        p_ok.append(path is not None)
-        if path is not None:
-            p_len[i] = cell_path_length_m(np.asarray(path, dtype=np.int64), res)
-
-    # --- plain-Python heapq A*
     hq_w = np.where(traversable, cell_w, -1.0)
     n_py = min(PYTHON_PAIRS, len(pairs))
-    h_times: list[float] = []
-    h_ok: list[bool] = []
-    h_len: dict[int, float] = {}
-    for i, (s, g) in enumerate(pairs[:n_py]):
-        t0 = wall_perf_counter()
-        hpath = heapq_astar(hq_w, s, g)
-        h_times.append((wall_perf_counter() - t0) * 1e3)
-        h_ok.append(hpath is not None)
-        if hpath is not None:
-            h_len[i] = cell_path_length_m(np.asarray(hpath, dtype=np.int64), res)
 
-    curio_median = float(np.median(c_times))
-    rows.append(_summary("curio", c_times, c_ok, c_len, m_len, curio_median))
-    raw_ratios = [c_raw_len[i] / m_len[i] for i in c_raw_len if i in m_len and m_len[i] > 0]
+    def run_curio(s: tuple[int, int], g: tuple[int, int]) -> tuple[float | None, float | None]:
+        try:
+            result = planner.plan_detailed(centre(s), centre(g), costs, res, origin)
+        except NavError as exc:
+            print(f"  curio failed from {s} to {g}: {exc}")
+            return None, None
+        return result.length_m, cell_path_length_m(result.grid_path, res)
+
+    def run_mcp(s: tuple[int, int], g: tuple[int, int]) -> tuple[float | None, float | None]:
+        mcp = MCP_Geometric(mcp_costs, fully_connected=True)
+        cum, _ = mcp.find_costs([s], [g])
+        if not np.isfinite(cum[g]):
+            return None, None
+        return cell_path_length_m(np.asarray(mcp.traceback(g), dtype=np.int64), res), None
+
+    def run_pyastar(s: tuple[int, int], g: tuple[int, int]) -> tuple[float | None, float | None]:
+        path = pyastar2d.astar_path(py_w, s, g, allow_diagonal=True)
+        if path is None:
+            return None, None
+        return cell_path_length_m(np.asarray(path, dtype=np.int64), res), None
+
+    def run_heapq(s: tuple[int, int], g: tuple[int, int]) -> tuple[float | None, float | None]:
+        hpath = heapq_astar(hq_w, s, g)
+        if hpath is None:
+            return None, None
+        return cell_path_length_m(np.asarray(hpath, dtype=np.int64), res), None
+
+    subjects = {"curio": run_curio, "pyastar2d": run_pyastar, "skimage_mcp": run_mcp,
+                "python_heapq": run_heapq}
+    times: dict[str, list[float]] = {k: [] for k in subjects}
+    cpu: dict[str, list[float]] = {k: [] for k in subjects}
+    ok: dict[str, list[bool]] = {k: [] for k in subjects}
+    lengths: dict[str, dict[int, float]] = {k: {} for k in subjects}
+    raw_len: dict[int, float] = {}  # Curio's A* cell path before shortcutting and smoothing
+    planner.warm_up()
+    # The subjects take turns on each pair, so a change in the machine's load hits them alike.
+    for i, (s, g) in enumerate(pairs):
+        for name, fn in subjects.items():
+            if name == "python_heapq" and i >= n_py:
+                continue
+            t0, c0 = wall_perf_counter(), time.thread_time()
+            length, raw = fn(s, g)
+            times[name].append((wall_perf_counter() - t0) * 1e3)
+            cpu[name].append((time.thread_time() - c0) * 1e3)
+            ok[name].append(length is not None)
+            if length is not None:
+                lengths[name][i] = length
+            if raw is not None:
+                raw_len[i] = raw
+
+    curio_median = float(np.median(times["curio"]))
+    m_len = lengths["skimage_mcp"]
+    rows: list[dict[str, Any]] = []
+    for name in subjects:
+        note = f"first {n_py} pairs only (slow)" if name == "python_heapq" else ""
+        rows.append(_summary(name, times[name], cpu[name], ok[name], lengths[name], m_len,
+                             curio_median, note=note))
+    raw_ratios = [raw_len[i] / m_len[i] for i in raw_len if i in m_len and m_len[i] > 0]
     rows[0]["grid_path_vs_mcp"] = float(np.mean(raw_ratios)) if raw_ratios else float("nan")
-    rows.append(_summary("pyastar2d", p_times, p_ok, p_len, m_len, curio_median))
-    rows.append(_summary("skimage_mcp", m_times, m_ok, m_len, m_len, curio_median))
-    rows.append(_summary("python_heapq", h_times, h_ok, h_len, m_len, curio_median,
-                         note=f"first {n_py} pairs only (slow)"))
     for row in rows:
         row["map"] = grid.name or "generated"
     return rows
