@@ -111,3 +111,50 @@ async def test_ekf_and_localizer_track_a_drive_on_the_bus(cfg: Config) -> None:
     assert rmse < 0.04, rmse
     for task in tasks:
         task.cancel()
+
+
+async def test_initial_pose_sets_the_pose_and_a_huge_covariance_starts_a_global_search(
+        cfg: Config) -> None:
+    """INITIAL_POSE from the dashboard/CLI: a pose, or (std > global_std_xy_m) 'find me'."""
+    from curio.messages import PoseWithCovariance
+    from curio.nav.maps import save_map
+    from curio.topics import INITIAL_POSE, SCAN
+    from tests.unit.test_localization_helpers import cast_scan, room_grid
+
+    grid = room_grid()
+    world = save_map(grid, Path(cfg.data_dir) / "room.yaml")
+    cfg = cfg.model_copy(update={
+        "sim": cfg.sim.model_copy(update={"world": str(world), "start": (1.0, 3.0, 0.0)}),
+        "ekf": cfg.ekf.model_copy(update={"enabled": False}),
+    })
+    clock = SimClock()
+    app = FakeApp(cfg, clock)
+    build_estimation(app)  # type: ignore[arg-type]
+    tasks = [asyncio.create_task(p.run()) for p in app.parts if p.run is not None]
+    laser = Pose2D(*cfg.robot.laser_pose)
+    truth = Pose2D(8.0, 2.0, 2.0)  # not where the config says
+    rng = np.random.default_rng(1)
+
+    async def feed(seconds: float, t0: float) -> None:
+        for i in range(round(seconds / 0.1)):
+            t = t0 + i * 0.1
+            app.bus.publish(WHEEL_ODOM, Odometry(t, Pose2D()))
+            app.bus.publish(SCAN, cast_scan(grid, truth, laser, stamp=t, sigma_m=0.02, rng=rng))
+            await clock.advance(0.1)
+
+    await feed(0.5, 0.0)
+    app.bus.publish(INITIAL_POSE, PoseWithCovariance(0.5, Pose2D(), (1e6, 0, 0, 0, 1e6, 0, 0, 0, 10)))
+    await feed(6.0, 0.5)
+    pose = app.bus.latest(POSE)
+    status = app.bus.latest(LOCALIZATION)
+    assert pose is not None and status is not None
+    assert status.state == "ok"
+    assert pose.pose.distance_to(truth) < 0.05
+    # A plain initial pose puts the rover there (uncertain until the scans agree).
+    app.bus.publish(INITIAL_POSE, PoseWithCovariance(7.0, Pose2D(8.1, 2.05, 2.05),
+                                                     (0.01, 0, 0, 0, 0.01, 0, 0, 0, 0.01)))
+    await feed(1.0, 7.0)
+    pose = app.bus.latest(POSE)
+    assert pose is not None and pose.pose.distance_to(truth) < 0.05
+    for task in tasks:
+        task.cancel()
