@@ -143,7 +143,8 @@ async def test_initial_pose_sets_the_pose_and_a_huge_covariance_starts_a_global_
             await clock.advance(0.1)
 
     await feed(0.5, 0.0)
-    app.bus.publish(INITIAL_POSE, PoseWithCovariance(0.5, Pose2D(), (1e6, 0, 0, 0, 1e6, 0, 0, 0, 10)))
+    huge = (1e6, 0.0, 0.0, 0.0, 1e6, 0.0, 0.0, 0.0, 10.0)
+    app.bus.publish(INITIAL_POSE, PoseWithCovariance(0.5, Pose2D(), huge))
     await feed(6.0, 0.5)
     pose = app.bus.latest(POSE)
     status = app.bus.latest(LOCALIZATION)
