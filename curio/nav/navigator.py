@@ -159,8 +159,11 @@ class NavigatorNode:
     # --- the action interface -------------------------------------------------------------
     @property
     def active(self) -> GoalHandle | None:
-        """The goal being executed (or about to be), if any."""
-        return self._pending or self._active
+        """The goal being executed (or about to be), if any; finished goals are not active."""
+        for h in (self._pending, self._active):
+            if h is not None and not h.done:
+                return h
+        return None
 
     def send_goal(self, poses: Pose2D | list[Pose2D], *, tag: str = "") -> GoalHandle:
         """Accept a goal or a waypoint sequence (``map``) and return its handle at once.
@@ -335,6 +338,10 @@ class NavigatorNode:
         except NavError as exc:
             return exc
         goal = handle.poses[handle.current_index]
+        if poses and poses[-1].distance_to(goal) > 0.01:
+            # The planner moved a goal too close to an obstacle to the nearest free cell
+            # (nav.planner.goal_nearest_free): drive there, with the requested heading.
+            goal = Pose2D(poses[-1].x, poses[-1].y, goal.yaw)
         self._plan = poses
         self._plan_goal_index = handle.current_index
         self.controller.set_plan(poses, goal, check_yaw=math.isfinite(goal.yaw))
@@ -381,6 +388,8 @@ class NavigatorNode:
             self._recovery_task = None
             self.controller.reset()
             self._plan_job = None
+            # Motion made by the recovery itself is not progress towards the goal.
+            self._progress_anchor = pose
             if pose is not None:
                 self._start_plan(pose, handle, "after recovery")
             return

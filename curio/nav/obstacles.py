@@ -136,6 +136,18 @@ class ObstacleExtractor:
         for g in groups:
             if len(g) < cfg.min_group_points:
                 continue
+            chord = float(np.hypot(*(g[-1] - g[0])))
+            spread = float(np.max(np.hypot(g[:, 0] - g[:, 0].mean(), g[:, 1] - g[:, 1].mean())))
+            if max(chord, 2.0 * spread) < 2.0 * cfg.max_circle_radius_m:
+                # A small object (a post, a leg, a bin): one circle, however curved.
+                centroid = g.mean(axis=0)
+                half = 0.5 * max(chord, 2.0 * spread)
+                away = centroid - sensor
+                norm = float(np.hypot(*away)) or 1.0
+                centre = centroid + away / norm * (0.5 * half)
+                circles.append((float(centre[0]), float(centre[1]),
+                                float(half + cfg.radius_enlargement_m)))
+                continue
             pieces: list[F64] = []
             _split(g, cfg.split_distance_m, pieces, cfg.min_group_points)
             for piece in pieces:

@@ -190,8 +190,9 @@ class Recovery:
             if travelled >= cfg.step_back_distance_m:
                 break
             behind = points_behind_distance_m(self._scan_points(), self.footprint)
-            if behind <= cfg.step_back_clearance_m:
-                reason = f"stopped: something {behind:.2f} m behind"
+            if behind <= cfg.step_back_clearance_m or self._mapped_obstacle_behind():
+                behind = min(behind, cfg.step_back_clearance_m)
+                reason = f"stopped: something within {behind:.2f} m behind"
                 ok = travelled > 0.05
                 break
             if self.clock.now() - t0 > cfg.step_back_timeout_s:
@@ -205,6 +206,17 @@ class Recovery:
             await self.clock.sleep(period)
         self._send(0.0, 0.0)
         return RecoveryOutcome("step_back", ok, f"{reason} ({travelled:.2f} m)")
+
+    def _mapped_obstacle_behind(self) -> bool:
+        """Whether the costmap has an obstacle within the clearance behind the footprint."""
+        pose = self._pose()
+        if self.costmap is None or pose is None:
+            return False
+        back = np.linspace(0.05, max(0.05, self.cfg.step_back_clearance_m), 4)
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        poses = np.stack([pose.x - c * back, pose.y - s * back, np.full(len(back), pose.yaw)],
+                         axis=1)
+        return bool((self.costmap.footprint_costs(poses) >= LETHAL).any())
 
     def _room_to_rotate(self, pose: Pose2D, angle_rad: float) -> bool:
         if self.costmap is None:

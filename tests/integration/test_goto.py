@@ -1,0 +1,78 @@
+"""``goto`` end to end: the whole application on the simulator, in simulated time."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from curio.config import REPO_ROOT, Config, load_config
+from curio.geometry import Pose2D
+from curio.nav.maps import OccupancyGrid, save_map
+from curio.scenarios import get_scenario
+from curio.scenarios.base import ScenarioArgs, run_scenario
+
+
+def small_world(tmp_path: Path) -> Path:
+    """A 10 × 6 m room with a dividing wall that has a 1.2 m gap, and a pillar."""
+    res = 0.05
+    w, h = 200, 120
+    data = np.zeros((h, w), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    data[:, 100:103] = 100
+    data[48:72, 100:103] = 0  # the gap, y from -0.6 to 0.6
+    data[90:100, 40:50] = 100  # a pillar at about (-2.75, 1.75)
+    grid = OccupancyGrid(data, res, Pose2D(-5.0, -3.0, 0.0))
+    return save_map(grid, tmp_path / "small.yaml")
+
+
+def make_cfg(tmp_path: Path, world: Path, *extra: str) -> Config:
+    return load_config(REPO_ROOT / "config.toml",
+                       [f'data_dir="{tmp_path / "data"}"', "web.enabled=false",
+                        f'sim.world="{world}"', *extra])
+
+
+@pytest.mark.slow
+async def test_goto_through_a_doorway(tmp_path: Path) -> None:
+    world = small_world(tmp_path)
+    cfg = make_cfg(tmp_path, world)
+    args = ScenarioArgs(start=(-3.5, 0.0, 0.0), goal=(3.5, 1.0, None), seed=3, duration_s=120.0)
+    report = await run_scenario(get_scenario("goto"), cfg, args)
+    assert report["success"], report["failure"]
+    assert report["goals_reached"] == 1 and report["goals_total"] == 1
+    assert report["collisions"] == 0
+    m = report["metrics"]
+    assert m["final_state"] == "succeeded"
+    assert m["final_error_m"] <= cfg.nav.controller.xy_goal_tolerance_m + 0.1
+    assert m["time_ratio"] <= 1.5  # the navigation target, per run
+    kinds = [e["kind"] for e in report["events"]]
+    assert kinds.index("nav.goal_accepted") < kinds.index("nav.goal_succeeded")
+
+
+@pytest.mark.slow
+async def test_goto_rejects_a_goal_outside_the_map(tmp_path: Path) -> None:
+    world = small_world(tmp_path)
+    cfg = make_cfg(tmp_path, world)
+    args = ScenarioArgs(start=(-3.5, 0.0, 0.0), goal=(30.0, 0.0, None), seed=3,
+                        duration_s=30.0)
+    report = await run_scenario(get_scenario("goto"), cfg, args)
+    assert not report["success"]
+    assert report["metrics"]["final_state"] == "rejected"
+    assert report["metrics"]["error_code"] == "goal_outside_map"
+    assert report["sim_time_s"] < 5.0  # rejected at once, not after a timeout
+
+
+@pytest.mark.slow
+async def test_goto_with_a_heading_and_deterministic(tmp_path: Path) -> None:
+    world = small_world(tmp_path)
+    cfg = make_cfg(tmp_path, world)
+    args = ScenarioArgs(start=(-3.5, -1.5, math.pi / 2), goal=(-1.0, 1.5, math.pi), seed=5,
+                        duration_s=120.0)
+    a = await run_scenario(get_scenario("goto"), cfg, args)
+    b = await run_scenario(get_scenario("goto"), cfg, args)
+    assert a["success"], a["failure"]
+    for key in ("sim_time_s", "path_length_m", "collisions", "goals_reached"):
+        assert a[key] == b[key]
+    assert a["metrics"] == b["metrics"]

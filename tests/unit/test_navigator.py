@@ -1,0 +1,289 @@
+"""The navigator: goal lifecycle, bad goals, preemption, cancel, waypoints, replans, recovery."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+import numpy as np
+import pytest
+
+from curio.bus import Bus
+from curio.clock import SimClock
+from curio.config import Config
+from curio.geometry import Pose2D, wrap_angle
+from curio.messages import EStop, Odometry, OperatorCommand, PoseWithCovariance, Twist
+from curio.nav.api import (
+    GoalBlockedError,
+    GoalOutsideMapError,
+    GoalState,
+    NoPathError,
+)
+from curio.nav.controller import LocalController
+from curio.nav.costmap import Costmap
+from curio.nav.maps import OccupancyGrid
+from curio.nav.navigator import InvalidGoalError, NavigatorNode
+from curio.nav.planner import GlobalPlanner
+from curio.nav.recovery import Recovery
+from curio.topics import CMD_VEL_NAV, ESTOP, EVENTS, ODOM, OPERATOR, PLAN, POSE, make_bus
+
+
+def room(size_m: float = 8.0, res: float = 0.05) -> OccupancyGrid:
+    """A walled room centred on the origin."""
+    n = int(size_m / res)
+    data = np.zeros((n, n), dtype=np.int8)
+    data[0, :] = data[-1, :] = data[:, 0] = data[:, -1] = 100
+    return OccupancyGrid(data, res, Pose2D(-size_m / 2, -size_m / 2, 0.0))
+
+
+def cell(grid: OccupancyGrid, x: float, y: float) -> tuple[int, int]:
+    return (int((y - grid.origin.y) / grid.resolution_m),
+            int((x - grid.origin.x) / grid.resolution_m))
+
+
+class FakeRover:
+    """Integrates unicycle kinematics from ``/cmd_vel_nav`` and publishes ``/pose`` and
+    ``/odom`` (a perfect estimate) at 20 Hz. ``frozen`` makes the wheels spin in place."""
+
+    def __init__(self, bus: Bus, clock: SimClock, pose: Pose2D) -> None:
+        self.bus = bus
+        self.clock = clock
+        self.pose = pose
+        self.frozen = False
+        self.commands: list[Twist] = []
+
+    async def run(self) -> None:
+        sub = self.bus.subscribe(CMD_VEL_NAV)
+        dt = 0.05
+        cmd = Twist(0.0)
+        while True:
+            for c in sub.drain():
+                cmd = c
+                self.commands.append(c)
+            now = self.clock.now()
+            if now - cmd.stamp > 0.5:
+                cmd = Twist(now)
+            v, w = (0.0, 0.0) if self.frozen else (cmd.linear_mps, cmd.angular_radps)
+            p = self.pose
+            th = p.yaw + 0.5 * w * dt
+            self.pose = Pose2D(p.x + v * dt * math.cos(th), p.y + v * dt * math.sin(th),
+                               wrap_angle(p.yaw + w * dt))
+            self.bus.publish(POSE, PoseWithCovariance(now, self.pose))
+            self.bus.publish(ODOM, Odometry(now, self.pose, v, w))
+            await self.clock.sleep(dt)
+
+
+class Harness:
+    """A navigator on a small map with a fake rover, on a simulated clock."""
+
+    def __init__(self, cfg: Config, grid: OccupancyGrid, start: Pose2D,
+                 with_recovery: bool = True) -> None:
+        self.cfg = cfg
+        self.clock = SimClock()
+        self.bus = make_bus()
+        self.costmap = Costmap(grid, cfg.robot, cfg.nav.costmap)
+        self.planner = GlobalPlanner(cfg.nav.planner)
+        self.controller = LocalController(cfg.nav.controller, cfg.robot, self.costmap)
+        self.recovery = Recovery(cfg.nav.recovery, cfg.robot, self.clock, self.bus,
+                                 self.costmap) if with_recovery else None
+        self.nav = NavigatorNode(cfg, self.clock, self.bus, self.costmap, self.planner,
+                                 self.controller, self.recovery, plan_in_thread=False)
+        self.rover = FakeRover(self.bus, self.clock, start)
+        self.events = self.bus.subscribe(EVENTS)
+        self.tasks: list[asyncio.Task[None]] = []
+
+    async def __aenter__(self) -> Harness:
+        self.tasks = [asyncio.create_task(self.rover.run()), asyncio.create_task(self.nav.run())]
+        await self.clock.advance(0.1)
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        for t in self.tasks:
+            t.cancel()
+        for t in self.tasks:
+            with pytest.raises(asyncio.CancelledError):
+                await t
+
+    async def until(self, pred: object, timeout_s: float) -> bool:
+        end = self.clock.now() + timeout_s
+        while self.clock.now() < end:
+            if pred():  # type: ignore[operator]
+                return True
+            await self.clock.advance(0.1)
+        return bool(pred())  # type: ignore[operator]
+
+    def kinds(self) -> list[str]:
+        return [e.kind for e in self.events.drain()]
+
+
+@pytest.fixture
+def fast_cfg(cfg: Config) -> Config:
+    rec = cfg.nav.recovery.model_copy(update={"wait_s": 1.0, "max_rounds": 1})
+    nav = cfg.nav.model_copy(update={"recovery": rec})
+    return cfg.model_copy(update={"nav": nav})
+
+
+async def test_goal_succeeds_with_events_plan_and_feedback(fast_cfg: Config) -> None:
+    async with Harness(fast_cfg, room(), Pose2D(-2.0, -2.0, 0.0)) as h:
+        handle = h.nav.send_goal(Pose2D(2.0, 1.5, math.nan), tag="t1")
+        assert handle.state is GoalState.PENDING
+        await h.clock.advance(0.3)
+        assert handle.state is GoalState.ACTIVE
+        await h.clock.advance(2.0)
+        plan = h.bus.latest(PLAN)
+        assert plan is not None and len(plan.poses) > 10
+        first_remaining = handle.distance_remaining_m
+        assert first_remaining is not None and first_remaining > 4.0
+        assert handle.eta_s is not None and handle.eta_s > 0
+        assert await h.until(lambda: handle.done, 90.0)
+        assert handle.state is GoalState.SUCCEEDED, handle.history
+        assert h.rover.pose.distance_to(Pose2D(2.0, 1.5)) <= \
+            fast_cfg.nav.controller.xy_goal_tolerance_m + 0.01
+        kinds = h.kinds()
+        assert kinds.index("nav.goal_accepted") < kinds.index("nav.goal_succeeded")
+        assert any(c.linear_mps > 0.2 for c in h.rover.commands)
+        assert h.nav.active is None
+
+
+@pytest.mark.parametrize(
+    ("goal", "error"),
+    [
+        (Pose2D(50.0, 0.0), GoalOutsideMapError),
+        (Pose2D(math.nan, 0.0), InvalidGoalError),
+        (Pose2D(0.0, 0.0), GoalBlockedError),  # in the middle of a 2 m block
+    ],
+)
+async def test_bad_goals_are_rejected_at_once(fast_cfg: Config, goal: Pose2D,
+                                              error: type[Exception]) -> None:
+    grid = room()
+    r, c = cell(grid, -1.0, -1.0)
+    grid.data[r:r + 40, c:c + 40] = 100
+    async with Harness(fast_cfg, grid, Pose2D(-3.0, -3.0, 0.0)) as h:
+        handle = h.nav.send_goal(goal)
+        assert handle.state is GoalState.REJECTED
+        assert isinstance(handle.error, error)
+        assert str(handle.error)  # a sentence for the operator
+        assert "nav.goal_rejected" in h.kinds()
+        assert h.nav.active is None
+    empty = h.nav.send_goal([])
+    assert empty.state is GoalState.REJECTED
+
+
+async def test_goal_next_to_a_wall_moves_to_nearest_free(fast_cfg: Config) -> None:
+    async with Harness(fast_cfg, room(), Pose2D(-2.0, 0.0, 0.0)) as h:
+        handle = h.nav.send_goal(Pose2D(3.85, 0.0, math.nan))  # 10 cm from the wall
+        assert handle.state is GoalState.PENDING
+        assert await h.until(lambda: handle.done, 60.0)
+        # Reached the nearest free spot; the goal itself is not reachable by the footprint.
+        assert handle.state in (GoalState.SUCCEEDED, GoalState.ABORTED)
+        assert h.rover.pose.x > 2.8
+
+
+async def test_preempt_and_cancel(fast_cfg: Config) -> None:
+    async with Harness(fast_cfg, room(), Pose2D(-2.0, 0.0, 0.0)) as h:
+        a = h.nav.send_goal(Pose2D(2.0, 0.0, math.nan), tag="a")
+        await h.clock.advance(3.0)
+        b = h.nav.send_goal(Pose2D(-2.0, 2.0, math.nan), tag="b")
+        assert a.state is GoalState.PREEMPTED
+        assert h.nav.active is b
+        await h.clock.advance(3.0)
+        assert b.state is GoalState.ACTIVE
+        h.nav.cancel()
+        assert b.state is GoalState.PREEMPTED
+        assert h.nav.active is None
+        kinds = h.kinds()
+        assert "nav.goal_preempted" in kinds and "nav.goal_canceled" in kinds
+        await h.clock.advance(0.5)
+        assert h.rover.commands[-1].linear_mps == 0.0
+        assert h.rover.commands[-1].angular_radps == 0.0
+
+
+async def test_operator_goto_and_cancel_and_estop(fast_cfg: Config) -> None:
+    async with Harness(fast_cfg, room(), Pose2D(-2.0, 0.0, 0.0)) as h:
+        h.bus.publish(OPERATOR, OperatorCommand(h.clock.now(), "goto", goal=Pose2D(1.0, 0.0),
+                                                source="web"))
+        await h.clock.advance(0.5)
+        handle = h.nav.active
+        assert handle is not None and handle.poses[0] == Pose2D(1.0, 0.0)
+        h.bus.publish(OPERATOR, OperatorCommand(h.clock.now(), "cancel", source="web"))
+        await h.clock.advance(0.5)
+        assert handle.state is GoalState.PREEMPTED and h.nav.active is None
+        h.bus.publish(OPERATOR, OperatorCommand(h.clock.now(), "goto", goal=Pose2D(1.0, 0.0),
+                                                source="web"))
+        await h.clock.advance(1.0)
+        second = h.nav.active
+        assert second is not None
+        h.bus.publish(ESTOP, EStop(h.clock.now(), True, source="web"))
+        await h.clock.advance(0.5)
+        assert second.state is GoalState.PREEMPTED
+
+
+async def test_waypoint_sequence(fast_cfg: Config) -> None:
+    async with Harness(fast_cfg, room(), Pose2D(-2.0, -2.0, 0.0)) as h:
+        wps = [Pose2D(0.0, -2.0, math.nan), Pose2D(0.0, 0.0, math.nan),
+               Pose2D(-1.5, 1.0, math.pi)]
+        handle = h.nav.send_goal(wps, tag="seq")
+        assert await h.until(lambda: handle.done, 120.0)
+        assert handle.state is GoalState.SUCCEEDED, handle.history
+        assert handle.current_index == 2
+        assert h.kinds().count("nav.waypoint_reached") == 2
+        assert abs(wrap_angle(h.rover.pose.yaw - math.pi)) <= \
+            fast_cfg.nav.controller.yaw_goal_tolerance_rad + 0.02
+
+
+async def test_unreachable_goal_climbs_the_ladder_then_aborts(fast_cfg: Config) -> None:
+    grid = room()
+    # A closed box around (2, 2): the goal inside is free but cut off.
+    r, c = cell(grid, 1.0, 1.0)
+    grid.data[r:r + 41, c] = grid.data[r:r + 41, c + 40] = 100
+    grid.data[r, c:c + 41] = grid.data[r + 40, c:c + 41] = 100
+    async with Harness(fast_cfg, grid, Pose2D(-2.0, -2.0, 0.0)) as h:
+        handle = h.nav.send_goal(Pose2D(2.0, 2.0, math.nan))
+        assert await h.until(lambda: handle.done, 120.0)
+        assert handle.state is GoalState.ABORTED
+        assert isinstance(handle.error, NoPathError)
+        assert "after recovery" in str(handle.error)
+        steps = [rec.name for rec in h.recovery.history]  # type: ignore[union-attr]
+        assert steps == list(fast_cfg.nav.recovery.ladder)
+        ev = h.events.drain()
+        aborted = [e for e in ev if e.kind == "nav.goal_aborted"]
+        assert aborted and aborted[0].detail["code"] == "no_path"
+
+
+async def test_replans_at_once_when_the_path_is_blocked(fast_cfg: Config) -> None:
+    cfg = fast_cfg.model_copy(deep=True)
+    cfg.nav.planner.replan_rate_hz = 0.0  # only when needed
+    grid = room()
+    async with Harness(cfg, grid, Pose2D(-3.0, 0.0, 0.0)) as h:
+        handle = h.nav.send_goal(Pose2D(3.0, 0.0, math.nan))
+        await h.clock.advance(1.0)
+        plans = h.nav.plan_count
+        first = h.bus.latest(PLAN)
+        assert first is not None and max(abs(p.y) for p in first.poses) < 0.1
+        # Something appears on the straight line (as the obstacle layer would mark it).
+        blocked = grid.data.copy()
+        r, c = cell(grid, -1.0, -0.5)  # about 2 m ahead
+        blocked[r:r + 20, c:c + 10] = 100
+        h.costmap.set_static_map(OccupancyGrid(blocked, grid.resolution_m, grid.origin))
+        await h.clock.advance(0.3)
+        assert h.nav.plan_count > plans
+        assert "nav.path_blocked" in h.kinds()
+        new = h.bus.latest(PLAN)
+        assert new is not None and max(abs(p.y) for p in new.poses) > 0.6
+        assert await h.until(lambda: handle.done, 60.0)
+        assert handle.state is GoalState.SUCCEEDED
+
+
+async def test_no_progress_triggers_recovery(fast_cfg: Config) -> None:
+    cfg = fast_cfg.model_copy(deep=True)
+    cfg.nav.controller.progress_timeout_s = 3.0
+    cfg.nav.recovery.ladder = ["wait"]
+    async with Harness(cfg, room(), Pose2D(-2.0, 0.0, 0.0)) as h:
+        h.rover.frozen = True
+        handle = h.nav.send_goal(Pose2D(2.0, 0.0, math.nan))
+        assert await h.until(lambda: handle.done, 60.0)
+        assert handle.state is GoalState.ABORTED
+        assert handle.error is not None and handle.error.code == "no_progress"
+        assert handle.recoveries == 1
+
+
