@@ -114,6 +114,8 @@ MAX_REJECTED_IN_A_ROW = 100
 # A pose from POSE is preferred; ODOM stands in when no POSE arrived for this long, seconds.
 POSE_STALE_S = 2.0
 CLIENT_OPS = ("ping", "rate", "teleop", "command", "initial_pose")
+# Behaviour-tree states in which the rover is no longer waiting for help.
+HELP_OVER_STATES = frozenset({"moving", "arrived", "going_home", "idle", "tour"})
 
 
 class CommandError(ValueError):
@@ -478,6 +480,9 @@ class Hub:
         self.status = msg
         if msg.state == "needs_help" and not self.help["active"]:
             self.help.update(active=True, message=msg.text, since=msg.stamp, resolved_at=None)
+        elif msg.state in HELP_OVER_STATES and self.help["active"]:
+            # The tree moved on (e.g. the operator sent it home): no stale HELP ME.
+            self.help.update(active=False)
         self._reliable({"t": "status", "status": to_jsonable(msg), "help": self.help})
 
     def _on_progress(self, msg: Progress) -> None:

@@ -339,3 +339,18 @@ async def test_slow_client_is_dropped_without_stalling_others(
     assert stalled.close_code == 1013
     sender.cancel()
     await ws.close()
+
+
+async def test_help_state_clears_when_the_tree_moves_on(make_dash: MakeDash) -> None:
+    d = await make_dash()
+    ws = await connect(d)
+    d.bus.publish(STATUS, StatusText(1.0, "Needs help", "needs_help"))
+    msg = await recv_json_until(ws, lambda m: m["t"] == "status")
+    assert msg["help"]["active"] is True
+    d.bus.publish(STATUS, StatusText(2.0, "Paused", "paused"))  # still waiting
+    msg = await recv_json_until(ws, lambda m: m["t"] == "status")
+    assert msg["help"]["active"] is True
+    d.bus.publish(STATUS, StatusText(3.0, "Going home", "going_home"))
+    msg = await recv_json_until(ws, lambda m: m["t"] == "status")
+    assert msg["help"]["active"] is False
+    await ws.close()

@@ -86,7 +86,7 @@
   async function command(action, extra, msgEl) {
     const el = msgEl || $("cmdMsg");
     if (!S.control) { showMsg(el, "Viewing only: open the link with the token from the rover's start-up log to control it.", "error"); return false; }
-    if (!S.connected) { showMsg(el, "Not connected to the rover; nothing was sent.", "error"); return false; }
+    if (!S.connected && action !== "estop") { showMsg(el, "Not connected to the rover; nothing was sent.", "error"); return false; }
     const body = Object.assign({ action, request_id: newRequestId() }, extra || {});
     S.lastCmdRequest = body.request_id;
     try {
@@ -128,7 +128,7 @@
     for (const id of ["goHome", "pause", "pathEnter", "helpDone", "newPath", "renamePath", "deletePath", "releaseEstop"]) {
       $(id).disabled = !canControl;
     }
-    $("estop").disabled = !canControl;
+    $("estop").disabled = !S.control;  // tried even while the live link is down
     $("estop").classList.toggle("engaged", !!estopOn);
     $("estopBanner").classList.toggle("hidden", !estopOn);
     $("estopReason").textContent = estopOn && S.estop.reason ? "(" + S.estop.reason + ")" : "";
