@@ -210,6 +210,12 @@ class LocalizationConfig(Section):
     map_yaml: str | None = Field(
         None, description="navigation map (map_server YAML); default sim.world"
     )
+    mode: Literal["localize", "map"] = Field(
+        "localize", description="localize in map_yaml, or map a new building while driven"
+    )
+    mapping_out: str = Field(
+        "map.yaml", description="mode=map: where the map is saved at shutdown (in data_dir)"
+    )
     min_particles: int = Field(200, ge=10)
     max_particles: int = Field(3000, ge=10)
     update_min_d_m: float = Field(0.05, ge=0.0)

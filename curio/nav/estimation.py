@@ -8,12 +8,18 @@ Topics (see ``curio/topics.py``):
 * ``POSE`` (latched): ``base_link`` in ``map`` = ``MAP_TO_ODOM`` ∘ ``ODOM``, published at the
   odometry rate with the odometry stamp so consumers get smooth, time-consistent poses.
 * ``MAP_TO_ODOM`` (latched) and ``LOCALIZATION`` (latched): the correction and its quality.
+
+With ``localization.mode = "map"`` the rover maps a new building instead
+(:mod:`curio.nav.mapping`): ``MAP`` is republished as it grows and the map is saved to
+``data_dir/localization.mapping_out`` at shutdown. ``app.localizer`` is then the mapping node.
 """
 
 from __future__ import annotations
 
 import logging
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 from curio.bus import Bus
 from curio.clock import Clock
@@ -113,10 +119,19 @@ def build_estimation(app: App) -> None:
     from curio.app import Part
 
     cfg = app.cfg
-    grid = load_map(map_path(cfg))
+    start = start_pose(cfg)
+    mapping = cfg.localization.enabled and cfg.localization.mode == "map"
+    if mapping:
+        # A new building: start from an unknown 20 m square around the start pose; the mapper
+        # replaces it as it goes.
+        res = 0.05
+        size = round(20.0 / res)
+        grid = OccupancyGrid(np.full((size, size), -1, dtype=np.int8), res,
+                             Pose2D(start.x - 10.0, start.y - 10.0, 0.0), name="mapping")
+    else:
+        grid = load_map(map_path(cfg))
     app.map_server = MapServer(app.bus, app.clock, grid)
     app.map_server.publish()
-    start = start_pose(cfg)
 
     relay_odom = not cfg.ekf.enabled
     compose_pose = not cfg.localization.enabled
@@ -124,7 +139,11 @@ def build_estimation(app: App) -> None:
         from curio.nav.ekf import build_ekf_part
 
         app.ekf = build_ekf_part(app)
-    if cfg.localization.enabled:
+    if mapping:
+        from curio.nav.mapping import build_mapping_part
+
+        app.localizer = build_mapping_part(app, start, cfg.data_path(cfg.localization.mapping_out))
+    elif cfg.localization.enabled:
         from curio.nav.localization import build_localizer_part
 
         app.localizer = build_localizer_part(app, grid, start)

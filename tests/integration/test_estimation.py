@@ -159,3 +159,44 @@ async def test_initial_pose_sets_the_pose_and_a_huge_covariance_starts_a_global_
     assert pose is not None and pose.pose.distance_to(truth) < 0.05
     for task in tasks:
         task.cancel()
+
+
+async def test_mapping_mode_builds_publishes_and_saves_a_map(cfg: Config) -> None:
+    """localization.mode = "map": drive through the room; MAP grows; the map is saved."""
+    from curio.nav.maps import load_map
+    from curio.topics import SCAN
+    from tests.unit.test_localization_helpers import cast_scan, room_grid
+
+    grid = room_grid()
+    cfg = cfg.model_copy(update={
+        "sim": cfg.sim.model_copy(update={"start": (1.0, 3.0, 0.0)}),
+        "ekf": cfg.ekf.model_copy(update={"enabled": False}),
+        "localization": cfg.localization.model_copy(update={"mode": "map"}),
+    })
+    clock = SimClock()
+    app = FakeApp(cfg, clock)
+    build_estimation(app)  # type: ignore[arg-type]
+    assert app.map_server.grid.unknown_mask().all()
+    tasks = [asyncio.create_task(p.run()) for p in app.parts if p.run is not None]
+    laser = Pose2D(*cfg.robot.laser_pose)
+    rng = np.random.default_rng(3)
+    truth = Pose2D(1.0, 3.0, 0.0)
+    for i in range(80):  # 4 m east at 0.05 m per scan, odometry 5 % long
+        t = i * 0.1
+        truth = Pose2D(1.0 + 0.05 * i, 3.0, 0.0)
+        app.bus.publish(WHEEL_ODOM, Odometry(t, Pose2D(0.0525 * i, 0.0, 0.0)))
+        app.bus.publish(SCAN, cast_scan(grid, truth, laser, stamp=t, sigma_m=0.02, rng=rng))
+        await clock.advance(0.1)
+    pose = app.bus.latest(POSE)
+    # The odometry alone ends 0.2 m long; scan matching against the growing map keeps it close.
+    assert pose is not None and pose.pose.distance_to(truth) < 0.08
+    published = app.bus.latest(MAP)
+    assert published is not None and published.version > 0
+    assert app.map_server.grid.occupied_mask().sum() > 200
+    for task in tasks:
+        task.cancel()
+    for part in app.parts:
+        if part.close is not None:
+            await part.close()
+    saved = load_map(cfg.data_path(cfg.localization.mapping_out))
+    assert saved.occupied_mask().sum() > 200 and saved.free_mask().sum() > 1000
