@@ -302,6 +302,22 @@
     if (h.web) row("dashboards", h.web.clients + " connected");
   }
 
+  const LOC_WORDS = { ok: ["Position OK", "ok"], uncertain: ["Position uncertain", "warn"],
+    lost: ["Position lost — use “Set rover's position”", "bad"], off: ["Position from odometry", "warn"] };
+  function renderLoc(loc) {
+    const el = $("locChip");
+    if (!loc) { el.classList.add("hidden"); return; }
+    const [text, cls] = LOC_WORDS[loc.state] || [loc.state, "warn"];
+    el.textContent = text;
+    el.className = "chip " + cls;
+  }
+  function renderBattery(b) {
+    const el = $("batteryChip");
+    if (!b) { el.classList.add("hidden"); return; }
+    el.textContent = "Battery " + b.voltage_v.toFixed(1) + " V" + (b.low ? " LOW" : "");
+    el.className = "chip " + (b.low ? "bad" : "ok");
+  }
+
   function addEvent(ev, history) {
     const ol = $("events");
     const li = document.createElement("li");
@@ -376,6 +392,7 @@
         $("events").textContent = "";
         for (const ev of m.events || []) addEvent(ev, true);
         renderStatus(); renderProgress(); renderPaths(); renderTree(); renderHealth();
+        renderLoc(m.localization); renderBattery(m.battery);
         break;
       case "status": S.status = m.status; if (m.help) S.help = m.help; renderStatus(); break;
       case "progress": S.progress = m.progress; renderProgress(); renderStatus(); break;
@@ -386,6 +403,8 @@
       case "health": S.health = m; if ($("healthCard").open) renderHealth(); break;
       case "grid": onGrid(m.grid); break;
       case "obstacles": S.obstacles = m; view.dirty = true; break;
+      case "localization": renderLoc(m.localization); break;
+      case "battery": renderBattery(m.battery); break;
       case "cmd_vel":
         $("cmdVel").textContent = "wheels: " + m.linear_mps.toFixed(2) + " m/s, " + m.angular_radps.toFixed(2) + " rad/s" + (m.source ? " (" + m.source + ")" : "");
         break;
@@ -586,7 +605,7 @@
     polyline(S.plan, "#16a34a", 3);
     polyline(S.localPlan, "#06b6d4", 2);
     if (S.obstacles) {
-      ctx.strokeStyle = "rgba(234,88,12,.8)"; ctx.lineWidth = 2;
+      ctx.strokeStyle = "rgba(234,88,12,.6)"; ctx.lineWidth = 1.5;
       for (const [[x1, y1], [x2, y2]] of S.obstacles.segments || []) {
         const [a, b] = toScreen(x1, y1), [c, d] = toScreen(x2, y2);
         ctx.beginPath(); ctx.moveTo(a, b); ctx.lineTo(c, d); ctx.stroke();
