@@ -170,6 +170,22 @@ async def test_board_reset_reconfigures_and_rearms() -> None:
         assert rig.base.health().counters["mcu_resets"] >= 1
 
 
+async def test_no_bytes_streamed_into_the_bootloader() -> None:
+    cfg = FAST.model_copy(update={"link_timeout_s": 1.5})
+    async with make_rig(cfg, boot_delay_s=0.1) as rig:
+        rig.emu.boot_delay_s = 0.8  # a slow bootloader after a spontaneous reset
+        rig.emu.reset()
+        await rig.clock.sleep(0.3)  # the driver notices the silence within 0.15 s
+        held_at = rig.emu.bytes_in
+        await rig.clock.sleep(0.4)
+        assert rig.emu.state == p.McuState.BOOT
+        assert rig.emu.bytes_in == held_at  # nothing sent while the board is quiet
+        assert rig.base.health().counters["tx_holds"] >= 1
+        await rig.until(rig.driving, 3.0)  # then it re-configures, re-arms and drives
+        assert rig.base.health().counters["mcu_resets"] >= 1
+        assert rig.base.health().counters["link_losses"] == 0
+
+
 async def test_stall_stops_rover_and_driver_reconnects() -> None:
     async with make_rig() as rig:
         rig.emu.stall(1.2)
@@ -227,3 +243,41 @@ async def test_missing_port_says_what_to_check() -> None:
     finally:
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
+
+
+async def test_emulated_mode_on_a_simulated_clock() -> None:
+    """As ``drivers.mode = "emulated"`` runs it: virtual time as fast as the CPU allows, real
+    pty I/O in between (the clock grants a few idle I/O polls before moving time on)."""
+    from curio.clock import SimClock
+
+    clock = SimClock(settle_polls=3)
+    bus = make_bus()
+    bus.bind_loop(asyncio.get_running_loop())
+    world = FakeWorld()
+    emu = ArduinoEmulator(world, clock, seed=1)
+    emu.open()
+    base = ArduinoBase(ArduinoConfig(), RobotConfig(), bus, clock, port=emu.port_path)
+    emu.pair(base)
+    wheels = bus.subscribe(WHEELS, maxsize=1000)
+
+    async def command() -> None:
+        while True:
+            bus.publish(CMD_VEL, Twist(stamp=clock.now(), linear_mps=0.2))
+            await clock.sleep(0.05)
+
+    tasks = [asyncio.ensure_future(c) for c in (emu.run(), base.run(), command())]
+    try:
+        await clock.run(until_s=5.0)
+        assert emu.state == p.McuState.ARMED, (base.health(), emu.boots, emu.opens)
+        assert emu.wheel_duties == (530, 530, 530, -530, -530, -530)
+        got = wheels.drain()
+        assert got[-1].stamp - got[0].stamp == pytest.approx(len(got) / 30.0, rel=0.1), (
+            got[0].stamp, got[-1].stamp, len(got), base.health())
+        h = base.health()
+        assert h.state == "ok" and h.counters["link_losses"] == 0, h
+        assert h.counters["tx_holds"] == 0 and h.counters["reconnects"] == 0, h
+    finally:
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        emu.close()

@@ -16,9 +16,20 @@ USB serial (pyserial-asyncio-fast). Per session it:
    ``/battery`` (BATTERY), ``/servo_cmd`` (what it sent) and ``/health``;
 5. re-sends the config and re-arms whenever STATE reports BOOT or the "default config" fault
    (a silent reset of the Mega), and re-arms after the firmware's link watchdog disarmed it;
-6. declares the link down when no frame arrives for ``link_timeout_s`` or the port fails
+6. holds all traffic while the board is quiet for more than 0.15 s (it may be in its
+   bootloader after a spontaneous reset: never stream into it), and
+   declares the link down when no frame arrives for ``link_timeout_s`` or the port fails
    (unplugged cable), closes it and reconnects by itself with back-off up to
    ``reconnect_max_s``. Meanwhile the firmware's own watchdog has stopped the wheels.
+
+Health (``/health``, name ``arduino``): ``state`` is ``starting`` (opening, boot window,
+configuring), ``ok``, ``degraded`` (board watchdog tripped, e-stop latched, not armed, servo
+reads failing), ``error`` (link down: the message says what to check) or ``off`` (halted).
+``counters``: ``crc_errors``, ``resyncs``, ``garbage_bytes``, ``length_errors`` (frames from the
+board), ``mcu_rx_crc_err`` (frames to the board, as the board counts them), ``reconnects``,
+``link_losses``, ``mcu_resets``, ``watchdog_trips``, ``tx_holds``, ``servo_read_failures``,
+``nacks``, ``bad_payloads``, ``rx_frames``, ``tx_frames``, ``heartbeat_echo_age_ms``,
+``mcu_state`` (−1 unknown, else :class:`~curio.drivers.arduino.protocol.McuState`).
 
 The latched ``/estop`` is forwarded as the firmware's ESTOP (latched on the board too) and
 released with ARM.
@@ -47,7 +58,7 @@ from curio.bus import Bus
 from curio.clock import Clock
 from curio.config import ArduinoConfig, RobotConfig
 from curio.drivers.arduino import protocol as p
-from curio.drivers.arduino._loop import every, wait_until
+from curio.drivers.arduino._loop import Pacer, every, wait_until
 from curio.drivers.kinematics import twist_to_servo_command
 from curio.messages import BatteryState, DriverHealth, EStop, ServoCommand, Twist, WheelEncoders
 from curio.topics import BATTERY, CMD_VEL, ESTOP, HEALTH, SERVO_CMD, WHEELS
@@ -62,6 +73,7 @@ HEARTBEAT_PERIOD_S = 0.2
 HEALTH_PERIOD_S = 1.0
 ACK_TIMEOUT_S = 0.3
 ACK_RETRIES = 3
+TX_HOLD_S = 0.15  # the board sends STATE at 10 Hz and SERVO_POS at 30 Hz: longer silence is odd
 PORT_HINT = ("is the Mega plugged in? Run `curio check`; on the Pi the udev rule in deploy/ "
              "names it /dev/curio-arduino, and the user needs the dialout group")
 
@@ -95,6 +107,11 @@ class ArduinoBase:
         self.command_fn = command_fn
         self.decoder = p.FrameDecoder()
         self.tx_suspended = False  # test/diagnostic hook: the Pi goes silent
+        self.bytes_sent = 0
+        self.bytes_received = 0
+        # Emulated mode only (see ArduinoEmulator.pair): keeps a simulated clock from racing
+        # ahead of pty delivery. Without a peer it does nothing.
+        self.pacer = Pacer(clock, lambda: self.bytes_sent)
         self._writer: asyncio.StreamWriter | None = None
         self._rx_event = asyncio.Event()
         self._tx_seq = 0
@@ -127,7 +144,8 @@ class ArduinoBase:
         self.counters: dict[str, float] = {
             "reconnects": 0, "link_losses": 0, "rx_frames": 0, "tx_frames": 0,
             "bad_payloads": 0, "nacks": 0, "mcu_resets": 0, "watchdog_trips": 0,
-            "servo_read_failures": 0, "mcu_rx_crc_err": 0, "heartbeat_echo_age_ms": -1.0,
+            "servo_read_failures": 0, "mcu_rx_crc_err": 0, "tx_holds": 0,
+            "heartbeat_echo_age_ms": -1.0,
         }
 
     # --- public -------------------------------------------------------------------------------
@@ -268,6 +286,14 @@ class ArduinoBase:
                 if now - last > self.cfg.link_timeout_s:
                     raise _LinkLost(f"no frame from the Mega for {now - last:.2f} s "
                                     "(stalled or reset board, or a bad cable)")
+                if now - last > min(TX_HOLD_S, 0.5 * self.cfg.link_timeout_s):
+                    # The board went quiet: it may be sitting in its bootloader after a
+                    # spontaneous reset. Streaming into the bootloader can keep it from
+                    # starting the sketch (the original's runaway wheels): hold all traffic
+                    # until the board speaks again (or the link is declared down).
+                    self.counters["tx_holds"] += 1
+                    self.publish_health()
+                    continue
                 if self._need_config:
                     self._phase = "configuring"
                     await self._configure(reader_task)
@@ -281,6 +307,7 @@ class ArduinoBase:
                     self._send(p.Heartbeat(self._host_ms()))
                 self._command(now)
                 self.publish_health()
+                await self.pacer.settle()
         finally:
             reader_task.cancel()
             with contextlib.suppress(BaseException):
@@ -303,6 +330,7 @@ class ArduinoBase:
             data = await reader.read(4096)
             if not data:
                 raise _LinkLost(f"{self.port} closed (cable unplugged?); {PORT_HINT}")
+            self.bytes_received += len(data)
             for frame in self.decoder.feed(data):
                 self._on_frame(frame)
             self._rx_event.set()
@@ -312,6 +340,7 @@ class ArduinoBase:
         for _ in range(ACK_RETRIES):
             seq = self._send(msg)
             key = (seq, int(msg.MSG_ID))
+            await self.pacer.settle()
 
             def answered(key: tuple[int, int] = key) -> bool:
                 return key in self._acks or reader_task.done()
@@ -402,7 +431,9 @@ class ArduinoBase:
         self._tx_seq = (seq + 1) & 0xFF
         if self._writer is None or self.tx_suspended:
             return seq
-        self._writer.write(p.encode(msg, seq))
+        data = p.encode(msg, seq)
+        self._writer.write(data)
+        self.bytes_sent += len(data)
         self.counters["tx_frames"] += 1
         return seq
 

@@ -19,6 +19,7 @@ The servo side is the simulator's world (helper H1's ``curio/sim``), through thr
     emu = ArduinoEmulator(app.world, app.clock, seed=app.cfg.sim.seed)
     emu.open()                       # creates the pty; emu.port_path is a stable symlink
     base = ArduinoBase(cfg.drivers.arduino, cfg.robot, app.bus, app.clock, port=emu.port_path)
+    emu.pair(base)                   # SimClock: hold virtual time until pty bytes are read
     app.add(Part("arduino-emulator", run=emu.run, close=emu.aclose))
     app.add(Part("arduino", run=base.run))
     app.add_halt_hook(base.halt)
@@ -61,7 +62,7 @@ import numpy as np
 
 from curio.clock import Clock
 from curio.drivers.arduino import protocol as p
-from curio.drivers.arduino._loop import every
+from curio.drivers.arduino._loop import Pacer, every
 from curio.messages import ServoCommand
 
 __all__ = ["ArduinoEmulator", "EmulatorWorld", "FirmwareModel", "ServoSide"]
@@ -408,6 +409,7 @@ class ArduinoEmulator:
         self.opens = 0
         self.bytes_in = 0
         self.bytes_out = 0
+        self.pacer = Pacer(clock, lambda: self.bytes_out)
 
     # --- properties -----------------------------------------------------------------------------
 
@@ -476,6 +478,17 @@ class ArduinoEmulator:
             os.unlink(self.port_path)
         if self._own_dir:
             shutil.rmtree(self._dir, ignore_errors=True)
+
+    def pair(self, driver: Any) -> None:
+        """Pace virtual time with ``driver`` (an ``ArduinoBase`` on this emulator's port).
+
+        Needed only on a ``SimClock`` running faster than real time (emulated mode): each side
+        then holds the clock until the other has read what it wrote, so pty delivery delays
+        never look like a stalled link. Both objects must count their bytes
+        (``bytes_sent``/``bytes_received`` on the driver, ``bytes_out``/``bytes_in`` here).
+        """
+        self.pacer.peer_received = lambda: int(driver.bytes_received)
+        driver.pacer.peer_received = lambda: self.bytes_in
 
     async def aclose(self) -> None:
         """:meth:`close` as a coroutine (for ``Part.close``)."""
@@ -623,5 +636,7 @@ class ArduinoEmulator:
                     self.firmware.boot(self._now_ms(), self._pending_reset_cause)
                 elif self._booted:
                     self.firmware.tick(self._now_ms())
+                if self._host_open:
+                    await self.pacer.settle()
         finally:
             self._host_closed()
