@@ -123,6 +123,11 @@ class ArduinoBase:
         self._estop = False
         self._halted = False
         self._opened_before = False
+        self.rx_error_window_s = 5.0  # how long corrupt input keeps the health "degraded"
+        self._rx_bad_seen = 0
+        self._rx_bad_base = 0
+        self._rx_bad_since_s: float | None = None
+        self._rx_bad_last_s = 0.0
         # Session state.
         self.connected = False
         self.mcu_state: p.McuState | None = None
@@ -237,6 +242,14 @@ class ArduinoBase:
         if self.mcu_state != p.McuState.ARMED:
             name = "unknown" if self.mcu_state is None else self.mcu_state.name
             return "degraded", f"the Mega is {name}, not armed; re-arming"
+        if self._rx_bad_since_s is not None and \
+                self.clock.now() - self._rx_bad_last_s <= self.rx_error_window_s:
+            st = self.decoder.stats
+            return "degraded", (
+                f"corrupt data from the Mega: {self._rx_bad_seen - self._rx_bad_base} bad "
+                f"bytes/frames recently (CRC errors {st.crc_errors}, garbage bytes "
+                f"{st.garbage_bytes} in total), frames still getting through: check the USB "
+                f"cable and that drivers.arduino.baud ({self.cfg.baud}) matches the firmware")
         if self.mcu_faults & p.Fault.SERVO_READ:
             return "degraded", ("a servo did not answer a position read: check the servo bus "
                                 "cable, the BusLinker and the servo ids" + recent)
@@ -333,6 +346,16 @@ class ArduinoBase:
             self.bytes_received += len(data)
             for frame in self.decoder.feed(data):
                 self._on_frame(frame)
+            st = self.decoder.stats
+            bad = st.crc_errors + st.length_errors + st.garbage_bytes
+            if bad != self._rx_bad_seen:
+                now = self.clock.now()
+                if self._rx_bad_since_s is None or \
+                        now - self._rx_bad_last_s > self.rx_error_window_s:
+                    self._rx_bad_since_s = now
+                    self._rx_bad_base = self._rx_bad_seen
+                self._rx_bad_seen = bad
+                self._rx_bad_last_s = now
             self._rx_event.set()
 
     async def _request(self, msg: p.Message, reader_task: asyncio.Future[None]) -> int:
