@@ -22,6 +22,7 @@ __all__ = ["astar", "line_cost", "segments_clear", "shortcut", "trace_path"]
 _SQRT2 = math.sqrt(2.0)
 _DR = np.array([-1, -1, -1, 0, 0, 1, 1, 1], dtype=np.int64)
 _DC = np.array([-1, 0, 1, -1, 1, -1, 0, 1], dtype=np.int64)
+_FIX = 1024.0  # fixed-point scale of the priorities in the open list
 
 
 @njit(cache=True, nogil=True, inline="always")  # type: ignore[misc]
@@ -64,43 +65,46 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
     wt = weight * (1.0 + 1e-4)  # slight tie-break towards the goal
     start = start_r * w + start_c
     goal = goal_r * w + goal_c
+    # Open list: a 4-ary min-heap of packed int64 entries, f in fixed point (1/1024 of a cost
+    # unit) in the high 32 bits and the cell in the low 32 bits (one compare, one array).
     cap = 1 << 14
-    keys = np.empty(cap, dtype=np.float64)
-    vals = np.empty(cap, dtype=np.int32)
-    size = 0
+    heap = np.empty(cap, dtype=np.int64)
     g[start] = 0.0
     parent[start] = 9
     dx0 = abs(start_c - goal_c)
     dy0 = abs(start_r - goal_r)
-    keys[0] = wt * (dx0 + dy0 + sqrt2m2 * min(dx0, dy0))
-    vals[0] = start
+    f0 = wt * (dx0 + dy0 + sqrt2m2 * min(dx0, dy0))
+    heap[0] = (np.int64(f0 * _FIX) << 32) | start
     size = 1
     expansions = 0
     lut252 = lut[252]
+    low = np.int64(0xFFFFFFFF)
     offs = np.empty(8, dtype=np.int64)
     for k in range(8):
         offs[k] = _DR[k] * w + _DC[k]
     while size > 0:
         # ---- pop
-        u = vals[0]
+        u = heap[0] & low
         size -= 1
         if size > 0:
-            key = keys[size]
-            val = vals[size]
+            x = heap[size]
             i = 0
             while True:
-                child = 2 * i + 1
-                if child >= size:
+                c = 4 * i + 1
+                if c >= size:
                     break
-                if child + 1 < size and keys[child + 1] < keys[child]:
-                    child += 1
-                if keys[child] >= key:
+                m = c
+                best = heap[c]
+                end = min(c + 4, size)
+                for j in range(c + 1, end):
+                    if heap[j] < best:
+                        best = heap[j]
+                        m = j
+                if best >= x:
                     break
-                keys[i] = keys[child]
-                vals[i] = vals[child]
-                i = child
-            keys[i] = key
-            vals[i] = val
+                heap[i] = best
+                i = m
+            heap[i] = x
         if parent[u] >= 16:
             continue
         if u == goal:
@@ -153,23 +157,19 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
                 # ---- push
                 if size >= cap:
                     cap *= 2
-                    nk = np.empty(cap, dtype=np.float64)
-                    nv = np.empty(cap, dtype=np.int32)
-                    nk[:size] = keys[:size]
-                    nv[:size] = vals[:size]
-                    keys = nk
-                    vals = nv
+                    nh = np.empty(cap, dtype=np.int64)
+                    nh[:size] = heap[:size]
+                    heap = nh
+                x = (np.int64(f * _FIX) << 32) | v
                 i = size
                 size += 1
                 while i > 0:
-                    par = (i - 1) >> 1
-                    if keys[par] <= f:
+                    par = (i - 1) >> 2
+                    if heap[par] <= x:
                         break
-                    keys[i] = keys[par]
-                    vals[i] = vals[par]
+                    heap[i] = heap[par]
                     i = par
-                keys[i] = f
-                vals[i] = v
+                heap[i] = x
     return False, expansions
 
 
