@@ -32,6 +32,7 @@ from curio.topics import BATTERY, BLOCKED, ESTOP, OPERATOR
 
 from .follower import TOUR_ROUTE_ID, PathFollower, Route, StatusSink
 from .paths import HOME_PATH_ID, PathError, PathManager, format_xy
+from .probe import WayProbe
 
 __all__ = [
     "BB_DEFAULTS",
@@ -87,6 +88,7 @@ class TreeContext:
         cfg: the ``[bt]`` config section.
         bus, clock: the application's bus and clock.
         navigator: the navigator (curio/nav/api.py) or None when navigation is not running.
+        probe: tells whether a path leads to the held waypoint again (None: judge by BLOCKED).
         paths: the path manager.
         follower: drives the current route.
         sink: publishes status, progress and events.
@@ -105,6 +107,7 @@ class TreeContext:
     namespace: str
     tree_kind: str = "follow_path"
     tour_route: Route | None = None
+    probe: WayProbe | None = None
     clients: list[py_trees.blackboard.Client] = field(default_factory=list)
 
     def key(self, name: str) -> str:
@@ -248,6 +251,9 @@ class Operator2BB(CurioBehaviour):
             wanted = action
             if action == "toggle_pause":
                 wanted = "resume" if paused else "pause"
+            if wanted == "resume" and not paused and self.get("help_active"):
+                self.set("help_done", _req(cmd, action="help_done"))  # Resume = help done
+                return
             if wanted == "resume" and estop:
                 ctx.reject(_req(cmd), action, "The e-stop is engaged: release it first.")
                 return
@@ -353,8 +359,8 @@ class Blocked2BB(CurioBehaviour):
         self.set("blocked", blocked)
         self.set("blocked_stamp", msg.stamp if msg is not None else None)
         self.set("obstacle_distance_m", msg.obstacle_distance_m if msg is not None else None)
-        if not blocked:
-            self.set("help_rearm_until", None)  # a new blocked episode may ask again
+        if not blocked and self.ctx.follower.driving:
+            self.set("help_rearm_until", None)  # seen clear while driving: may ask again
         return Status.SUCCESS
 
 
@@ -594,15 +600,20 @@ class ChangePath(CurioBehaviour):
 
 
 class IsBlocked(CurioBehaviour):
-    """SUCCESS when BLOCKED says blocked while a goal of ours is being driven (never at a reached
-    goal, never idle, never at start-up) and no re-arm delay is running."""
+    """SUCCESS when the way is blocked and recovery has not freed it, and no re-arm delay runs.
+
+    Blocked means: BLOCKED says blocked while a goal of ours is being driven, or the navigator
+    gave the waypoint up because the way is blocked (no path, no progress, no admissible
+    motion, after its recovery ladder). Never at a reached goal, never idle, never at start-up.
+    """
 
     def __init__(self, ctx: TreeContext, name: str = "Blocked?") -> None:
         super().__init__(name, ctx, read=("blocked", "help_rearm_until"))
 
     def update(self) -> Status:
         """Check the flag and the follower."""
-        if not self.get("blocked") or not self.ctx.follower.driving:
+        f = self.ctx.follower
+        if not ((self.get("blocked") and f.driving) or f.failed_blocked):
             return Status.FAILURE
         rearm = self.get("help_rearm_until")
         if rearm is not None and self.ctx.clock.now() < rearm:
@@ -615,7 +626,8 @@ class Ask4Help(CurioBehaviour):
 
     * Start: hold the route, event ``help.requested`` (HELP ME), status ``Needs help``.
     * The way stays clear for ``help_clear_s`` → ``help.resolved`` ("Thanks!"), resume, FAILURE
-      (Follow Path runs in the same tick).
+      (Follow Path runs in the same tick). "Clear" is judged by the :class:`WayProbe` (a path
+      to the held waypoint exists on the live costmap) when there is one, else by BLOCKED.
     * The operator presses *help done* → the same, and BLOCKED is ignored for ``help_rearm_s``
       unless it reports clear first (so the stale flag of a rover that has not moved yet does
       not ask again at once, §9.25).
@@ -634,6 +646,20 @@ class Ask4Help(CurioBehaviour):
         self.clear_since: float | None = None
         self.open = False
         self.timeout_reported = False
+        self.next_probe_s = 0.0
+
+    def _way_clear(self, now: float) -> bool:
+        probe = self.ctx.probe
+        stop = self.ctx.follower.current_stop()
+        if probe is None or stop is None:
+            return not self.get("blocked")
+        result = probe.poll()
+        if not probe.busy and now >= self.next_probe_s:
+            yaw = stop.yaw_rad if stop.yaw_rad is not None else 0.0
+            probe.start(Pose2D(stop.x_m, stop.y_m, yaw), now)
+            self.next_probe_s = now + max(0.25, self.ctx.cfg.help_clear_s / 4.0)
+            result = probe.poll()
+        return result is not None and result.clear and result.started_s >= self.requested_at
 
     def initialise(self) -> None:
         """Hold the route and ask for help (once)."""
@@ -643,12 +669,17 @@ class Ask4Help(CurioBehaviour):
         self.requested_at = ctx.clock.now()
         self.clear_since = None
         self.timeout_reported = False
+        self.next_probe_s = self.requested_at
+        if ctx.probe is not None:
+            ctx.probe.reset()
         self.open = True
         self.set("help_active", True)
         self.set("help_done", None)
+        trigger = f.last_error_code if f.failed_blocked else "blocked"
         f.hold("help")
         distance = self.get("obstacle_distance_m")
         ctx.sink.event("help.requested", message="HELP ME! Something blocks my way.",
+                       trigger=trigger, error=f.last_error if f.failed_blocked else "",
                        path_id=f.route_id, index=f.index,
                        x_m=stop.x_m if stop else None, y_m=stop.y_m if stop else None,
                        obstacle_distance_m=distance)
@@ -663,7 +694,7 @@ class Ask4Help(CurioBehaviour):
             self.set("help_done", None)
             ctx.accept(done, "help_done", "Thanks!")
             return self._resolve("help_done", "Thanks!", rearm=True)
-        if not self.get("blocked"):
+        if self._way_clear(now):
             if self.clear_since is None:
                 self.clear_since = now
             if now - self.clear_since >= ctx.cfg.help_clear_s:
@@ -849,7 +880,8 @@ class MoveClient(CurioBehaviour):
         """Pre-empted while active: cancel our goal (the original left it running, §9.33)."""
         handle = self.handle
         nav = self.ctx.navigator
-        if new_status == Status.INVALID and handle is not None and not handle.done:
+        if new_status == Status.INVALID and handle is not None and (
+                not handle.done or handle.state is GoalState.PREEMPTED):
             if nav is not None and nav.active is handle:
                 nav.cancel()
             self.ctx.sink.event("goal.preempted", name=self.name, x_m=self.goal.x,

@@ -38,11 +38,15 @@ from curio.topics import EVENTS, PROGRESS, STATUS
 
 from .paths import HOME_PATH_ID, NamedPath, format_xy
 
-__all__ = ["PathFollower", "Phase", "Route", "StatusSink", "Stop"]
+__all__ = ["BLOCKING_CODES", "PathFollower", "Phase", "Route", "StatusSink", "Stop"]
 
 log = logging.getLogger("curio.bt.follower")
 
 TOUR_ROUTE_ID = -1
+
+# Navigation failures that mean "the way is blocked" (after the navigator's recovery): the tree
+# asks a person for help instead of giving up (or skipping a tour stop).
+BLOCKING_CODES = frozenset({"no_path", "no_progress", "controller_failed"})
 
 Phase = Literal["idle", "moving", "dwelling", "held", "finished", "failed", "interrupted"]
 
@@ -168,6 +172,7 @@ class PathFollower:
         self._held_phase: Phase = "idle"
         self.goals_sent = 0
         self.last_error = ""
+        self.last_error_code = ""
 
     # --- queries ----------------------------------------------------------------------------
 
@@ -180,6 +185,12 @@ class PathFollower:
     def driving(self) -> bool:
         """True while a goal of ours is PENDING or ACTIVE (the rover should be moving)."""
         return self.phase == "moving" and self.handle is not None and not self.handle.done
+
+    @property
+    def failed_blocked(self) -> bool:
+        """True when the last waypoint failed because the way is blocked (no path, no progress
+        after recovery): a person may be able to clear it."""
+        return self.phase == "failed" and self.last_error_code in BLOCKING_CODES
 
     @property
     def active(self) -> bool:
@@ -401,11 +412,13 @@ class PathFollower:
         stop = self.route.stops[self.index]
         self.states[self.index] = "failed"
         self.last_error = message
+        self.last_error_code = code
         self.handle = None
         self.sink.event("waypoint.failed", path_id=self.route.id, index=self.index,
                         x_m=stop.x_m, y_m=stop.y_m, error=code, message=message)
         self._publish_progress()
-        if self.route.skip_failed and self.navigator is not None:
+        if (self.route.skip_failed and self.navigator is not None
+                and code not in BLOCKING_CODES):
             self._advance()
             return
         self.phase = "failed"

@@ -29,6 +29,7 @@ from curio.topics import EVENTS, TREE
 from .behaviours import BB_DEFAULTS, Follower2BB, Operator2BB, TreeContext
 from .follower import PathFollower, StatusSink
 from .paths import PathManager
+from .probe import WayProbe
 from .speech import Speaker
 from .trees import build_root, tour_route_from_config
 
@@ -194,6 +195,7 @@ def build_tree_runner(
     speaker: Speaker | None = None,
     *,
     autostart_path: int | None = None,
+    probe: WayProbe | None = None,
 ) -> TreeRunner:
     """Build the configured tree (``cfg.tree``) and its runner.
 
@@ -203,6 +205,7 @@ def build_tree_runner(
         navigator: the navigator (curio/nav/api.py), or None.
         paths: the path manager.
         speaker: speaks tour messages (None: silent).
+        probe: judges "the way is clear" while asking for help (None: by BLOCKED).
         autostart_path: a path to select at the first tick (``cfg.autostart_path``); the
             original drove path 1 at launch unasked (§9.16), Curio only when configured.
     """
@@ -211,7 +214,8 @@ def build_tree_runner(
                             speak=speaker.say if speaker is not None else None)
     ctx = TreeContext(cfg=cfg, bus=bus, clock=clock, navigator=navigator, paths=paths,
                       follower=follower, sink=sink, namespace=f"/curio_{id(follower):x}",
-                      tree_kind=cfg.tree, tour_route=tour_route_from_config(cfg))
+                      tree_kind=cfg.tree, tour_route=tour_route_from_config(cfg),
+                      probe=probe)
     init = py_trees.blackboard.Client(name="Init", namespace=ctx.namespace)
     ctx.clients.append(init)
     for key, value in BB_DEFAULTS.items():

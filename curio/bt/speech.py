@@ -35,6 +35,7 @@ class Speaker:
         self._task: asyncio.Task[None] | None = None
         self._proc: asyncio.subprocess.Process | None = None
         self.spoken: list[str] = []
+        self.played: list[str] = []
 
     @property
     def available(self) -> bool:
@@ -62,6 +63,7 @@ class Speaker:
         assert self.path is not None
         while self._waiting is not None:
             text, self._waiting = self._waiting, None
+            self.played.append(text)
             try:
                 self._proc = await asyncio.create_subprocess_exec(
                     self.path, *self.voice_args, "--", text,

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from curio.clock import SimClock
 from curio.messages import Event
 from curio.topics import EVENTS
 
 from .paths import PathManager
+from .probe import WayProbe
 from .runner import build_tree_runner
 from .speech import Speaker
 
@@ -34,7 +36,12 @@ def build_behaviour(app: App) -> None:
 
     paths.add_listener(on_paths_changed)
     speaker = Speaker(enabled=cfg.bt.speak)
-    runner = build_tree_runner(cfg.bt, app.bus, app.clock, app.navigator, paths, speaker)
+    probe = None
+    if app.planner is not None and app.costmap is not None:
+        probe = WayProbe(app.planner, app.costmap, app.bus,
+                         in_thread=not isinstance(app.clock, SimClock))
+    runner = build_tree_runner(cfg.bt, app.bus, app.clock, app.navigator, paths, speaker,
+                               probe=probe)
     app.tree = runner
 
     async def close() -> None:

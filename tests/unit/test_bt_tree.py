@@ -594,3 +594,86 @@ async def test_runner_ticks_on_the_injected_clock() -> None:
     task.cancel()
     await runner.close()
     assert runner.tick_count == 21  # t = 0, 0.5, ..., 10.0
+
+
+# --- help when the navigator gives up, and the way probe ------------------------------------
+
+
+class FakeProbe:
+    """Answers "is there a path now?" from a flag the test sets (plans nothing)."""
+
+    def __init__(self) -> None:
+        self.clear = False
+        self.starts: list[tuple[float, float]] = []
+        self.last = None
+        self.busy = False
+
+    def start(self, goal, now_s):  # type: ignore[no-untyped-def]
+        from curio.bt.probe import ProbeResult
+
+        self.starts.append((goal.x, goal.y))
+        self.last = ProbeResult(now_s, self.clear, "" if self.clear else "no path")
+        return True
+
+    def poll(self):  # type: ignore[no-untyped-def]
+        return self.last
+
+    def reset(self) -> None:
+        self.last = None
+
+
+def probe_harness(**cfg):  # type: ignore[no-untyped-def]
+    h = make_harness(BtConfig(speak=False, **cfg))
+    probe = FakeProbe()
+    h.runner.ctx.probe = probe  # type: ignore[assignment]
+    return h, probe
+
+
+def test_aborted_for_no_path_asks_for_help_and_resumes_when_a_path_exists() -> None:
+    h, probe = probe_harness(help_clear_s=1.0)
+    start_path(h, 2)
+    h.nav.abort()  # NoPathError after the navigator's recovery ladder
+    h.tick()
+    h.tick()
+    req = h.of("help.requested")
+    assert len(req) == 1 and req[0].detail["trigger"] == "no_path"
+    assert h.status.text == "Needs help"
+    h.tick(6)
+    assert probe.starts and probe.starts[-1] == (1.0, 1.0)  # probing the held waypoint
+    assert h.of("help.resolved") == []  # BLOCKED says nothing; the probe finds no path
+    probe.clear = True
+    h.tick(2)
+    assert h.of("help.resolved") == []  # clear for 0.5 s only
+    h.tick(2)
+    assert h.last_message("help.resolved") == "Thanks!"
+    assert h.nav.target() == (1.0, 1.0) and h.nav.active is not None
+
+
+def test_probe_must_stay_clear_for_the_whole_window() -> None:
+    h, probe = probe_harness(help_clear_s=2.0)
+    block_and_ask(h)
+    for clear in (True, True, False, True, True, True):
+        probe.clear = clear
+        h.tick()
+    assert h.of("help.resolved") == []
+    h.tick(2)
+    assert len(h.of("help.resolved")) == 1
+
+
+def test_unreachable_goal_is_not_a_help_case() -> None:
+    from curio.nav.api import GoalOutsideMapError
+
+    h, _ = probe_harness()
+    start_path(h, 2)
+    h.nav.abort(GoalOutsideMapError("The goal is outside the map."))
+    h.tick(4)
+    assert h.kinds("help") == [] and h.bb("phase") == "failed"
+
+
+def test_resume_while_asking_for_help_means_help_done() -> None:
+    h = make_harness()
+    block_and_ask(h)
+    h.press("resume")
+    h.tick()
+    assert h.of("help.resolved")[-1].detail["reason"] == "help_done"
+    assert h.nav.active is not None

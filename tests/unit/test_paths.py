@@ -251,14 +251,16 @@ def test_pause_resume_keeps_the_waypoint() -> None:
 
 
 def test_failed_waypoint_is_not_skipped_and_resume_retries_it() -> None:
+    from curio.nav.api import LocalizationLostError
+
     h = make_harness()
     h.press("select_path", path_id=2)
     h.tick()
-    h.nav.abort()
+    h.nav.abort(LocalizationLostError("Localisation is lost."))
     h.tick()
     assert h.bb("waypoint") == 0  # the original advanced the index (§9.12)
     assert h.progress[-1].states == ("failed", "pending", "pending")
-    assert h.status.text.startswith("Could not reach (1,1): No path")
+    assert h.status.text == "Could not reach (1,1): Localisation is lost."
     goals = len(h.nav.goals)
     h.tick(3)
     assert len(h.nav.goals) == goals  # no goal storm after a failure
