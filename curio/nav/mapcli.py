@@ -6,6 +6,12 @@ Commands::
                     [--max-range M] [--format pgm|png] [--quiet]
     curio map info MAP.yaml
     curio map convert IN.yaml OUT.yaml [--format pgm|png] [--mode trinary|scale|raw]
+    curio map record --out RUN.jsonl [--duration S] [--config PATH] [--set KEY=VALUE]...
+
+``record`` runs the application (the configured drivers; drive the rover from the dashboard's
+teleop, or let the configured behaviour drive it in the simulator) and writes every scan and
+odometry message (and, in the simulator, the ground truth) to a Curio run log until Ctrl-C or
+``--duration`` seconds (simulated seconds in ``sim`` mode, where it runs as fast as it can).
 
 ``--log`` takes a CARMEN log (FLASER / ROBOTLASER1 / ODOM lines, e.g. the public Freiburg and
 MIT logs) or a Curio run log (``.jsonl``, see :mod:`curio.nav.carmen`). The trajectory CSV has
@@ -151,6 +157,85 @@ def _convert(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     return 0
 
 
+def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    import asyncio
+    import contextlib
+    import signal
+
+    from curio.app import App, Part
+    from curio.clock import Clock, RealClock, SimClock
+    from curio.config import ConfigError, load_config
+    from curio.geometry import Pose2D
+    from curio.nav.carmen import RunRecorder
+    from curio.topics import GROUND_TRUTH, ODOM, SCAN
+
+    try:
+        cfg = load_config(args.config, args.set)
+    except ConfigError as exc:
+        err.write(f"curio map record: {exc}\n")
+        return 2
+    sim = cfg.drivers.mode == "sim"
+    if sim and args.duration is None:
+        err.write("curio map record: in sim mode give --duration (simulated seconds)\n")
+        return 2
+    if args.duration is not None and args.duration <= 0:
+        err.write("curio map record: --duration must be > 0\n")
+        return 2
+    out_path = Path(args.out)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    clock: Clock
+    sim_clock = SimClock() if sim else None
+    clock = sim_clock if sim_clock is not None else RealClock()
+    counts = {"scans": 0, "odom": 0}
+
+    async def main() -> int:
+        app = App(cfg, clock)
+        with out_path.open("w", encoding="utf-8") as fh:
+            rec = RunRecorder(fh, Pose2D(*cfg.robot.laser_pose))
+            scan_sub = app.bus.subscribe(SCAN, maxsize=8)
+            odom_sub = app.bus.subscribe(ODOM, maxsize=256)
+            truth_sub = app.bus.subscribe(GROUND_TRUTH, maxsize=256)
+
+            async def write() -> None:
+                while True:
+                    await clock.sleep(0.05)
+                    for o in odom_sub.drain():
+                        rec.odom(o.stamp, o.pose)
+                        counts["odom"] += 1
+                    for g in truth_sub.drain():
+                        rec.truth(g.stamp, g.pose)
+                    for s in scan_sub.drain():
+                        rec.scan(s.stamp, s.angle_min_rad, s.angle_increment_rad,
+                                 s.range_min_m, s.range_max_m, s.ranges_m)
+                        counts["scans"] += 1
+
+            app.add(Part("map.record", run=write))
+            stop = asyncio.Event()
+            loop = asyncio.get_running_loop()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                with contextlib.suppress(NotImplementedError):
+                    loop.add_signal_handler(sig, stop.set)
+            await app.start()
+            if sim_clock is not None:
+                await sim_clock.run(until_s=float(args.duration),
+                                    stop=lambda: stop.is_set() or bool(app.failed_parts()))
+            else:
+                end = None if args.duration is None else clock.now() + float(args.duration)
+                while not stop.is_set() and (end is None or clock.now() < end):
+                    await clock.sleep(0.2)
+            await app.stop()
+            failed = app.failed_parts()
+        if failed:
+            err.write(f"curio map record: {failed[0][0]} failed: {failed[0][1]}\n")
+            return 1
+        return 0
+
+    code = asyncio.run(main())
+    out.write(f"recorded {counts['scans']} scans and {counts['odom']} odometry messages to "
+              f"{out_path}\n")
+    return code
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="curio map", description="Build, inspect and convert maps.")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -170,6 +255,12 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("dst", help="output map YAML")
     c.add_argument("--format", choices=("pgm", "png"), default="png")
     c.add_argument("--mode", choices=("trinary", "scale", "raw"), default="trinary")
+    r = sub.add_parser("record", help="record scans and odometry of a drive to a run log")
+    r.add_argument("--out", required=True, help="run log to write (.jsonl)")
+    r.add_argument("--duration", type=float, help="seconds to record (required in sim mode)")
+    r.add_argument("--config", help="config file (default: ./config.toml)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config key (repeatable)")
     return p
 
 
@@ -186,4 +277,6 @@ def main(argv: list[str] | None = None, out: TextIO | None = None,
         return _build(args, out, err)
     if args.cmd == "info":
         return _info(args, out, err)
+    if args.cmd == "record":
+        return _record(args, out, err)
     return _convert(args, out, err)
