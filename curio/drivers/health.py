@@ -1,18 +1,21 @@
-"""Helpers shared by the device drivers: timed waits and fixed-rate loops on the injected clock.
+"""Helpers shared by the device drivers: timed waits and fixed-rate loops on the injected clock,
+and the systemd readiness/watchdog notifier.
 
-They use only the :class:`~curio.clock.Clock` protocol (``now``, ``sleep_until``), so a driver
-works on the real clock on the rover and on the simulated clock in emulated mode.
+The clock helpers use only the :class:`~curio.clock.Clock` protocol (``now``, ``sleep_until``),
+so a driver works on the real clock on the rover and on the simulated clock in emulated mode.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+import socket
+from collections.abc import AsyncIterator, Mapping
+from typing import Any
 
 from curio.clock import Clock
 
-__all__ = ["every", "wait_event"]
+__all__ = ["SystemdNotifier", "every", "wait_event"]
 
 
 async def every(clock: Clock, period_s: float) -> AsyncIterator[float]:
@@ -44,3 +47,61 @@ async def wait_event(clock: Clock, event: asyncio.Event, timeout_s: float) -> bo
                 with contextlib.suppress(asyncio.CancelledError):
                     await task
     return event.is_set()
+
+
+class SystemdNotifier:
+    """Tells systemd the service is up and alive (``Type=notify`` with ``WatchdogSec``).
+
+    When ``NOTIFY_SOCKET`` is set (systemd started us), :meth:`run` sends ``READY=1`` once and
+    then ``WATCHDOG=1`` every half ``WATCHDOG_USEC``, with a ``STATUS=`` line made of the
+    latest ``/health`` state of every driver. The pings come from the event loop, so a loop
+    that hangs stops them and systemd restarts the service. Without ``NOTIFY_SOCKET`` it does
+    nothing.
+
+    Args:
+        clock: the application clock.
+        bus: the application bus (``/health`` is read for the status line).
+        environ: the process environment (injectable for tests).
+    """
+
+    def __init__(self, clock: Clock, bus: Any, environ: Mapping[str, str]) -> None:
+        self.clock = clock
+        self.bus = bus
+        self.address = environ.get("NOTIFY_SOCKET", "")
+        usec = environ.get("WATCHDOG_USEC", "")
+        self.period_s = int(usec) / 2e6 if usec.isdigit() and int(usec) > 0 else 5.0
+        self.sent: list[str] = []
+
+    @property
+    def enabled(self) -> bool:
+        """True when systemd asked for notifications."""
+        return bool(self.address)
+
+    def _send(self, text: str) -> None:
+        addr = self.address
+        target = "\0" + addr[1:] if addr.startswith("@") else addr
+        with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
+            sock.connect(target)
+            sock.sendall(text.encode("utf-8"))
+        self.sent.append(text)
+
+    async def run(self) -> None:
+        """Notify until cancelled (returns at once when not under systemd)."""
+        if not self.enabled:
+            return
+        from curio.topics import HEALTH
+
+        states: dict[str, str] = {}
+        sub = self.bus.subscribe(HEALTH, maxsize=256)
+        try:
+            self._send("READY=1\nSTATUS=starting")
+            async for _ in every(self.clock, self.period_s):
+                for health in sub.drain():
+                    states[health.name] = health.state
+                status = ", ".join(f"{k} {v}" for k, v in sorted(states.items())) or "running"
+                with contextlib.suppress(OSError):
+                    self._send(f"WATCHDOG=1\nSTATUS={status}")
+        finally:
+            sub.close()
+            with contextlib.suppress(OSError):
+                self._send("STOPPING=1")

@@ -16,14 +16,20 @@ the Arduino (:class:`~curio.drivers.arduino.emulator.ArduinoEmulator`) and the R
 fake I2C bus (:class:`~curio.drivers.bno055.fake_bus.FakeBno055Bus`, called inline since it is
 in memory). The drivers are pointed at the emulators' pty paths and at the fake bus. Each
 emulator's part is registered before its driver's, so its pty exists when the driver opens it.
+
+Under systemd (``NOTIFY_SOCKET`` set, ``deploy/curio.service``) a
+:class:`~curio.drivers.health.SystemdNotifier` part reports readiness, feeds the watchdog and
+shows the drivers' health in ``systemctl status curio``.
 """
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING, Any
 
 from curio.drivers.arduino.driver import ArduinoBase
 from curio.drivers.bno055.driver import Bno055Driver, SMBusLike
+from curio.drivers.health import SystemdNotifier
 from curio.drivers.rplidar.driver import RplidarDriver
 
 if TYPE_CHECKING:
@@ -93,3 +99,6 @@ def build_device_drivers(app: App) -> None:
     app.add_halt_hook(base.halt)
     app.add(Part("lidar", run=lidar.run, close=lidar.close))
     app.add(Part("imu", run=imu.run, close=imu.close))
+    notifier = SystemdNotifier(app.clock, app.bus, os.environ)
+    if notifier.enabled:  # started by systemd (deploy/curio.service): READY=1 and watchdog
+        app.add(Part("systemd-notify", run=notifier.run))
