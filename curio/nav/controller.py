@@ -277,11 +277,63 @@ class LocalController:
         """The costmap's exponential decay rate (to turn costs back into distances)."""
         self._cost_scaling = cost_scaling_factor
 
+    def _perimeter(self) -> F64:
+        """Points every half cell along the (padded) footprint's edges, ``base_link``."""
+        if self._perimeter_pts is None:
+            poly = np.asarray(getattr(self.costmap, "footprint", self.robot.footprint),
+                              dtype=np.float64).reshape(-1, 2)
+            step = 0.5 * float(getattr(self.costmap, "resolution_m", 0.05))
+            pts = []
+            for a, b in zip(poly, np.roll(poly, -1, axis=0), strict=True):
+                n = max(2, math.ceil(float(np.hypot(*(b - a))) / step) + 1)
+                t = np.linspace(0.0, 1.0, n, endpoint=False)[:, None]
+                pts.append(a + t * (b - a))
+            self._perimeter_pts = np.concatenate(pts, axis=0)
+        return self._perimeter_pts
+
+    _perimeter_pts: F64 | None = None
+
+    def trajectory_costs(self, trajs: F64) -> npt.NDArray[np.uint8]:
+        """Max cost under the footprint's outline for each pose of ``(M, K, 3)`` trajectories.
+
+        Only the outline is sampled: between poses a few centimetres apart, nothing can get
+        inside the footprint without crossing it. Off-grid poses count as lethal.
+        """
+        cm = self.costmap
+        assert cm is not None
+        m, k, _ = trajs.shape
+        costs_fn = getattr(cm, "costs", None)
+        if costs_fn is None:  # a minimal oracle: its own footprint test
+            flat = cm.footprint_costs(trajs.reshape(-1, 3))
+            return np.asarray(flat, dtype=np.uint8).reshape(m, k)
+        grid = costs_fn()
+        res = float(cm.resolution_m)  # type: ignore[attr-defined]
+        origin: Pose2D = cm.origin  # type: ignore[attr-defined]
+        per = self._perimeter()
+        x = trajs[..., 0:1]
+        y = trajs[..., 1:2]
+        c, s = np.cos(trajs[..., 2:3]), np.sin(trajs[..., 2:3])
+        px = x + c * per[:, 0] - s * per[:, 1]  # (M, K, P)
+        py = y + s * per[:, 0] + c * per[:, 1]
+        if origin.yaw != 0.0:
+            oc, os_ = math.cos(origin.yaw), math.sin(origin.yaw)
+            gx = oc * (px - origin.x) + os_ * (py - origin.y)
+            gy = -os_ * (px - origin.x) + oc * (py - origin.y)
+        else:
+            gx, gy = px - origin.x, py - origin.y
+        cols = np.floor(gx / res).astype(np.int64)
+        rows = np.floor(gy / res).astype(np.int64)
+        h, w = grid.shape
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        vals = np.full(rows.shape, LETHAL, dtype=np.uint8)
+        vals[inside] = grid[rows[inside], cols[inside]]
+        return np.asarray(vals.max(axis=2), dtype=np.uint8)
+
     def _collides(self, traj: F64) -> tuple[bool, int]:
         """Whether a trajectory's footprint hits a lethal or unknown cell (after its start)."""
         if self.costmap is None:
             return False, 0
-        costs = self.costmap.footprint_costs(traj)
+        costs = self.trajectory_costs(traj[None])[0]
         if costs[0] >= LETHAL:
             # Already touching a mark (noise, a tight gap): only forbid going deeper.
             return False, int(costs[0])
@@ -411,30 +463,39 @@ class LocalController:
         """Best admissible arc ``(v, κ)`` that makes progress, or None."""
         cfg = self.cfg
         target_bearing = math.atan2(y_r, x_r)
-        best: tuple[float, float, float] | None = None
         kappas = np.linspace(-kmax, kmax, 11)
-        for frac in (1.0, 0.6, 0.3):
-            v = cfg.max_speed_mps * frac
-            for k in kappas:
-                traj = rollout(pose, v, v * k, cfg.collision_horizon_s, 0.1)
-                hit, worst = self._collides(traj)
-                if hit:
-                    continue
-                end = traj[-1]
-                c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-                ex, ey = end[0] - pose.x, end[1] - pose.y
-                # Progress towards the lookahead point and alignment with it.
-                tx, ty = c * x_r - s * y_r, s * x_r + c * y_r
-                norm = math.hypot(tx, ty) or 1.0
-                progress = (ex * tx + ey * ty) / norm
-                align = abs(wrap_angle(float(end[2]) - (pose.yaw + target_bearing)))
-                score = progress - 0.3 * align - 0.1 * worst / 253.0
-                if best is None or score > best[0]:
-                    best = (score, v, float(k))
-            if best is not None and best[0] > 0.05:
-                break
-        if best is not None and best[0] > 0.0:
-            return best[1], best[2]
+        fracs = np.array([1.0, 0.6, 0.3])
+        vs = np.repeat(cfg.max_speed_mps * fracs, len(kappas))
+        ks = np.tile(kappas, len(fracs))
+        trajs = np.stack([rollout(pose, float(v), float(v * k), cfg.collision_horizon_s, 0.1)
+                          for v, k in zip(vs, ks, strict=True)])
+        if self.costmap is not None:
+            costs = self.trajectory_costs(trajs)
+            start_hit = costs[:, 0] >= LETHAL
+            hit = (costs[:, 1:] >= LETHAL).any(axis=1) & ~start_hit
+            worst = costs.max(axis=1).astype(np.float64)
+        else:
+            hit = np.zeros(len(vs), dtype=bool)
+            worst = np.zeros(len(vs))
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        ends = trajs[:, -1, :]
+        ex, ey = ends[:, 0] - pose.x, ends[:, 1] - pose.y
+        # Progress towards the lookahead point and alignment with it.
+        tx, ty = c * x_r - s * y_r, s * x_r + c * y_r
+        norm = math.hypot(tx, ty) or 1.0
+        progress = (ex * tx + ey * ty) / norm
+        align = np.abs((ends[:, 2] - (pose.yaw + target_bearing) + np.pi) % (2 * np.pi) - np.pi)
+        score = progress - 0.3 * align - 0.1 * worst / 253.0
+        score[hit] = -np.inf
+        # Prefer the fastest speed band that has a good option (as the loop used to).
+        for band in range(len(fracs)):
+            sl = slice(band * len(kappas), (band + 1) * len(kappas))
+            j = int(np.argmax(score[sl]))
+            if score[sl][j] > 0.05:
+                return float(vs[sl][j]), float(ks[sl][j])
+        j = int(np.argmax(score))
+        if score[j] > 0.0:
+            return float(vs[j]), float(ks[j])
         return None
 
     def _blocked(self, pose: Pose2D, dist_goal: float, remaining: float,
