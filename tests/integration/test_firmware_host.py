@@ -21,7 +21,7 @@ import pytest
 import serial
 
 from curio.bus import Bus
-from curio.clock import RealClock
+from curio.clock import RealClock, wall_perf_counter
 from curio.config import REPO_ROOT, ArduinoConfig, RobotConfig
 from curio.drivers.arduino import ArduinoBase, ArduinoEmulator
 from curio.drivers.arduino import protocol as p
@@ -193,3 +193,99 @@ async def test_emulator_boots_with_the_same_bytes_as_the_firmware(
         emu.close()
     assert [type(m).__name__ for m in fw] == ["State", "Info", "State"]
     assert [_strip_times(m) for m in fw] == [_strip_times(m) for m in em]
+
+
+def _scripted_session(port: str) -> list[tuple[object, ...]]:
+    """Drive a board through the protocol's ACK and state rules; return what it answered
+    (ACKs, state changes, the INFO config CRC and the final receive counters).
+
+    Runs in a worker thread with blocking pyserial, like a plain client program."""
+    good_cfg = p.SetConfig(cmd_timeout_ms=1000, steer_trim=(-10, -5, 40, 20))
+    script: list[bytes] = [
+        p.encode(p.ServoCmd((100,) * 6, (500,) * 4, 1), 1),       # refused: disarmed
+        p.encode(p.SetConfig(wheel_ids=(11, 11, 13, 21, 22, 23)), 2),  # refused: bad value
+        p.encode(good_cfg, 3),                                    # accepted
+        bytes(p.encode(p.Arm(True), 4)[:-1]) + b"\x00",           # CRC error: ignored
+        p.encode_frame(0x3F, 5),                                  # unknown id
+        p.encode(p.Arm(True), 6),                                 # armed
+        p.encode(good_cfg, 7),                                    # refused while armed
+        p.encode(p.ServoCmd((100,) * 6, (500,) * 4, 1), 8),       # accepted, no ACK
+        p.encode(p.Estop(), 9),                                   # latched
+        p.encode(p.ServoCmd((100,) * 6, (500,) * 4, 1), 10),      # refused: e-stop
+        p.encode_frame(p.MsgId.ARM, 11, b"\x02"),                 # bad value
+        p.encode(p.Arm(True), 12),                                # armed again
+        p.encode_frame(p.MsgId.HEARTBEAT, 13, b"\x01\x02\x03"),   # bad length
+        p.encode(p.Arm(False), 14),                               # disarmed
+        p.encode(p.GetInfo(), 15),
+    ]
+    dec = p.FrameDecoder()
+    out: list[tuple[object, ...]] = []
+    state: int | None = None
+    last: p.State | None = None
+
+    def absorb(data: bytes) -> None:
+        nonlocal state, last
+        for frame in dec.feed(data):
+            msg = p.decode_message(frame)
+            if isinstance(msg, p.Ack):
+                out.append(("ack", msg.acked_seq, msg.acked_id, msg.status))
+            elif isinstance(msg, p.State):
+                last = msg
+                if msg.state != state:
+                    state = msg.state
+                    out.append(("state", msg.state))
+            elif isinstance(msg, p.Info):
+                out.append(("info", msg.proto_ver, msg.config_crc))
+
+    with serial.Serial(port, 115200, timeout=0.02) as ser:
+        deadline = wall_perf_counter() + 3.0
+        while state != p.McuState.DISARMED and wall_perf_counter() < deadline:
+            absorb(ser.read(512))
+        for frame in script:
+            ser.write(frame)
+            end = wall_perf_counter() + 0.05
+            while wall_perf_counter() < end:
+                absorb(ser.read(512))
+        end = wall_perf_counter() + 0.25
+        while wall_perf_counter() < end:
+            absorb(ser.read(512))
+    assert last is not None
+    out.append(("counters", last.rx_crc_err, last.rx_ok))
+    return out
+
+
+async def test_emulator_answers_exactly_like_the_firmware(build_dir: Path,
+                                                          tmp_path: Path) -> None:
+    with firmware(build_dir, tmp_path, boot_ms=100) as (_, port):
+        fw = await asyncio.to_thread(_scripted_session, port)
+    clock = RealClock()
+    os.makedirs(tmp_path / "emu")
+    emu = ArduinoEmulator(FakeWorld(), clock, boot_delay_s=0.1, link_dir=tmp_path / "emu")
+    emu.open()
+    task = asyncio.ensure_future(emu.run())
+    try:
+        em = await asyncio.to_thread(_scripted_session, emu.port_path)
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        emu.close()
+    ok, bad_value, wrong, unknown, bad_len = (p.AckStatus.OK, p.AckStatus.BAD_VALUE,
+                                             p.AckStatus.WRONG_STATE, p.AckStatus.UNKNOWN_ID,
+                                             p.AckStatus.BAD_LENGTH)
+    cfg_crc = p.crc16(p.SetConfig(cmd_timeout_ms=1000, steer_trim=(-10, -5, 40, 20)).pack())
+    assert fw == [
+        ("state", p.McuState.BOOT), ("info", 1, p.crc16(p.SetConfig().pack())),
+        ("state", p.McuState.DISARMED),
+        ("ack", 1, p.MsgId.SERVO_CMD, wrong), ("ack", 2, p.MsgId.SET_CONFIG, bad_value),
+        ("ack", 3, p.MsgId.SET_CONFIG, ok), ("ack", 5, 0x3F, unknown),
+        ("state", p.McuState.ARMED), ("ack", 6, p.MsgId.ARM, ok),
+        ("ack", 7, p.MsgId.SET_CONFIG, wrong),
+        ("state", p.McuState.ESTOP), ("ack", 9, p.MsgId.ESTOP, ok),
+        ("ack", 10, p.MsgId.SERVO_CMD, wrong), ("ack", 11, p.MsgId.ARM, bad_value),
+        ("state", p.McuState.ARMED), ("ack", 12, p.MsgId.ARM, ok),
+        ("ack", 13, p.MsgId.HEARTBEAT, bad_len),
+        ("state", p.McuState.DISARMED), ("ack", 14, p.MsgId.ARM, ok),
+        ("info", 1, cfg_crc),
+        ("counters", 1, 14),
+    ]
+    assert em == fw
