@@ -22,6 +22,7 @@ control token (see :mod:`curio.web.auth`). Every rejection is JSON
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import re
@@ -175,7 +176,8 @@ def routes(hub_key: web.AppKey[Hub], require_control: Any) -> list[web.RouteDef]
     async def grid_png(request: web.Request) -> web.Response:
         hub = hub_of(request)
         name = request.match_info["name"]
-        got = hub.grid_png(name)
+        # PNG encoding of a large grid takes milliseconds: keep it off the event loop.
+        got = await asyncio.to_thread(hub.grid_png, name)
         if got is None:
             raise http_error(web.HTTPNotFound, f"no {name} has been published yet")
         png, version = got

@@ -421,16 +421,25 @@
     loadGridImage(g);
   }
 
-  const gridLoading = {};
+  // One image request per grid at a time, at most one a second; the newest version wins.
+  const gridLoad = {};
   function loadGridImage(g) {
-    if (gridLoading[g.name] === g.version) return;
-    gridLoading[g.name] = g.version;
+    const st = gridLoad[g.name] || (gridLoad[g.name] = { busy: false, last: 0, want: null, timer: null });
+    st.want = g;
+    if (st.busy || st.timer) return;
+    const wait = Math.max(0, st.last + 1000 - Date.now());
+    if (wait > 0) { st.timer = setTimeout(() => { st.timer = null; if (st.want) loadGridImage(st.want); }, wait); return; }
+    if (S.images[g.name] && S.images[g.name].meta.version === g.version) { st.want = null; return; }
+    st.busy = true; st.want = null; st.last = Date.now();
     const img = new Image();
+    const done = () => { st.busy = false; if (st.want) loadGridImage(st.want); };
     img.onload = () => {
       S.images[g.name] = { img, meta: g };
       if (g.name === "map" && !view.fitted) closeView();
       view.dirty = true;
+      done();
     };
+    img.onerror = done;
     img.src = g.url;
   }
 
