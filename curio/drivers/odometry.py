@@ -66,6 +66,7 @@ class EncoderFilter:
         self._anchor_stamp = 0.0
         self._last_stamp = 0.0
         self._rejects = 0
+        self._has_rate = False
         self.suspect_readings = 0
         self.rejected_readings = 0
 
@@ -123,7 +124,9 @@ class EncoderFilter:
         span = stamp - self._anchor_stamp
         if span > 1e-4:
             inst = (candidate - self._anchor_count) / span
-            self.rate_cps = inst if span > 0.2 else 0.5 * (self.rate_cps + inst)
+            smooth = self._has_rate and span <= 0.2
+            self.rate_cps = 0.5 * (self.rate_cps + inst) if smooth else inst
+            self._has_rate = True
         self._anchor_raw, self._anchor_count, self._anchor_stamp = raw, candidate, stamp
         self.count = candidate
         return self.count

@@ -81,6 +81,8 @@ DUTY_DEADBAND = 20  # |duty| below this does not turn the motor
 WHEEL_ACCEL_RADPS2 = 40.0  # servo shaft acceleration limit
 CONTACT_RELEASE_M = 0.05  # a contact ends after moving this far from where it began
 CONTACT_RELEASE_RAD = 0.1
+IMU_NOISE_BLOCK = 1000  # IMU noise is drawn in blocks (fast, and still deterministic)
+IMU_YAW_SIGMA_RAD = 0.002  # BNO055 fusion heading jitter
 BATTERY_FULL_V = 8.1
 BATTERY_DRAIN_V_PER_H = 0.3
 BATTERY_LOAD_SAG_V = 0.25  # sag at full duty on every wheel
@@ -217,12 +219,17 @@ class World:
         self._servo_angle_rad = [0.0] * 6
         self._steer_target = [0.0] * 4
         self._steer = [0.0] * 4
+        self._fit_key: tuple[float, ...] = ()
+        self._fit_rows: list[tuple[float, float, float]] = []
+        self._fit_inv: list[list[float]] = []
         self._contacts: frozenset[str] = frozenset()
         self.in_contact = False
         self._contact_pose = Pose2D()
         self.collisions = 0
         self._events: list[tuple[str, dict[str, Any]]] = []
         self._enc_stuck = [0] * 6
+        self._imu_noise: list[list[float]] = []
+        self._imu_k = 0
         self._battery_base_v = BATTERY_FULL_V
         self._battery_t0 = 0.0
         # Objects.
@@ -487,30 +494,29 @@ class World:
         self._vx, self._vy, self._w = vx, vy, w
 
     def _fit_body_twist(self) -> tuple[float, float, float]:
-        """Least-squares (vx, vy, ω) from the six wheels' rolling and no-side-slip rows."""
-        geo = self._geo
+        """Least-squares (vx, vy, ω) from the six wheels' rolling and no-side-slip rows.
+
+        The normal matrix depends only on the steering angles, so its inverse and the rolling
+        rows are cached until a steering servo moves.
+        """
         radius = self._roll_radius_m
-        ata = [[0.0] * 3 for _ in range(3)]
-        atb = [0.0, 0.0, 0.0]
-        steer = [0.0] * 6
-        for k, i in enumerate(STEER_CORNERS):
-            steer[i] = self._steer[k]
-        moving = False
-        for i in range(6):
-            u = self._servo_radps[i] * WHEEL_SIDES[i] * radius
-            if u != 0.0:
-                moving = True
-            c, s = math.cos(steer[i]), math.sin(steer[i])
-            x, y = geo.x_m[i], geo.y_m[i]
-            # rolling: c*(vx - w*y) + s*(vy + w*x) = u ; lateral: -s*(vx - w*y) + c*(vy + w*x) = 0
-            for row, rhs in (((c, s, -c * y + s * x), u), ((-s, c, s * y + c * x), 0.0)):
-                for a in range(3):
-                    atb[a] += row[a] * rhs
-                    for b in range(3):
-                        ata[a][b] += row[a] * row[b]
-        if not moving:
+        u = [self._servo_radps[i] * WHEEL_SIDES[i] * radius for i in range(6)]
+        if not any(u):
             return 0.0, 0.0, 0.0
-        return _solve3(ata, atb)
+        key = tuple(self._steer)
+        if key != self._fit_key:
+            self._fit_key = key
+            self._fit_rows, self._fit_inv = _fit_matrices(self._geo.x_m, self._geo.y_m, key)
+        rows, inv = self._fit_rows, self._fit_inv
+        b0 = b1 = b2 = 0.0
+        for i in range(6):
+            r = rows[i]
+            b0 += r[0] * u[i]
+            b1 += r[1] * u[i]
+            b2 += r[2] * u[i]
+        return (inv[0][0] * b0 + inv[0][1] * b1 + inv[0][2] * b2,
+                inv[1][0] * b0 + inv[1][1] * b1 + inv[1][2] * b2,
+                inv[2][0] * b0 + inv[2][1] * b1 + inv[2][2] * b2)
 
     # -- sensors -----------------------------------------------------------------------
     def wheel_positions(self) -> tuple[int, ...]:
@@ -577,17 +583,20 @@ class World:
     def imu_sample(self, stamp: float) -> Imu:
         """A BNO055 reading in ``imu_link`` (fusion mode: orientation, gyro, linear accel)."""
         noise = self.cfg.sim.noise
-        rng = self._rng_imu
+        if self._imu_k >= len(self._imu_noise):
+            self._imu_noise = self._rng_imu.standard_normal((IMU_NOISE_BLOCK, 5)).tolist()
+            self._imu_k = 0
+        n = self._imu_noise[self._imu_k]
+        self._imu_k += 1
         ix, iy, iyaw = self.cfg.robot.imu_pose
-        yaw = wrap_angle(self._pose.yaw + iyaw + float(rng.normal(0.0, 0.002)))
-        gyro_z = self._w + self._gyro_bias + float(rng.normal(0.0, noise.gyro_sigma_radps))
+        yaw = wrap_angle(self._pose.yaw + iyaw + IMU_YAW_SIGMA_RAD * n[0])
+        gyro_z = self._w + self._gyro_bias + noise.gyro_sigma_radps * n[1]
         # Acceleration of the IMU point (rigid body; yaw acceleration neglected).
         ax = self._ax - self._w * self._w * ix
         ay = self._ay - self._w * self._w * iy
         c, s = math.cos(iyaw), math.sin(iyaw)
         sig = noise.accel_sigma_mps2
-        a_imu = (c * ax + s * ay + float(rng.normal(0.0, sig)),
-                 -s * ax + c * ay + float(rng.normal(0.0, sig)), float(rng.normal(0.0, sig)))
+        a_imu = (c * ax + s * ay + sig * n[2], -s * ax + c * ay + sig * n[3], sig * n[4])
         return Imu(stamp=stamp, orientation_xyzw=yaw_to_quat(yaw),
                    angular_velocity_radps=(0.0, 0.0, gyro_z), linear_acceleration_mps2=a_imu,
                    orientation_valid=True, calibration=(3, 3, 3, 3))
@@ -624,22 +633,28 @@ def _integrate(pose: Pose2D, vx: float, vy: float, w: float, dt_s: float) -> Pos
     return pose @ Pose2D(dx, dy, dth)
 
 
-def _solve3(a: list[list[float]], b: list[float]) -> tuple[float, float, float]:
-    """Solve a 3×3 system by Cramer's rule (the normal equations are well conditioned)."""
-    def det(m: list[list[float]]) -> float:
-        return (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-                - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]))
-    d = det(a)
-    if abs(d) < 1e-12:
-        return 0.0, 0.0, 0.0
-    out = []
-    for k in range(3):
-        m = [row[:] for row in a]
-        for r in range(3):
-            m[r][k] = b[r]
-        out.append(det(m) / d)
-    return out[0], out[1], out[2]
+def _fit_matrices(
+    xs: tuple[float, ...], ys: tuple[float, ...], steer: tuple[float, ...]
+) -> tuple[list[tuple[float, float, float]], list[list[float]]]:
+    """Rolling rows and the inverse normal matrix of the rigid-motion fit.
+
+    Wheel i at (x, y) steered by δ: rolling ``c·(vx − ω·y) + s·(vy + ω·x) = u_i`` and no side
+    slip ``−s·(vx − ω·y) + c·(vy + ω·x) = 0``; ``c, s = cos δ, sin δ``.
+    """
+    angles = [0.0] * 6
+    for k, i in enumerate(STEER_CORNERS):
+        angles[i] = steer[k]
+    rows: list[tuple[float, float, float]] = []
+    ata = np.zeros((3, 3))
+    for i in range(6):
+        c, s = math.cos(angles[i]), math.sin(angles[i])
+        x, y = xs[i], ys[i]
+        roll = (c, s, -c * y + s * x)
+        side = (-s, c, s * y + c * x)
+        rows.append(roll)
+        ata += np.outer(roll, roll) + np.outer(side, side)
+    inv = np.linalg.inv(ata)
+    return rows, [[float(v) for v in row] for row in inv]
 
 
 def _footprint_samples(poly: list[tuple[float, float]], spacing_m: float) -> F64:
