@@ -265,7 +265,7 @@ async def test_blocked_door_shows_help_me_then_thanks(tmp_path: Path) -> None:
 
 async def test_teleop_moves_and_release_stops(tmp_path: Path) -> None:
     """Hold the joystick forward: the rover drives; let go: it stops; the e-stop latches and
-    releases. Drives: sim, safety stage (navigation)."""
+    releases; the arrow keys drive with the same deadman. Drives: sim, safety stage."""
     async with running_app(make_cfg(tmp_path / "data"), TELEOP_SPEED) as (app, clock), \
             browser_on(app.web_url or "") as b:
         page = b.page
@@ -304,4 +304,16 @@ async def test_teleop_moves_and_release_stops(tmp_path: Path) -> None:
         await page.click("#releaseEstop")
         await b.wait_js("window.curio.S.estop && !window.curio.S.estop.engaged")
         assert not await page.is_visible("#estopBanner")
+
+        # The keyboard drives too (arrow keys), with the same deadman.
+        start = truth_xy(app)
+        await page.keyboard.down("ArrowUp")
+        assert await clock.wait_until(
+            lambda: math.dist(start, truth_xy(app)) > 0.15, timeout_s=10.0), \
+            "the rover did not move with the arrow key held"
+        await page.keyboard.up("ArrowUp")
+        await clock.sleep(1.0)
+        held = truth_xy(app)
+        await clock.sleep(1.0)
+        assert math.dist(held, truth_xy(app)) < 0.02, "the rover kept moving after the key"
         assert b.errors == []
