@@ -176,8 +176,31 @@ class Costmap:
         self.version += 1
 
     def set_static_map(self, static_map: OccupancyGrid) -> None:
-        """Replace the static layer (a new or updated map); the obstacle layer is reset."""
-        self._set_static(static_map)
+        """Replace the static layer with a new or updated map.
+
+        A map on the same grid (shape, resolution, origin) — e.g. one growing during
+        mapping — is applied incrementally: only the window around the changed cells is
+        re-inflated and the obstacle layer is kept. A map on another grid rebuilds everything
+        (the obstacle layer starts empty).
+        """
+        old = self.static_map
+        if (static_map.data.shape != old.data.shape
+                or static_map.resolution_m != old.resolution_m
+                or static_map.origin != old.origin):
+            self._set_static(static_map)
+            return
+        lethal = static_map.occupied_mask()
+        unknown = static_map.unknown_mask() & ~lethal
+        changed = (lethal != self._static_lethal) | (unknown != self._unknown)
+        self.static_map = static_map
+        if not changed.any():
+            return
+        self._static_lethal = lethal
+        self._unknown = unknown
+        rr = np.flatnonzero(changed.any(axis=1))
+        cc = np.flatnonzero(changed.any(axis=0))
+        m = self._margin_cells
+        self._recompute(int(rr[0]) - m, int(rr[-1]) + 1 + m, int(cc[0]) - m, int(cc[-1]) + 1 + m)
 
     @property
     def grid_info(self) -> GridInfo:
@@ -528,4 +551,4 @@ class CostmapNode:
         grid = OccupancyGrid(np.asarray(msg.data, dtype=np.int8), msg.resolution_m, msg.origin,
                              old.occupied_thresh, old.free_thresh, old.name)
         self.costmap.set_static_map(grid)
-        log.info("costmap: static layer replaced by a new map (%dx%d)", grid.width, grid.height)
+        log.info("costmap: static layer updated from a new map (%dx%d)", grid.width, grid.height)

@@ -373,3 +373,26 @@ async def test_costmap_node_publishes_global_and_local_costmaps(bus: Bus) -> Non
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
         await task
+
+
+def test_updated_map_on_the_same_grid_is_applied_incrementally_keeping_marks() -> None:
+    grid = free_grid(400)
+    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    pose = Pose2D(5.0, 5.0, 0.0)
+    ranges = np.full(360, np.nan)
+    ranges[beam_index(0.0)] = 2.0
+    cm.update_from_scan(make_scan(ranges), pose)
+    marks = cm.obstacle_mask()
+    grown = grid.copy()
+    grown.data[300, 300] = 100
+    grown.data[350:, :] = -1
+    cm.set_static_map(grown)
+    full = Costmap(grown, RobotConfig(), CostmapConfig())
+    full.update_from_scan(make_scan(ranges), pose)
+    assert np.array_equal(cm.obstacle_mask(), marks)  # the obstacle layer survives
+    assert np.array_equal(cm.costs(), full.costs())  # same result as building from scratch
+    # a map on another grid starts over
+    other = OccupancyGrid(np.zeros((100, 120), dtype=np.int8), RES, Pose2D(-1.0, 0.0, 0.0))
+    cm.set_static_map(other)
+    assert cm.costs().shape == (100, 120) and not cm.obstacle_mask().any()
+    assert cm.origin == Pose2D(-1.0, 0.0, 0.0)
