@@ -21,7 +21,7 @@ from playwright import async_api as playwright_api
 from curio.app import App
 from curio.clock import SimClock
 from curio.config import REPO_ROOT, Config, load_config
-from curio.topics import CMD_VEL, GROUND_TRUTH, INITIAL_POSE
+from curio.topics import CMD_VEL, GROUND_TRUTH, INITIAL_POSE, OPERATOR
 
 pytestmark = [pytest.mark.browser]
 
@@ -213,6 +213,16 @@ async def test_clicked_waypoints_survive_a_restart(tmp_path: Path) -> None:
         await b.wait_js(f"window.curio.S.paths.find(p => p.id === {new_id}).name === "
                         "'Lab visit'")
         await b.shot("07-path-editor")
+
+        # The live link drops: the page says so, reconnects by itself, catches up on the
+        # state, and sends nothing on its own.
+        ops = app.bus.subscribe(OPERATOR)
+        await b.state("window.curio.S.ws.close()")
+        await b.wait_js("document.querySelector('#conn').textContent === 'Reconnecting…'")
+        await b.wait_js("window.curio.S.connected && window.curio.S.status !== null")
+        assert await b.page.text_content("#conn") == "Connected"
+        await clock.sleep(1.0)
+        assert ops.drain() == []
         assert b.errors == []
 
     async with running_app(make_cfg(data)) as (app, _clock):
