@@ -40,8 +40,10 @@ Construction (``curio/drivers/hw_wiring.py``)::
     app.add(Part("arduino", run=base.run))
     app.add_halt_hook(base.halt)
 
-``port`` defaults to ``cfg.port``; in emulated mode pass ``ArduinoEmulator.port_path``. All
-timing uses the injected clock; nothing blocks the loop.
+``port`` defaults to ``cfg.port``; in emulated mode pass ``ArduinoEmulator.port_path`` and call
+``emulator.pair(base)`` (keeps a fast simulated clock from racing ahead of pty delivery). All
+timing uses the injected clock; nothing blocks the loop. The latest RC channels (raw receiver
+order) are kept in ``base.rc``; the latest per-servo status in ``base.servo_status``.
 """
 
 from __future__ import annotations

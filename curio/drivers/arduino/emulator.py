@@ -60,7 +60,7 @@ from typing import Any, Protocol, cast
 
 import numpy as np
 
-from curio.clock import Clock
+from curio.clock import Clock, SimClock
 from curio.drivers.arduino import protocol as p
 from curio.drivers.arduino._loop import Pacer, every
 from curio.messages import ServoCommand
@@ -482,11 +482,15 @@ class ArduinoEmulator:
     def pair(self, driver: Any) -> None:
         """Pace virtual time with ``driver`` (an ``ArduinoBase`` on this emulator's port).
 
-        Needed only on a ``SimClock`` running faster than real time (emulated mode): each side
+        Acts only on a ``SimClock`` running faster than 2× real time (emulated mode): each side
         then holds the clock until the other has read what it wrote, so pty delivery delays
         never look like a stalled link. Both objects must count their bytes
         (``bytes_sent``/``bytes_received`` on the driver, ``bytes_out``/``bytes_in`` here).
         """
+        speed = getattr(self.clock, "speed", 1.0)
+        if not isinstance(self.clock, SimClock) or (speed is not None and speed <= 2.0):
+            return  # real time (or close to it): delivery is quick enough, pacing would only
+            # burn CPU
         self.pacer.peer_received = lambda: int(driver.bytes_received)
         driver.pacer.peer_received = lambda: self.bytes_in
 
