@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +38,7 @@ from scipy import ndimage
 from curio.bus import Bus
 from curio.clock import Clock
 from curio.config import CostmapConfig, RobotConfig
-from curio.geometry import Pose2D
+from curio.geometry import Pose2D, wrap_angle
 from curio.messages import GridMessage, LaserScan
 from curio.nav.maps import OccupancyGrid
 from curio.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
@@ -491,10 +492,12 @@ def _points_in_polygon(pts: FloatArray, poly: FloatArray) -> BoolArray:
 class CostmapNode:
     """Runs a :class:`Costmap` on the bus.
 
-    Subscribes ``SCAN`` and ``POSE`` (and ``MAP``: a new map replaces the static layer), updates
-    at ``update_rate_hz`` with the latest scan and pose, publishes ``COSTMAP`` when the master
-    grid changed (at most ``global_publish_rate_hz``; ``version`` increases) and
-    ``LOCAL_COSTMAP`` (the rolling window) every update.
+    Subscribes ``SCAN`` and ``POSE`` (and ``MAP``: a new map updates the static layer), updates
+    at ``update_rate_hz`` with the newest scan, placed with the rover's pose at the scan's stamp
+    (interpolated in the recent ``POSE`` history; the newest pose if the stamp lies outside
+    it), publishes ``COSTMAP`` when the master grid changed (at most
+    ``global_publish_rate_hz``; ``version`` increases) and ``LOCAL_COSTMAP`` (the rolling
+    window around the newest pose) every update.
     """
 
     def __init__(self, costmap: Costmap, bus: Bus, clock: Clock, cfg: CostmapConfig) -> None:
@@ -506,17 +509,42 @@ class CostmapNode:
         self._published_version = -1
         self._last_global_publish = -math.inf
         self._last_scan_stamp = -math.inf
+        self._pose_sub = bus.subscribe(POSE, maxsize=256)
+        self._poses: deque[tuple[float, Pose2D]] = deque(maxlen=256)
+
+    def pose_at(self, stamp: float) -> Pose2D | None:
+        """The rover's pose in ``map`` at ``stamp``, from the recent ``POSE`` history."""
+        for msg in self._pose_sub.drain():
+            if self._poses and msg.stamp < self._poses[-1][0]:
+                self._poses.clear()  # time went backwards (a reset): start over
+            self._poses.append((msg.stamp, msg.pose))
+        if not self._poses:
+            latest = self.bus.latest(POSE)
+            return None if latest is None else latest.pose
+        t_last, p_last = self._poses[-1]
+        if stamp >= t_last or len(self._poses) == 1:
+            return p_last
+        if stamp <= self._poses[0][0]:
+            return self._poses[0][1]
+        t1, p1 = self._poses[-1]
+        for t0, p0 in reversed(self._poses):
+            if t0 <= stamp:
+                a = 0.0 if t1 == t0 else (stamp - t0) / (t1 - t0)
+                return Pose2D(p0.x + a * (p1.x - p0.x), p0.y + a * (p1.y - p0.y),
+                              wrap_angle(p0.yaw + a * wrap_angle(p1.yaw - p0.yaw)))
+            t1, p1 = t0, p0
+        return p_last
 
     def step(self, now: float) -> None:
         """One update: apply the newest scan (if new) and publish."""
-        pose_msg = self.bus.latest(POSE)
         scan = self.bus.latest(SCAN)
-        if pose_msg is None:
+        pose = self.pose_at(math.inf)
+        if pose is None:
             return
-        pose = pose_msg.pose
         if scan is not None and scan.stamp != self._last_scan_stamp:
             self._last_scan_stamp = scan.stamp
-            self.costmap.update_from_scan(scan, pose)
+            scan_pose = self.pose_at(scan.stamp)
+            self.costmap.update_from_scan(scan, scan_pose if scan_pose is not None else pose)
             self.updates += 1
         cm = self.costmap
         if (cm.version != self._published_version

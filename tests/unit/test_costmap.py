@@ -396,3 +396,29 @@ def test_updated_map_on_the_same_grid_is_applied_incrementally_keeping_marks() -
     cm.set_static_map(other)
     assert cm.costs().shape == (100, 120) and not cm.obstacle_mask().any()
     assert cm.origin == Pose2D(-1.0, 0.0, 0.0)
+
+
+async def test_costmap_node_places_a_scan_with_the_pose_at_its_stamp(bus: Bus) -> None:
+    clock = SimClock()
+    cfg = CostmapConfig()
+    cm = Costmap(free_grid(), RobotConfig(), cfg)
+    node = CostmapNode(cm, bus, clock, cfg)
+    for k in range(11):  # driving along +x at 1 m/s, poses every 0.1 s
+        bus.publish(POSE, PoseWithCovariance(k * 0.1, Pose2D(2.0 + k * 0.1, 5.0, 0.0)))
+    def at(t: float) -> tuple[float, float, float]:
+        pose = node.pose_at(t)
+        assert pose is not None
+        return pose.as_tuple()
+
+    assert at(0.45) == pytest.approx((2.45, 5.0, 0.0))
+    assert at(5.0) == pytest.approx((3.0, 5.0, 0.0))  # newer than the history: the newest
+    assert at(-1.0) == pytest.approx((2.0, 5.0, 0.0))
+    ranges = np.full(360, np.nan)
+    ranges[beam_index(math.pi / 2)] = 1.0  # to the left of the laser
+    bus.publish(SCAN, make_scan(ranges, stamp=0.3))
+    node.step(1.0)
+    marked = np.argwhere(cm.obstacle_mask())
+    # placed from the pose at 0.3 s (x = 2.3) plus the laser's offset, not from the newest (3.0)
+    assert marked.shape[0] == 1
+    x, _ = cm.cell_to_world(int(marked[0, 0]), int(marked[0, 1]))
+    assert x == pytest.approx(2.3 + 0.152, abs=0.05)
