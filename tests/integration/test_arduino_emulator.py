@@ -285,3 +285,24 @@ async def test_emulated_mode_on_a_simulated_clock() -> None:
             t.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         emu.close()
+
+
+async def test_old_firmware_protocol_says_reflash() -> None:
+    clock = RealClock()
+    bus = make_bus()
+    emu = ArduinoEmulator(FakeWorld(), clock, boot_delay_s=0.1)
+    emu.firmware.proto_version = 0
+    emu.open()
+    base = ArduinoBase(FAST, RobotConfig(), bus, clock, port=emu.port_path)
+    tasks = [asyncio.ensure_future(emu.run()), asyncio.ensure_future(base.run())]
+    try:
+        ok = await clock.wait_until(lambda: "speaks protocol 0" in base.last_error, 3.0,
+                                    poll_s=0.01)
+        assert ok, base.health()
+        assert "firmware/README.md" in base.last_error
+        assert emu.state != p.McuState.ARMED and not any(emu.wheel_duties)
+    finally:
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        emu.close()

@@ -386,6 +386,10 @@ class ArduinoBase:
                            steer_move_ms=c.steer_move_ms)
 
     async def _configure(self, reader_task: asyncio.Future[None]) -> None:
+        if self.info is not None and self.info.proto_ver != p.PROTO_VERSION:
+            raise _LinkLost(f"the Mega's firmware speaks protocol {self.info.proto_ver}, this "
+                            f"driver {p.PROTO_VERSION}: flash firmware/curio_base "
+                            "(firmware/README.md)")
         msg = self._set_config_msg()
         problems = msg.problems()
         if problems:

@@ -148,6 +148,7 @@ class FirmwareModel:
     next_state_ms: int = 0
     next_status_ms: int = 0
     decoder: p.FrameDecoder = field(default_factory=p.FrameDecoder)
+    proto_version: int = p.PROTO_VERSION  # what INFO announces (a knob: "old firmware")
 
     # --- output ---------------------------------------------------------------------------------
 
@@ -190,7 +191,7 @@ class FirmwareModel:
         self.last_host_ms = 0
         self.servos.write(self.duties, self.steer, self.config.steer_move_ms, now_ms)
         self._emit_state(now_ms)
-        self._emit(p.Info(p.PROTO_VERSION, FW_MAJOR, FW_MINOR, FW_BUILD, self._config_crc()))
+        self._emit(p.Info(self.proto_version, FW_MAJOR, FW_MINOR, FW_BUILD, self._config_crc()))
         self.last_rx_ms = now_ms
         self.last_cmd_ms = now_ms
         self.next_control_ms = now_ms
@@ -276,7 +277,7 @@ class FirmwareModel:
                 self._set_state(p.McuState.DISARMED, now_ms)
             self._ack(frame, p.AckStatus.OK)
         elif mid == p.MsgId.GET_INFO:
-            self._emit(p.Info(p.PROTO_VERSION, FW_MAJOR, FW_MINOR, FW_BUILD, self._config_crc()))
+            self._emit(p.Info(self.proto_version, FW_MAJOR, FW_MINOR, FW_BUILD, self._config_crc()))
         elif mid == p.MsgId.SERVO_RAW:
             if self.state == p.McuState.ARMED:
                 self._ack(frame, p.AckStatus.WRONG_STATE)
