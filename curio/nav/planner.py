@@ -143,6 +143,12 @@ class GlobalPlanner:
         inv = origin.inverse()
         lut = self._lut
 
+        if not all(math.isfinite(v) for v in start.as_tuple()):
+            raise StartOutsideMapError(f"the start ({start.x}, {start.y}, {start.yaw}) is not a "
+                                       f"finite pose; x, y (m) and yaw (rad) must be numbers")
+        if not all(math.isfinite(v) for v in goal.as_tuple()):
+            raise GoalOutsideMapError(f"the goal ({goal.x}, {goal.y}, {goal.yaw}) is not a "
+                                      f"finite pose; x, y (m) and yaw (rad) must be numbers")
         sx, sy = inv.transform_point(start.x, start.y)
         s_r, s_c = math.floor(sy / resolution_m), math.floor(sx / resolution_m)
         if not (0 <= s_r < h and 0 <= s_c < w):

@@ -254,6 +254,10 @@ def test_every_error_has_a_clear_message() -> None:
         planner.plan(centre(1, 1), centre(38, 1), unknown, RES, ORIGIN)
     assert GlobalPlanner(PlannerConfig(allow_unknown=True)).plan(
         centre(1, 1), centre(38, 1), unknown, RES, ORIGIN)
+    with pytest.raises(StartOutsideMapError, match=r"start \(nan, 0\.5, 0\.0\) is not a finite"):
+        planner.plan(Pose2D(math.nan, 0.5), centre(1, 1), costs, RES, ORIGIN)
+    with pytest.raises(GoalOutsideMapError, match=r"goal \(0\.5, inf, 0\.0\) is not a finite"):
+        planner.plan(centre(1, 1), Pose2D(0.5, math.inf), costs, RES, ORIGIN)
     for err in (StartOutsideMapError, GoalBlockedError, NoPathError):
         assert issubclass(err, NavError)
 
