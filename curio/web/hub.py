@@ -172,7 +172,7 @@ class Hub:
         self.paths = paths
         self.clients: set[Client] = set()
         self._ids = itertools.count(1)
-        self._latest_frames: dict[str, str | bytes] = {}
+        self._latest_frames: dict[str, str | bytes | Callable[[], str | bytes]] = {}
         self.status: StatusText | None = None
         self.progress: Progress | None = None
         self.estop: EStop | None = None
@@ -281,7 +281,11 @@ class Hub:
                      "server_time": self.clock.now()})
         )
         client.reliable.append(to_json({"t": "state", **self.snapshot()}))
-        client.pending.update(self._latest_frames)
+        for key, frame in list(self._latest_frames.items()):
+            if callable(frame):
+                frame = frame()
+                self._latest_frames[key] = frame
+            client.pending[key] = frame
         client.wake.set()
         return client
 
@@ -324,6 +328,8 @@ class Hub:
             await client.wake.wait()
 
     def _reliable(self, payload: dict[str, Any]) -> None:
+        if not self.clients:
+            return  # the state it carries is kept for the snapshot of the next client
         text = to_json(payload)
         for client in list(self.clients):
             if len(client.reliable) >= MAX_BACKLOG:
@@ -334,7 +340,13 @@ class Hub:
             client.reliable.append(text)
             client.wake.set()
 
-    def _stream(self, key: str, frame: str | bytes) -> None:
+    def _stream(self, key: str, make: Callable[[], str | bytes]) -> None:
+        """Offer the frame ``make()`` under ``key``; nobody watching ⇒ it is made only when a
+        client connects (the dashboard costs almost nothing without viewers)."""
+        if not self.clients:
+            self._latest_frames[key] = make
+            return
+        frame = make()
         self._latest_frames[key] = frame
         for client in self.clients:
             client.pending[key] = frame
@@ -420,7 +432,7 @@ class Hub:
 
     def publish_health(self) -> None:
         """Offer the merged health panel to every client (called about once a second)."""
-        self._stream("health", to_json({"t": "health", **self.health_json()}))
+        self._stream("health", lambda: to_json({"t": "health", **self.health_json()}))
 
     def grid_info(self, name: str) -> dict[str, Any] | None:
         """Version and geometry of grid ``name`` (None if none has arrived)."""
@@ -454,27 +466,28 @@ class Hub:
         if robot is None:
             return
         lx, ly, lyaw = self.cfg.robot.laser_pose
-        self._stream("scan", encode_scan(msg, robot @ Pose2D(lx, ly, lyaw)))
+        laser = robot @ Pose2D(lx, ly, lyaw)
+        self._stream("scan", lambda: encode_scan(msg, laser))
 
     def _on_pose(self, msg: PoseWithCovariance) -> None:
         self._pose_msg = msg
         self._pose_stamp_s = msg.stamp
-        self._stream("pose", encode_pose(msg))
+        self._stream("pose", lambda: encode_pose(msg))
 
     def _on_odom(self, msg: Odometry) -> None:
         self._odom = msg
         if self._pose_msg is None or msg.stamp - self._pose_stamp_s > POSE_STALE_S:
-            self._stream("pose", encode_pose(msg))
+            self._stream("pose", lambda: encode_pose(msg))
 
     def _on_truth(self, msg: Odometry) -> None:
-        self._stream("truth", encode_pose(msg, FRAME_TRUTH))
+        self._stream("truth", lambda: encode_pose(msg, FRAME_TRUTH))
 
     def _on_path(self, key: str, msg: Path, frame_type: int) -> None:
-        self._stream(key, encode_path(msg, frame_type))
+        self._stream(key, lambda: encode_path(msg, frame_type))
 
     def _on_obstacles(self, msg: Obstacles) -> None:
-        self._stream("obstacles", to_json({"t": "obstacles", "segments": msg.segments,
-                                           "circles": msg.circles}))
+        self._stream("obstacles", lambda: to_json({"t": "obstacles", "segments": msg.segments,
+                                                   "circles": msg.circles}))
 
     def _on_status(self, msg: StatusText) -> None:
         self.status = msg
@@ -505,27 +518,28 @@ class Hub:
 
     def _on_tree(self, msg: TreeSnapshot) -> None:
         self.tree = msg
-        self._stream("tree", to_json({"t": "tree", "tree": self.tree_json()}))
+        self._stream("tree", lambda: to_json({"t": "tree", "tree": self.tree_json()}))
 
     def _on_health(self, msg: DriverHealth) -> None:
         self.health[msg.name] = msg
 
     def _on_localization(self, msg: LocalizationStatus) -> None:
         self.localization = msg
-        self._stream("localization", to_json({"t": "localization", "localization": msg}))
+        self._stream("localization",
+                     lambda: to_json({"t": "localization", "localization": msg}))
 
     def _on_battery(self, msg: BatteryState) -> None:
         self.battery = msg
-        self._stream("battery", to_json({"t": "battery", "battery": msg}))
+        self._stream("battery", lambda: to_json({"t": "battery", "battery": msg}))
 
     def _on_blocked(self, msg: BlockedState) -> None:
         self.blocked = msg
-        self._stream("blocked", to_json({"t": "blocked", "blocked": msg}))
+        self._stream("blocked", lambda: to_json({"t": "blocked", "blocked": msg}))
 
     def _on_cmd_vel(self, msg: Twist) -> None:
-        self._stream("cmd_vel", to_json({"t": "cmd_vel", "linear_mps": msg.linear_mps,
-                                         "angular_radps": msg.angular_radps,
-                                         "source": msg.source}))
+        self._stream("cmd_vel", lambda: to_json({"t": "cmd_vel", "linear_mps": msg.linear_mps,
+                                                 "angular_radps": msg.angular_radps,
+                                                 "source": msg.source}))
 
     def _grid_handler(self, name: str) -> Callable[[GridMessage], None]:
         def handle(msg: GridMessage) -> None:
@@ -538,7 +552,8 @@ class Hub:
                 old.msg = msg if old.msg is msg else old.msg
                 return
             self.grids[name] = _Grid(msg, next(self._grid_serial))
-            self._stream(f"grid:{name}", to_json({"t": "grid", "grid": self.grid_info(name)}))
+            self._stream(f"grid:{name}",
+                         lambda: to_json({"t": "grid", "grid": self.grid_info(name)}))
 
         return handle
 
