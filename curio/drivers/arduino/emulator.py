@@ -382,7 +382,7 @@ class ArduinoEmulator:
     """
 
     def __init__(self, world: EmulatorWorld, clock: Clock, *, boot_delay_s: float = 0.5,
-                 tick_s: float = 0.005, seed: int = 0, link_dir: str | Path | None = None,
+                 tick_s: float = 0.01, seed: int = 0, link_dir: str | Path | None = None,
                  name: str = "curio-arduino") -> None:
         self.world = world
         self.clock = clock
