@@ -113,6 +113,9 @@ class LidarConfig(Section):
         0.0, ge=-6.3, le=6.3, description="added to pi - raw angle (mounting, hardware.md §8)"
     )
     min_nodes_per_scan: int = Field(20, ge=1, description="shorter revolutions are dropped")
+    read_interval_s: float = Field(
+        0.025, ge=0.0, le=0.05, description="batch serial reads (CPU); 0 = every chunk"
+    )
 
 
 class ImuConfig(Section):
@@ -132,6 +135,9 @@ class ImuConfig(Section):
     reconnect_s: float = Field(1.0, gt=0.0, le=30.0)
     max_consecutive_errors: int = Field(10, ge=1, description="failed reads before re-init")
     error_rate_warn: float = Field(0.01, ge=0.0, le=1.0, description="health degraded above")
+    samples_per_wakeup: int = Field(
+        2, ge=1, le=10, description="readings per I/O-thread trip (paced in the thread)"
+    )
 
     @field_validator("address")
     @classmethod

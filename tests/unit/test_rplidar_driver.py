@@ -23,7 +23,11 @@ from curio.topics import EVENTS, HEALTH, SCAN, make_bus
 pytestmark = pytest.mark.timeout(30)
 
 
+CAST_TIMES: list[float] = []
+
+
 def scene(stamp: float) -> LaserScan:
+    CAST_TIMES.append(stamp)
     n = 360
     ranges = np.full(n, 3.0, np.float32)
     ranges[270] = 1.0  # laser angle -pi + 270° = +90°: an object on the left
@@ -90,6 +94,18 @@ async def test_scans_in_laser_frame(rig: Rig) -> None:
     assert int(np.isfinite(scan.ranges_m).sum()) >= 345
     assert rig.driver.state == "ok"
     assert rig.driver.info is not None and rig.driver.info.model_name == "A1M8"
+
+
+async def test_scan_stamps_are_revolution_starts(rig: Rig) -> None:
+    """Reads are batched (read_interval_s); the stamp is still the revolution's start."""
+    await rig.next_scan()
+    errors = []
+    for _ in range(5):
+        scan = await rig.next_scan()
+        nearest = min(CAST_TIMES, key=lambda t: abs(t - scan.stamp))
+        errors.append(scan.stamp - nearest)
+        assert scan.scan_time_s == pytest.approx(0.1, abs=0.03)
+    assert max(abs(e) for e in errors) < 0.02, errors
 
 
 async def test_unplug_replug_recovers(rig: Rig) -> None:

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
 from curio.bus import Bus
-from curio.clock import Clock
+from curio.clock import Clock, wall_sleep
 from curio.config import ImuConfig
 from curio.drivers.bno055 import registers as r
 from curio.drivers.health import every
@@ -360,13 +360,11 @@ class Bno055Driver:
         self._event("driver.imu_calibration_saved", path=str(self.calibration_path))
 
     # --- streaming ----------------------------------------------------------------------------
-    def _read_sample_blocking(self) -> list[int]:
+    def _read_once(self) -> r.Sample | None:
+        """One block read (blocking); None after an I/O error."""
         start, length = r.DATA_BLOCK
-        return self._dev().read_i2c_block_data(self.addr, start, length)
-
-    async def _read_once(self) -> r.Sample | None:
         try:
-            block = await self._io(self._read_sample_blocking)
+            block = self._dev().read_i2c_block_data(self.addr, start, length)
         except OSError:
             self.counters["i2c_errors"] += 1
             self._note(False)
@@ -374,57 +372,75 @@ class Bno055Driver:
         # The first byte is sacrificial (it takes the clock-stretching bit-7 garbage).
         return r.decode_block(bytes(block[1:]), self._unit_sel, self.calibration)
 
-    async def _read_sample(self) -> r.Sample | None:
-        """One reading; a failed, implausible or jumpy one is re-read once.
+    def _read_sample(self) -> tuple[float, r.Sample | None]:
+        """One reading (blocking) and its clock time; a failed, implausible or jumpy one is
+        re-read once.
 
         A jump that the re-read confirms is real motion (the chip's output registers change at
         100 Hz, so two reads a moment apart agree); one the re-read contradicts was a corrupted
         read (the Pi's clock-stretching bug) and is counted in ``suspect_readings``.
         """
-        first = await self._read_once()
+        stamp = self.clock.now()
+        first = self._read_once()
         why = "I/O error" if first is None else r.check_sample(first, fusion_running=True)
         if why is None and first is not None and self._prev is not None:
             why = r.sample_jump(self._prev, first)
         if why is None:
             self._note(True)
             self._prev = first
-            return first
-        second = await self._read_once()
+            return stamp, first
+        second = self._read_once()
         if second is not None and r.check_sample(second, fusion_running=True) is None:
             first_plausible = first is not None and r.check_sample(first, True) is None
             if first_plausible and first is not None and r.sample_jump(first, second) is None:
                 self._note(True)  # a real, confirmed change
                 self._prev = second
-                return second
+                return stamp, second
             if first is not None:
                 self.counters["suspect_readings"] += 1
                 self._note(False)
             if self._prev is None or r.sample_jump(self._prev, second) is None:
                 self._prev = second
-                return second
+                return stamp, second
         elif first is not None:
             self.counters["suspect_readings"] += 1
             self._note(False)
         self.counters["dropped_samples"] += 1
         log.debug("BNO055 reading dropped: %s", why)
-        return None
+        return stamp, None
+
+    def _read_burst(self, n: int, period_s: float) -> list[tuple[float, r.Sample | None]]:
+        """``n`` readings ``period_s`` apart, in the I/O thread (fewer event-loop wake-ups)."""
+        out = []
+        for i in range(n):
+            if i:
+                wall_sleep(period_s)
+            out.append(self._read_sample())
+        return out
 
     async def _stream(self) -> None:
         period = 1.0 / self.cfg.rate_hz
+        # In the I/O thread, several readings per trip (the thread paces them on the wall
+        # clock); inline (the in-memory fake bus, simulated time) one per tick.
+        burst = self.cfg.samples_per_wakeup if self.offload else 1
         next_id_check = self.clock.now() + 0.1  # first check (and CALIB_STAT) soon
         consecutive = 0
-        async for now in every(self.clock, period):
-            sample = await self._read_sample()
-            if sample is None:
-                consecutive += 1
-                if consecutive >= self.cfg.max_consecutive_errors:
-                    raise ImuFault(
-                        f"{consecutive} failed readings in a row from the BNO055 at "
-                        f"{self._where()}: re-initialising. If this repeats, {BAUD_FIX}"
-                    )
-                continue
-            consecutive = 0
-            self._publish(sample, now)
+        async for now in every(self.clock, period * burst):
+            if not self.offload:
+                readings = [self._read_sample()]  # the in-memory fake bus: inline
+            else:
+                readings = await self._io(self._read_burst, burst, period)
+            for stamp, sample in readings:
+                if sample is None:
+                    consecutive += 1
+                    if consecutive >= self.cfg.max_consecutive_errors:
+                        raise ImuFault(
+                            f"{consecutive} failed readings in a row from the BNO055 at "
+                            f"{self._where()}: re-initialising. If this repeats, {BAUD_FIX}"
+                        )
+                    continue
+                consecutive = 0
+                self._publish(sample, stamp)
             if now >= next_id_check:
                 next_id_check = now + 1.0
                 await self._periodic_checks()

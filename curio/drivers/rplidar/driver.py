@@ -104,6 +104,7 @@ class RplidarDriver:
         self._transport: Any = None
         self._rx = bytearray()
         self._rx_event = asyncio.Event()
+        self._paused = asyncio.Event()
         self._lost = False
         self._mode = "reply"  # reply | descriptor | stream
         self._decoder = p.NodeStreamDecoder()
@@ -167,6 +168,26 @@ class RplidarDriver:
         # Watch the stream until it fails.
         started = self.clock.now()
         poll = min(0.1, self.cfg.stall_timeout_s / 4)
+        resumer = asyncio.ensure_future(self._resume_loop())
+        try:
+            await self._watch(started, poll)
+        finally:
+            resumer.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await resumer
+
+    async def _resume_loop(self) -> None:
+        """Batch reads: after each chunk the port is paused for ``read_interval_s`` so bytes
+        gather in the kernel buffer (a USB adapter delivers them every millisecond)."""
+        while True:
+            await self._paused.wait()
+            self._paused.clear()
+            await self.clock.sleep(self.cfg.read_interval_s)
+            if self._transport is not None and not self._lost:
+                with contextlib.suppress(Exception):
+                    self._transport.resume_reading()
+
+    async def _watch(self, started: float, poll: float) -> None:
         while True:
             await self.clock.sleep(poll)
             if self._lost:
@@ -326,24 +347,36 @@ class RplidarDriver:
 
     def _on_stream(self, data: bytes) -> None:
         now = self.clock.now()
+        if self.cfg.read_interval_s > 0 and self._transport is not None:
+            self._transport.pause_reading()
+            self._paused.set()
         batch = self._decoder.feed(data)
         self.counters["resync_bytes"] = self._decoder.resync_bytes
         if len(batch) == 0:
             return
-        first_start = bool(batch.start.any())
-        for rev in self._assembler.feed(batch):
-            self._publish(rev, now)
+        revs = self._assembler.feed(batch)
+        if revs:
+            # Reads are batched: date the new revolution's start back by the nodes already
+            # received of it, at the node rate of the revolution just completed.
+            prev_start = self._rev_start
+            node_s = 0.0
+            if prev_start is not None:
+                node_s = max(0.0, now - prev_start) / (len(revs[-1]) + self._assembler.in_progress)
+            new_start = now - self._assembler.in_progress * node_s
+            for rev in revs:
+                self._publish(rev, new_start)
+            self._rev_start = new_start
         self.counters["short_scans"] = self._assembler.short_scans
-        if first_start:
-            self._rev_start = now
 
-    def _publish(self, rev: p.NodeBatch, now: float) -> None:
+    def _publish(self, rev: p.NodeBatch, end: float) -> None:
+        """Publish one revolution that ran from ``self._rev_start`` to ``end``."""
+        now = self.clock.now()
         beams = self.cfg.beams
         ranges, intens = p.revolution_to_ranges(
             rev, beams, self.cfg.range_min_m, self.cfg.range_max_m, self.cfg.angle_offset_rad
         )
-        start = self._rev_start if self._rev_start is not None else now
-        scan_time = max(1e-3, now - start)
+        start = self._rev_start if self._rev_start is not None else end - 0.1
+        scan_time = max(1e-3, end - start)
         scan = LaserScan(
             stamp=start,
             angle_min_rad=-math.pi,

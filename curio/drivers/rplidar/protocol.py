@@ -462,6 +462,11 @@ class ScanAssembler:
         self._parts.clear()
         self._synced = False
 
+    @property
+    def in_progress(self) -> int:
+        """Nodes of the revolution in progress (received since its start flag)."""
+        return sum(len(part) for part in self._parts)
+
     def feed(self, batch: NodeBatch) -> list[NodeBatch]:
         """Add decoded nodes; return the revolutions they complete."""
         out: list[NodeBatch] = []
