@@ -12,7 +12,8 @@ USB serial (pyserial-asyncio-fast). Per session it:
    :func:`curio.drivers.kinematics.twist_to_servo_command` and sends SERVO_CMD — with zero
    duties when ``/cmd_vel`` is older than ``cmd_timeout_s`` or the e-stop is engaged — plus a
    HEARTBEAT at 5 Hz;
-4. publishes ``/wheels`` (raw LX-16A positions from SERVO_POS; ``None`` for failed reads),
+4. publishes ``/wheels`` (raw LX-16A positions from SERVO_POS; ``None`` for failed reads;
+   stamped with the sample time, mapped from the Mega's clock by :class:`McuClock`),
    ``/battery`` (BATTERY), ``/servo_cmd`` (what it sent) and ``/health``;
 5. re-sends the config and re-arms whenever STATE reports BOOT or the "default config" fault
    (a silent reset of the Mega), and re-arms after the firmware's link watchdog disarmed it;
@@ -51,6 +52,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections import deque
 from collections.abc import Callable
 from typing import Any, cast
 
@@ -65,7 +67,7 @@ from curio.drivers.kinematics import twist_to_servo_command
 from curio.messages import BatteryState, DriverHealth, EStop, ServoCommand, Twist, WheelEncoders
 from curio.topics import BATTERY, CMD_VEL, ESTOP, HEALTH, SERVO_CMD, WHEELS
 
-__all__ = ["ArduinoBase", "CommandFn"]
+__all__ = ["ArduinoBase", "CommandFn", "McuClock"]
 
 log = logging.getLogger("curio.drivers.arduino")
 
@@ -78,6 +80,33 @@ ACK_RETRIES = 3
 TX_HOLD_S = 0.15  # the board sends STATE at 10 Hz and SERVO_POS at 30 Hz: longer silence is odd
 PORT_HINT = ("is the Mega plugged in? Run `curio check`; on the Pi the udev rule in deploy/ "
              "names it /dev/curio-arduino, and the user needs the dialout group")
+
+
+class McuClock:
+    """Maps the Mega's ``millis()`` stamps to host clock time.
+
+    The offset host − MCU is the smallest ``receipt time − t_ms`` seen over the last
+    ``window`` reports (the report that travelled fastest), so USB latency jitter does not
+    move the sample times; the window lets it follow the Mega's resonator drift (up to
+    ±0.5 %). A jump back of ``t_ms`` (a reset, or the u32 wrap after 49 days) starts over.
+    """
+
+    def __init__(self, window: int = 90) -> None:
+        self._offsets: deque[float] = deque(maxlen=window)
+        self._last_t_ms: int | None = None
+
+    def reset(self) -> None:
+        """Forget the estimate (new session)."""
+        self._offsets.clear()
+        self._last_t_ms = None
+
+    def to_host(self, t_ms: int, received_s: float, extra_ms: float = 0.0) -> float:
+        """Host time, seconds, of MCU time ``t_ms`` + ``extra_ms`` (never after receipt)."""
+        if self._last_t_ms is not None and t_ms < self._last_t_ms:
+            self._offsets.clear()
+        self._last_t_ms = t_ms
+        self._offsets.append(received_s - (t_ms + extra_ms) / 1000.0)
+        return min(received_s, (t_ms + extra_ms) / 1000.0 + min(self._offsets))
 
 
 class _LinkLost(Exception):
@@ -108,6 +137,7 @@ class ArduinoBase:
         self.port = port or cfg.port
         self.command_fn = command_fn
         self.decoder = p.FrameDecoder()
+        self.mcu_clock = McuClock()
         self.tx_suspended = False  # test/diagnostic hook: the Pi goes silent
         self.bytes_sent = 0
         self.bytes_received = 0
@@ -269,6 +299,7 @@ class ArduinoBase:
             self.counters["reconnects"] += 1
         self._opened_before = True
         self.decoder.reset()
+        self.mcu_clock.reset()
         self._acks.clear()
         self.connected = True
         self.mcu_state = None
@@ -481,7 +512,9 @@ class ArduinoBase:
                               for i in range(6))
             if msg.valid_mask != 0x3FF:
                 self.counters["servo_read_failures"] += 1
-            self.bus.publish(WHEELS, WheelEncoders(stamp=now, positions=cast(Six, positions)))
+            stamp = self.mcu_clock.to_host(msg.t_ms, now,
+                                           sum(msg.dt_ms[:6]) / 6.0)
+            self.bus.publish(WHEELS, WheelEncoders(stamp=stamp, positions=cast(Six, positions)))
         elif isinstance(msg, p.State):
             self._on_state(msg)
         elif isinstance(msg, p.Ack):
