@@ -1,11 +1,14 @@
 """Byte-exact emulator of the Arduino Mega base controller, served on a pseudo-terminal.
 
 It speaks the protocol of :mod:`curio.drivers.arduino.protocol` exactly as the firmware does
-(``firmware/core/controller.cpp``): :class:`FirmwareModel` is a line-by-line Python mirror of the
-firmware's state machine (BOOT → DISARMED → ARMED ⇄ TIMEOUT, latched ESTOP), its motion
-watchdog (wheels to 0 after ``cmd_timeout_ms`` without SERVO_CMD), its link watchdog (DISARMED
-after 2 s without any valid frame), its ACK rules and its report rates. The integration tests
-run the same driver scenarios against this emulator and against the compiled firmware core.
+(``firmware/curio_base/src/controller.cpp``): :class:`FirmwareModel` mirrors the firmware's
+state machine (BOOT → DISARMED → ARMED ⇄ TIMEOUT, latched ESTOP), its motion watchdog (wheels
+to 0 after ``cmd_timeout_ms`` without SERVO_CMD), its link watchdog (DISARMED after 2 s
+without any valid frame), its ACK rules and its report rates.
+``tests/integration/test_firmware_host.py`` checks that the compiled firmware core and this
+emulator answer a scripted session byte for byte alike (timestamps aside). Differences: the
+servo side is the simulator's world rather than LX-16A packets (so SERVO_RAW gets "no
+reply"), and SERVO_POS leaves at the start of a sweep rather than at its end.
 
 The servo side is the simulator's world (helper H1's ``curio/sim``), through three calls:
 
@@ -38,8 +41,9 @@ cable: the pty disappears, and comes back as a fresh one), :meth:`inject_garbage
 :meth:`corrupt_tx` (corrupt the CRC of the next N frames sent to the host),
 :meth:`corrupt_rx` (drop frames from the host as CRC errors for a while), :meth:`truncate_tx`,
 :meth:`reset` (a reboot: wheels stopped, boot window, disarmed), :meth:`stall` (the board stops
-talking and listening for a while, its watchdogs still running), and ``servo_read_fail_rate``
-(per-read failures in SERVO_POS). Times are in seconds of the injected clock.
+talking and listening for a while, its watchdogs still running), ``servo_read_fail_rate``
+(per-read failures in SERVO_POS) and ``firmware.proto_version`` (an old firmware). Times are in
+seconds of the injected clock.
 """
 
 from __future__ import annotations
@@ -122,7 +126,7 @@ def _median(values: list[int]) -> int:
 
 @dataclass
 class FirmwareModel:
-    """The firmware core's behaviour in Python (mirrors ``firmware/core/controller.cpp``).
+    """The firmware core's behaviour in Python (mirrors ``firmware/curio_base/src/controller.cpp``).
 
     Time enters only as ``now_ms`` arguments (milliseconds, like ``millis()``); output frames go
     to ``send(bytes)``. Call :meth:`boot` once, :meth:`on_bytes` with received bytes and

@@ -12,7 +12,7 @@ Units: positions in LX-16A units (0..1000 = 0..240°, 0.24° per unit; motor-mod
 signed and run about −194..1194), duty −1000..1000, times in ms, voltages in mV.
 
 Used by the Arduino emulator's servo bus and by setup tools (SERVO_RAW); the firmware has the
-same code in C++ (``firmware/core/lx16a.{h,cpp}``).
+same code in C++ (``firmware/curio_base/src/lx16a.{h,cpp}``).
 """
 
 from __future__ import annotations

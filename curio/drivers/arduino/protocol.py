@@ -1,7 +1,7 @@
 """The Pi ↔ Arduino Mega framed binary protocol (pure: bytes in, values out; no I/O).
 
 Specification: ``shared/reference/hardware.md`` §3.2, mirrored byte for byte by the firmware
-(``firmware/core/protocol.{h,cpp}``).
+(``firmware/curio_base/src/protocol.{h,cpp}``).
 
 Frame (all multi-byte fields little-endian)::
 
