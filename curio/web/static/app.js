@@ -161,7 +161,8 @@
       return;
     }
     const reached = p.states.filter((s) => s === "reached").length;
-    $("progressTitle").textContent = "Path " + p.path_id + (p.path_name ? " “" + p.path_name + "”" : "") +
+    const what = p.path_id < 0 ? (p.path_name || "Tour") : "Path " + p.path_id + (p.path_name ? " “" + p.path_name + "”" : "");
+    $("progressTitle").textContent = what +
       ": " + reached + " of " + p.states.length + " stops reached";
     p.states.forEach((s, i) => {
       const d = document.createElement("div");
