@@ -8,14 +8,16 @@ all on one :class:`~curio.clock.SimClock` in one thread (one core).
 
 Rows:
 
-* ``curio`` — the vectorised ray caster (``GridRaycaster``);
+* ``curio`` — the default ray caster (``GridRaycaster``, compiled exact traversal);
+* ``curio-numpy-backend`` — the same simulator with the all-beams-at-once numpy caster;
 * ``naive-python-raycaster`` — the same simulator with a per-beam Python loop ray caster (half-
   cell steps), the usual first implementation; run for a shorter simulated time.
 
 Figures: ``rtf`` (simulated s / wall s), ``rtf_cpu`` (simulated s / CPU s of this process:
 the one-core figure, robust to other load on a shared machine), ``scan_ms_median`` /
 ``scan_ms_p99`` (one 360-beam revolution, wall ms), ``physics_us_median`` (one physics step,
-wall µs), ``sim_s``, ``wall_s``, and for the peers ``rtf_ratio`` (curio's rtf / the peer's).
+wall µs), ``sim_s``, ``wall_s``, and for the peers ``rtf_ratio`` (curio's ``rtf_cpu`` / the
+peer's).
 """
 
 from __future__ import annotations
@@ -46,8 +48,9 @@ def _config(opts: BenchOptions) -> Config:
     return cfg
 
 
-def _run_once(cfg: Config, sim_s: float, naive: bool) -> dict[str, Any]:
+def _run_once(cfg: Config, sim_s: float, naive: bool, backend: str = "compiled") -> dict[str, Any]:
     world = World.from_config(cfg)
+    world.raycaster.backend = backend
     scan_times: list[float] = []
     step_times: list[float] = []
     cast = world.raycaster.cast
@@ -120,8 +123,11 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
     sim_s = float(opts.extra.get("sim_s", 120.0))
     _run_once(cfg, 2.0, naive=False)  # warm-up (imports, caches)
     ours = {"subject": "curio", "lidar_hz": 10, "beams": 360, **_run_once(cfg, sim_s, False)}
+    vect = {"subject": "curio-numpy-backend", "lidar_hz": 10, "beams": 360,
+            **_run_once(cfg, sim_s / 2, False, backend="numpy")}
     peer_s = float(opts.extra.get("peer_sim_s", 5.0))
     peer = {"subject": "naive-python-raycaster", "lidar_hz": 10, "beams": 360,
             **_run_once(cfg, peer_s, True)}
-    peer["rtf_ratio"] = round(ours["rtf"] / peer["rtf"], 1) if peer["rtf"] else None
-    return [ours, peer]
+    for row in (vect, peer):
+        row["rtf_ratio"] = round(ours["rtf_cpu"] / row["rtf_cpu"], 1) if row["rtf_cpu"] else None
+    return [ours, vect, peer]

@@ -41,6 +41,7 @@ would overlap a wall or an object is refused: the rover stops, its wheels stall,
 
 from __future__ import annotations
 
+import logging
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -74,6 +75,7 @@ from curio.sim.raycast import GridRaycaster, cast_circles, cast_segments
 __all__ = ["World", "WorldError", "WorldSpec", "load_world_spec", "world_spec_path"]
 
 F64 = npt.NDArray[np.float64]
+log = logging.getLogger("curio.sim")
 
 ENCODER_COUNTS = 1500  # LX-16A counts per revolution (0.24° each)
 DEAD_ZONE = (1190, 1310)  # garbage readings while the pot wiper is here (mod 1500)
@@ -257,7 +259,12 @@ class World:
         spec_path = world_spec_path(yaml_path)
         spec = load_world_spec(spec_path) if spec_path.is_file() else None
         start = cfg.sim.start if cfg.sim.start is not None else cfg.robot.home
-        return cls(grid, cfg, Pose2D(*start), spec)
+        world = cls(grid, cfg, Pose2D(*start), spec)
+        if world.collides(world.truth_pose):
+            log.warning("the start pose (%.2f, %.2f, %.2f) overlaps %s in %s: the rover can only "
+                        "move out of it (set sim.start or robot.home to a free pose)",
+                        *start, ", ".join(world._hits(world.truth_pose)), yaml_path.name)
+        return world
 
     def _new_id(self) -> int:
         oid = self._next_id

@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from curio.clock import SimClock
 from curio.config import Config
@@ -139,3 +141,19 @@ async def test_component_publishes_wheel_odom() -> None:
     assert out.pose.x == pytest.approx(75 * K)
     assert out.pose.yaw == pytest.approx(0.0)
     assert len(sub.drain()) == 2
+
+
+@settings(max_examples=100, deadline=None)
+@given(left=st.integers(-600, 600), right=st.integers(-600, 600), steps=st.integers(1, 12))
+def test_constant_arc_is_independent_of_sampling(left: int, right: int, steps: int) -> None:
+    """Exact-arc integration: one step or many give the same pose on a constant arc."""
+    one = MidWheelOdometry(R, B)
+    one.update(0, 0, 0.0)
+    a = one.update(left * steps, -right * steps, 1.0).pose
+    many = MidWheelOdometry(R, B)
+    many.update(0, 0, 0.0)
+    for k in range(1, steps + 1):
+        b = many.update(left * k, -right * k, k / steps).pose
+    assert b.x == pytest.approx(a.x, abs=1e-9)
+    assert b.y == pytest.approx(a.y, abs=1e-9)
+    assert math.remainder(b.yaw - a.yaw, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
