@@ -95,6 +95,9 @@ class ArduinoConfig(Section):
     )
     steer_move_ms: int = Field(50, ge=0, le=30000)
     low_battery_v: float = Field(6.6, ge=0.0, le=20.0)
+    persist_steer_trim: bool = Field(False, description="also save trims in servo EEPROM")
+    rc_enabled: bool = Field(False, description="the Mega reports RC receiver channels")
+    rc_pwm: bool = Field(False, description="RC via PWM pins instead of SUMD")
 
 
 class LidarConfig(Section):

@@ -70,7 +70,8 @@ void loop() {
       if (g_sumd.status() != 0x81) g_last_rc_ms = now;
     }
   }
-  if ((int32_t)(now - g_next_rc_report_ms) >= 0) {  // 20 Hz RC report
+  bool rc_enabled = (g_ctrl.config().flags & 0x02) != 0;  // SET_CONFIG flags bit1
+  if (rc_enabled && (int32_t)(now - g_next_rc_report_ms) >= 0) {  // 20 Hz RC report
     g_next_rc_report_ms = now + 50;
     if (g_rc_frames > 0) {
       uint16_t ch[curio::SumdDecoder::MAX_CHANNELS];

@@ -46,6 +46,9 @@ void SimServoBus::handle(const lx16a::Packet& p) {
     case lx16a::ANGLE_OFFSET_ADJUST:
       if (p.n == 1) s.trim = (int8_t)p.params[0];
       return;
+    case lx16a::ANGLE_OFFSET_WRITE:
+      s.saved_trim = s.trim;
+      return;
     case lx16a::POS_READ: {
       ++reads;
       int16_t v = s.motor_mode ? lx16a::reading_from_count((int32_t)std::floor(s.count))

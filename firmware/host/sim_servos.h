@@ -22,6 +22,7 @@ struct SimServo {
   double steer_target = 500.0;
   double steer_speed = 0.0; // units per ms
   int8_t trim = 0;
+  int8_t saved_trim = 0;  // EEPROM
   uint16_t vin_mv = 7400;
 };
 

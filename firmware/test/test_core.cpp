@@ -203,6 +203,20 @@ static void test_controller() {
   CHECK(r.ctrl.state() == STATE_ARMED);
   r.run(50);
   CHECK(r.bus.servo(211)->trim == 40);
+  CHECK(r.bus.servo(211)->saved_trim == 0);  // not persisted unless flags bit0
+  {
+    Rig q;
+    q.ctrl.boot(0, 0x01);
+    Config k;
+    config_defaults(k);
+    k.steer_trim[0] = -10;
+    k.flags = 0x01;
+    std::vector<uint8_t> kp(CONFIG_SIZE);
+    config_pack(k, kp.data());
+    q.send(MSG_SET_CONFIG, kp);
+    q.run(50);
+    CHECK(q.bus.servo(111)->trim == -10 && q.bus.servo(111)->saved_trim == -10);
+  }
   for (int i = 0; i < 10; ++i) {
     r.command(500);
     r.run(50);

@@ -155,6 +155,9 @@ void Controller::init_steering() {
   for (uint8_t i = 0; i < NUM_STEER; ++i) {
     push_job(JOB_POSMODE, cfg_.steer_ids[i], (uint8_t)(NUM_WHEELS + i), 0, 0);
     push_job(JOB_TRIM, cfg_.steer_ids[i], (uint8_t)(NUM_WHEELS + i), cfg_.steer_trim[i], 0);
+    // SET_CONFIG flags bit0: also save the trim in the servo's EEPROM (cmd 18). Off by
+    // default: the original wrote the EEPROM at every boot, wearing it for nothing.
+    if (cfg_.flags & 0x01) push_job(JOB_TRIM_SAVE, cfg_.steer_ids[i], (uint8_t)(NUM_WHEELS + i), 0, 0);
   }
 }
 
@@ -234,6 +237,7 @@ void Controller::run_servo_bus(uint32_t now_ms) {
       case JOB_MOTOR: n = lx16a::motor_mode(pkt, j.id, j.a); break;
       case JOB_POSMODE: n = lx16a::position_mode(pkt, j.id); break;
       case JOB_TRIM: n = lx16a::angle_offset_adjust(pkt, j.id, (int8_t)j.a); break;
+      case JOB_TRIM_SAVE: n = lx16a::read_request(pkt, j.id, lx16a::ANGLE_OFFSET_WRITE); break;
       case JOB_MOVE: n = lx16a::move_time(pkt, j.id, j.b, (uint16_t)j.a); break;
       case JOB_READ_POS: n = lx16a::read_request(pkt, j.id, lx16a::POS_READ); break;
       case JOB_READ_VIN: n = lx16a::read_request(pkt, j.id, lx16a::VIN_READ); break;

@@ -84,7 +84,7 @@ class Controller {
   uint16_t rx_crc_errors() const { return parser_.crc_errors; }
 
  private:
-  enum JobKind { JOB_MOTOR, JOB_POSMODE, JOB_TRIM, JOB_MOVE, JOB_READ_POS, JOB_READ_VIN, JOB_SWEEP_END, JOB_RAW };
+  enum JobKind { JOB_MOTOR, JOB_POSMODE, JOB_TRIM, JOB_TRIM_SAVE, JOB_MOVE, JOB_READ_POS, JOB_READ_VIN, JOB_SWEEP_END, JOB_RAW };
   struct Job {
     uint8_t kind;
     uint8_t id;
