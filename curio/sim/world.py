@@ -229,6 +229,7 @@ class World:
         self._contact_pose = Pose2D()
         self.collisions = 0
         self._events: list[tuple[str, dict[str, Any]]] = []
+        self._contacts_stale = False
         self._enc_stuck = [0] * 6
         self._imu_noise: list[list[float]] = []
         self._imu_k = 0
@@ -279,6 +280,7 @@ class World:
         oid = self._new_id()
         self._boxes[oid] = Box(x, y, w, h, yaw)
         self._shapes_dirty = True
+        self._contacts_stale = True
         return oid
 
     def add_person(self, route: list[tuple[float, float]], speed_mps: float = 0.8,
@@ -313,6 +315,7 @@ class World:
         if door.is_open != open:
             door.is_open = open
             self._shapes_dirty = True
+            self._contacts_stale = True
             self._events.append(("door", {"name": name, "open": open}))
 
     def door(self, name: str) -> Door:
@@ -467,6 +470,11 @@ class World:
             vx, vy, w = vx * keep, vy * keep, w * keep
         w += self.drift_sign * noise.odom_heading_drift_rad_per_m * math.hypot(vx, vy)
         candidate = _integrate(self._pose, vx, vy, w, dt_s)
+        if self._contacts_stale:
+            # Something appeared on the rover (a box placed, a door closed onto it): what it
+            # already overlaps does not block it, so it can drive out.
+            self._contacts = frozenset(self._hits(self._pose))
+            self._contacts_stale = False
         hits = frozenset(self._hits(candidate))
         new = hits - self._contacts
         if new:

@@ -265,3 +265,13 @@ def test_tour_stops_are_reachable_through_the_doorways() -> None:
             mask[r - 8:r + 9, c - 8:c + 9] = False
         lab2, _ = ndimage.label(mask)
         assert lab2[grid.world_to_cell(x, y)] != lab2[grid.world_to_cell(0.0, 0.0)], room_name
+
+
+def test_a_door_closed_onto_the_rover_does_not_trap_it() -> None:
+    door = Door("d", (2.0, 0.0), (2.0, 4.0), is_open=True, thickness_m=0.05)
+    w = World(room(), no_noise(), Pose2D(2.0, 2.0, 0.0), WorldSpec(doors=[door]))
+    w.set_door("d", False)
+    assert w.collides(w.truth_pose)
+    drive(w, 0.3, 0.0, 3.0)
+    assert w.truth_pose.x > 2.5
+    assert w.collisions == 0
