@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import socket
 from collections.abc import AsyncIterator, Mapping
 from typing import Any
@@ -19,7 +20,8 @@ __all__ = ["SystemdNotifier", "every", "wait_event"]
 
 
 async def every(clock: Clock, period_s: float) -> AsyncIterator[float]:
-    """Yield the clock time every ``period_s`` seconds without drift (late ticks skip ahead)."""
+    """Yield the clock time every ``period_s`` seconds without drift (missed ticks are skipped,
+    the phase is kept)."""
     if period_s <= 0:
         raise ValueError(f"period_s must be > 0, got {period_s}")
     due = clock.now()
@@ -28,8 +30,9 @@ async def every(clock: Clock, period_s: float) -> AsyncIterator[float]:
         now = clock.now()
         yield now
         due += period_s
-        if due < now:
-            due = now + period_s
+        late = clock.now() - due
+        if late > 0:  # skip the missed ticks, keep the phase
+            due += math.ceil(late / period_s) * period_s
 
 
 async def wait_event(clock: Clock, event: asyncio.Event, timeout_s: float) -> bool:

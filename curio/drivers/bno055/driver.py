@@ -409,27 +409,39 @@ class Bno055Driver:
         log.debug("BNO055 reading dropped: %s", why)
         return stamp, None
 
-    def _read_burst(self, n: int, period_s: float) -> list[tuple[float, r.Sample | None]]:
-        """``n`` readings ``period_s`` apart, in the I/O thread (fewer event-loop wake-ups)."""
+    def _read_paced(
+        self, n: int, period_s: float, due: float
+    ) -> tuple[list[tuple[float, r.Sample | None]], float]:
+        """``n`` readings at ``due``, ``due + period_s``, ... in the I/O thread, which paces
+        them itself (so the event loop wakes once per trip); returns them and the next due
+        time. A late thread skips the missed slots instead of bunching reads."""
         out = []
-        for i in range(n):
-            if i:
-                wall_sleep(period_s)
+        for _ in range(n):
+            delay = due - self.clock.now()
+            if delay > 0:
+                wall_sleep(delay)
+            elif delay < -period_s:
+                due = self.clock.now()
             out.append(self._read_sample())
-        return out
+            due += period_s
+        return out, due
 
     async def _stream(self) -> None:
         period = 1.0 / self.cfg.rate_hz
-        # In the I/O thread, several readings per trip (the thread paces them on the wall
-        # clock); inline (the in-memory fake bus, simulated time) one per tick.
-        burst = self.cfg.samples_per_wakeup if self.offload else 1
-        next_id_check = self.clock.now() + 0.1  # first check (and CALIB_STAT) soon
+        next_check = self.clock.now() + 0.1  # first check (and CALIB_STAT) soon
         consecutive = 0
-        async for now in every(self.clock, period * burst):
-            if not self.offload:
-                readings = [self._read_sample()]  # the in-memory fake bus: inline
+        due = self.clock.now()
+        ticks = None if self.offload else every(self.clock, period)
+        while True:
+            if ticks is None:
+                # Real bus: several readings per trip to the I/O thread.
+                readings, due = await self._io(
+                    self._read_paced, self.cfg.samples_per_wakeup, period, due
+                )
             else:
-                readings = await self._io(self._read_burst, burst, period)
+                # The in-memory fake bus on simulated time: one reading per clock tick, inline.
+                await anext(ticks)
+                readings = [self._read_sample()]
             for stamp, sample in readings:
                 if sample is None:
                     consecutive += 1
@@ -441,9 +453,11 @@ class Bno055Driver:
                     continue
                 consecutive = 0
                 self._publish(sample, stamp)
-            if now >= next_id_check:
-                next_id_check = now + 1.0
+            now = self.clock.now()
+            if now >= next_check:
+                next_check = now + 1.0
                 await self._periodic_checks()
+                due = max(due, self.clock.now())
 
     async def _periodic_checks(self) -> None:
         try:
