@@ -285,6 +285,9 @@ class NavigatorNode:
     # --- planning ---------------------------------------------------------------------------
     def _start_plan(self, start: Pose2D, handle: GoalHandle, reason: str) -> None:
         goal = handle.poses[handle.current_index]
+        if not math.isfinite(goal.yaw):
+            # No heading wanted: the planner still needs a number for the last pose.
+            goal = Pose2D(goal.x, goal.y, math.atan2(goal.y - start.y, goal.x - start.x))
         costs = self.costmap.costs()
         res = self.costmap.resolution_m
         origin = self.costmap.origin
