@@ -24,7 +24,7 @@
     obstacles: null, tree: null, health: null, robot: null, lastMsgAt: 0,
     editPathId: null, thanksUntil: 0, teleopSeq: 0, lastCmdRequest: null,
   };
-  const view = { cx: 0, cy: 0, scale: 60, fitted: false, dirty: true };
+  const view = { cx: 0, cy: 0, scale: 60, fitted: false, zoomedOnRover: false, dirty: true };
   let tool = "look";
 
   // ----- token ------------------------------------------------------------------------------------
@@ -467,6 +467,7 @@
         std: [dv.getFloat32(off + 12, true), dv.getFloat32(off + 16, true), dv.getFloat32(off + 20, true)], stamp };
       if (type === FRAME.POSE) {
         S.pose = p;
+        if (!view.zoomedOnRover && S.images.map) closeView();  // first pose after the map
         if ($("follow").checked && tool === "look" && !dragging) followRover();
       } else S.truth = p;
     } else if (type === FRAME.PLAN || type === FRAME.LOCAL_PLAN) {
@@ -506,6 +507,7 @@
   function closeView() {
     fitView();
     if (!S.pose || W === 0) return;
+    view.zoomedOnRover = true;
     const minScale = W / 16;  // at least 16 m across, so the rover is easy to see
     if (view.scale < minScale) { view.scale = minScale; view.cx = S.pose.x; view.cy = S.pose.y; }
   }
