@@ -677,3 +677,43 @@ def test_resume_while_asking_for_help_means_help_done() -> None:
     h.tick()
     assert h.of("help.resolved")[-1].detail["reason"] == "help_done"
     assert h.nav.active is not None
+
+
+def test_final_tree_structure_and_priorities() -> None:
+    # §8 item 3: the original's final tree, with the e-stop guard on top.
+    h = make_harness()
+    h.tick()
+    snap = h.runner.snapshot()
+    by_id = {n["id"]: n for n in snap.nodes}
+    root = snap.nodes[0]
+    assert [by_id[c]["name"] for c in root["children"]] == [
+        "Operator2BB", "Blocked2BB", "EStop2BB", "Goal2BB", "Priorities"]
+    prio = next(n for n in snap.nodes if n["name"] == "Priorities")
+    assert prio["type"] == "Selector"
+    assert [by_id[c]["name"] for c in prio["children"]] == [
+        "E-stop", "Pause", "Go Home", "Change Path?", "Check Path", "Follow Path", "Idle"]
+    check = next(n for n in snap.nodes if n["name"] == "Check Path")
+    assert [by_id[c]["name"] for c in check["children"]] == ["Blocked?", "Ask4Help"]
+
+
+@pytest.mark.parametrize("path_id", [-1, -2, 3, 99])
+def test_negative_and_unknown_ids_are_rejected(path_id: int) -> None:
+    # §9.11: "-2" raised a KeyError inside the original's path follower.
+    h = make_harness()
+    h.press("select_path", path_id=path_id)
+    h.tick()
+    assert f"There is no path {path_id}" in h.last_message("bt.command_rejected")
+    assert h.nav.goals == [] and h.bb("curr_path") is None
+
+
+def test_commands_are_not_replayed_after_a_restart() -> None:
+    # §9.18: the original's latched switch_path replayed the last command ("-1") on restart.
+    from curio.topics import OPERATOR
+
+    assert OPERATOR.kind == "reliable" and not OPERATOR.latched
+    h = make_harness()
+    h.press("select_path", path_id=1)
+    h.tick()
+    again = make_harness(bus=h.bus)  # a new tree on the same bus
+    again.tick(3)
+    assert again.nav.goals == []
