@@ -196,6 +196,8 @@ class Hub:
         self.system: dict[str, Any] = {}
         self.commands_published = 0
         self.teleop_published = 0
+        self.rejected_messages = 0
+        self.slow_clients_dropped = 0
         self._paths_listened = False
         self._subs: list[tuple[Subscription[Any], Callable[[Any], None]]] = []
         if paths is not None and hasattr(paths, "add_listener"):
@@ -353,6 +355,7 @@ class Hub:
             client.wake.set()
 
     def _drop_slow(self, client: Client) -> None:
+        self.slow_clients_dropped += 1
         self.unregister(client)
         task = asyncio.ensure_future(
             client.ws.close(code=WSCloseCode.TRY_AGAIN_LATER,
@@ -429,6 +432,19 @@ class Hub:
                     "commands": self.commands_published,
                     "teleop_messages": self.teleop_published},
         }
+
+    def own_health(self) -> DriverHealth:
+        """The dashboard's own health line (clients, traffic, refusals)."""
+        sent = sum(c.sent_frames for c in self.clients)
+        return DriverHealth(
+            self.clock.now(), "web", "ok",
+            f"{len(self.clients)} dashboard(s) connected",
+            counters={"clients": float(len(self.clients)),
+                      "commands": float(self.commands_published),
+                      "teleop_messages": float(self.teleop_published),
+                      "rejected_messages": float(self.rejected_messages),
+                      "slow_clients_dropped": float(self.slow_clients_dropped),
+                      "frames_sent_to_connected": float(sent)})
 
     def publish_health(self) -> None:
         """Offer the merged health panel to every client (called about once a second)."""

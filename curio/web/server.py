@@ -36,6 +36,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from curio.bus import Bus
 from curio.clock import Clock, wall_perf_counter
 from curio.config import Config
+from curio.topics import HEALTH
 from curio.web.api import build_command, http_error, parse_pose, routes
 from curio.web.auth import RateLimiter, check_origin, request_token, token_matches
 from curio.web.hub import CLIENT_OPS, Client, CommandError, Hub, parse_json_object
@@ -256,6 +257,7 @@ def create_app(services: WebServices) -> web.Application:
             await client.ws.close(code=WSCloseCode.MESSAGE_TOO_BIG, message=b"message too big")
             return False
         if not client.limiter.allow(services.clock.now()):
+            hub.rejected_messages += 1
             client.rejected_in_a_row += 1
             if client.rejected_in_a_row == 1:
                 hub.reply(client, {"t": "error", "code": "rate_limited",
@@ -274,6 +276,7 @@ def create_app(services: WebServices) -> web.Application:
             msg_id = body.get("id")
             _handle_op(client, body, msg_id)
         except CommandError as exc:
+            hub.rejected_messages += 1
             hub.reply(client, {"t": "error", "id": msg_id, "code": "rejected",
                                "message": str(exc)})
         return True
@@ -328,6 +331,7 @@ def create_app(services: WebServices) -> web.Application:
                 due += 1.0
                 await services.clock.sleep_until(due)
                 hub.system = monitor.sample(await measure_loop_lag_ms())
+                services.bus.publish(HEALTH, hub.own_health())
                 hub.publish_health()
 
         hub.open()

@@ -15,6 +15,7 @@ from aiohttp import WSMsgType
 
 from curio.geometry import Pose2D
 from curio.messages import (
+    DriverHealth,
     Event,
     LaserScan,
     Path,
@@ -23,7 +24,18 @@ from curio.messages import (
     StatusText,
     TreeSnapshot,
 )
-from curio.topics import CMD_VEL_TELEOP, EVENTS, OPERATOR, PLAN, POSE, PROGRESS, SCAN, STATUS, TREE
+from curio.topics import (
+    CMD_VEL_TELEOP,
+    EVENTS,
+    HEALTH,
+    OPERATOR,
+    PLAN,
+    POSE,
+    PROGRESS,
+    SCAN,
+    STATUS,
+    TREE,
+)
 from curio.web import hub as hub_module
 from curio.web.encode import FRAME_PLAN, FRAME_POSE, FRAME_SCAN, decode_frame
 from tests.web.conftest import TOKEN, Dash, MakeDash
@@ -353,4 +365,21 @@ async def test_help_state_clears_when_the_tree_moves_on(make_dash: MakeDash) -> 
     d.bus.publish(STATUS, StatusText(3.0, "Going home", "going_home"))
     msg = await recv_json_until(ws, lambda m: m["t"] == "status")
     assert msg["help"]["active"] is False
+    await ws.close()
+
+
+async def test_health_panel_has_components_system_and_bus(make_dash: MakeDash) -> None:
+    d = await make_dash()
+    d.bus.publish(HEALTH, DriverHealth(0.5, "lidar", "degraded", "3 bad packets",
+                                       {"bad_packets": 3.0}))
+    web_health = d.bus.subscribe(HEALTH, maxsize=10)
+    ws = await connect(d)
+    await d.clock.advance(1.05)
+    health = await recv_json_until(ws, lambda m: m["t"] == "health")
+    assert health["components"]["lidar"]["counters"] == {"bad_packets": 3.0}
+    assert health["components"]["lidar"]["state"] == "degraded"
+    assert "loop_lag_ms" in health["system"] and health["system"]["cpu_count"] >= 1
+    assert health["bus"]["topics"]["/health"]["published"] >= 2
+    own = [h for h in web_health.drain() if h.name == "web"]
+    assert own and own[0].counters["clients"] == 1.0
     await ws.close()
