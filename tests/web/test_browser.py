@@ -200,6 +200,29 @@ async def test_clicked_waypoints_survive_a_restart(tmp_path: Path) -> None:
         await b.click_map(2.0, 1.0, drag_to=(2.0, 2.0))  # drag: the waypoint faces +y
         await b.wait_js(f"window.curio.S.paths.find(p => p.id === {new_id})"
                         ".waypoints.length === 2")
+        # Zoom with the wheel and with a two-finger pinch (touch pointers).
+        await page.click("[data-tool=look]")
+        scale0 = await b.state("window.curio.view.scale")
+        box = await page.locator("#map").bounding_box()
+        await page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        await page.mouse.wheel(0, -300)
+        await b.wait_js(f"window.curio.view.scale > {scale0} * 1.3")
+        scale1 = await b.state("window.curio.view.scale")
+        await page.evaluate("""() => {
+            const c = document.getElementById('map'), r = c.getBoundingClientRect();
+            const cx = r.left + r.width / 2, cy = r.top + r.height / 2;
+            const ev = (type, id, dx) => c.dispatchEvent(new PointerEvent(type, {
+                pointerId: id, pointerType: 'touch', clientX: cx + dx, clientY: cy,
+                bubbles: true, isPrimary: id === 1}));
+            ev('pointerdown', 1, -20); ev('pointerdown', 2, 20);
+            for (let k = 1; k <= 5; k++) { ev('pointermove', 1, -20 - 10 * k);
+                                           ev('pointermove', 2, 20 + 10 * k); }
+            ev('pointerup', 1, -70); ev('pointerup', 2, 70);
+        }""")
+        assert await b.state("window.curio.view.scale") == pytest.approx(scale1 * 70 / 20,
+                                                                          rel=0.01)
+        await page.click("#fit")
+
         # Drag with the pose tool: an initial pose in map, facing the drag direction.
         poses = app.bus.subscribe(INITIAL_POSE)
         await page.click("[data-tool=pose]")

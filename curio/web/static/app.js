@@ -679,7 +679,7 @@
   function localXY(ev) { const r = canvas.getBoundingClientRect(); return [ev.clientX - r.left, ev.clientY - r.top]; }
 
   canvas.addEventListener("pointerdown", (ev) => {
-    canvas.setPointerCapture(ev.pointerId);
+    try { canvas.setPointerCapture(ev.pointerId); } catch (e) { /* synthetic or lost pointer */ }
     const [sx, sy] = localXY(ev);
     pointers.set(ev.pointerId, [sx, sy]);
     if (pointers.size === 2) {
