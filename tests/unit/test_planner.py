@@ -8,6 +8,8 @@ import threading
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
@@ -345,3 +347,38 @@ def test_plan_on_a_real_map(shared_maps, name: str, yaml_name: str) -> None:  # 
     for p in poses:
         assert cm.cost_at(p.x, p.y) < 253
     assert path_length_m(poses) >= start.distance_to(goal) - 1e-9
+
+
+# ---------------------------------------------------------------- properties
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), density=st.floats(0.0, 0.35),
+       weight=st.sampled_from([1.0, 1.2, 2.0]), smooth=st.booleans())
+def test_any_grid_gives_a_traversable_path_or_a_true_no_path(
+        seed: int, density: float, weight: float, smooth: bool) -> None:
+    rng = np.random.default_rng(seed)
+    costs = rng.integers(0, 253, size=(24, 30)).astype(np.uint8)
+    costs[rng.random((24, 30)) < density] = 254
+    free = np.argwhere(costs < 253)
+    if len(free) < 2:
+        return
+    s, g = free[rng.integers(0, len(free), 2)]
+    planner = GlobalPlanner(PlannerConfig(heuristic_weight=weight, smooth=smooth,
+                                          goal_nearest_free=False))
+    lut = traversal_lut(3.0, False)
+    ref = dijkstra_cost(costs, lut, (int(s[0]), int(s[1])), (int(g[0]), int(g[1])))
+    try:
+        res = planner.plan_detailed(centre(*s), centre(*g), costs, RES, ORIGIN)
+    except NoPathError:
+        assert not math.isfinite(ref)
+        return
+    assert math.isfinite(ref)
+    assert ref - 1e-6 <= res.cost <= weight * ref * 1.001 + 1e-6
+    xy = np.array([[p.x, p.y] for p in res.poses])
+    fine = np.concatenate([xy[:-1] + t * (xy[1:] - xy[:-1]) for t in np.linspace(0, 1, 7)]) \
+        if len(xy) > 1 else xy
+    cells = np.floor(fine[:, ::-1] / RES).astype(int)
+    assert np.all(costs[cells[:, 0], cells[:, 1]] < 253)
+    assert res.poses[0].distance_to(centre(*s)) < 1e-9
+    assert res.poses[-1].distance_to(centre(*g)) < 1e-9
