@@ -14,7 +14,9 @@ The emulators are kept out of the figure:
   the CPU time spent inside its calls (and in the world's ``imu_sample``) is measured with the
   thread CPU clock and subtracted.
 
-Each driver is also measured alone (rows ``curio:lidar``, ``curio:arduino``, ``curio:imu``).
+Each driver is also measured alone (rows ``curio:lidar``, ``curio:arduino``, ``curio:imu``),
+and a ``baseline:empty-loop-100Hz`` row shows what this machine charges for an asyncio loop that
+does nothing but wake up 100 times a second (scheduling overhead, high on a loaded VM).
 
 Options (``--set``): ``duration=10`` seconds measured per phase (after a 3 s warm-up).
 """
@@ -166,6 +168,23 @@ async def _phase(which: set[str], cfg: Config, links: dict[str, Path], duration_
     }
 
 
+async def _baseline(duration_s: float) -> dict[str, Any]:
+    """What this machine charges for an event loop that only wakes up 100 times a second."""
+
+    async def tick() -> None:
+        while True:
+            await asyncio.sleep(0.01)
+
+    task = asyncio.create_task(tick())
+    await asyncio.sleep(1.0)
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    await asyncio.sleep(duration_s)
+    cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
+    task.cancel()
+    return {"cpu_fraction": round(cpu / wall, 4), "cpu_ms_per_s": round(1000 * cpu / wall, 2),
+            "wall_s": round(wall, 2)}
+
+
 def _devices(which: set[str]) -> set[str]:
     return {"rplidar" if w == "lidar" else w for w in which if w != "imu"}
 
@@ -174,6 +193,7 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
     """Measure all drivers together, then each alone; one row per phase."""
     duration_s = float(opts.extra.get("duration", 10))
     rows: list[dict[str, Any]] = []
+    rows.append({"subject": "baseline:empty-loop-100Hz", **asyncio.run(_baseline(duration_s))})
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(REPO_ROOT / "config.toml", [f'data_dir="{tmp}"'])
         links = {"rplidar": Path(tmp) / "lidar", "arduino": Path(tmp) / "arduino"}

@@ -167,7 +167,7 @@ class RplidarDriver:
         )
         # Watch the stream until it fails.
         started = self.clock.now()
-        poll = min(0.1, self.cfg.stall_timeout_s / 4)
+        poll = min(0.25, self.cfg.stall_timeout_s / 4)
         resumer = asyncio.ensure_future(self._resume_loop())
         try:
             await self._watch(started, poll)
