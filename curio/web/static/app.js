@@ -636,7 +636,11 @@
       }
     }
     if (S.truth) drawRobot(S.truth, "rgba(0,0,0,0)", "rgba(17,24,39,.35)");
-    if (S.pose) drawRobot(S.pose, "rgba(29,78,216,.35)", "#1d4ed8", "Curio");
+    if (S.pose) {
+      const home = S.robot && S.robot.home;
+      const atHome = home && Math.hypot(S.pose.x - home[0], S.pose.y - home[1]) < 0.3;
+      drawRobot(S.pose, "rgba(29,78,216,.35)", "#1d4ed8", atHome ? "Curio (at home)" : "Curio");
+    }
     if (drag && drag.kind === "arrow") {
       const [ax, ay] = toScreen(drag.wx, drag.wy);
       ctx.beginPath(); ctx.moveTo(ax, ay); ctx.lineTo(drag.sx, drag.sy);
