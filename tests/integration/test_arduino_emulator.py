@@ -306,3 +306,31 @@ async def test_old_firmware_protocol_says_reflash() -> None:
             t.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         emu.close()
+
+
+async def test_port_held_by_another_program() -> None:
+    import serial
+
+    clock = RealClock()
+    emu = ArduinoEmulator(FakeWorld(), clock, boot_delay_s=0.1)
+    emu.open()
+    holder = serial.Serial(emu.port_path, 115200, exclusive=True)  # e.g. a serial monitor
+    base = ArduinoBase(FAST, RobotConfig(), make_bus(), clock, port=emu.port_path)
+    task = asyncio.ensure_future(base.run())
+    try:
+        ok = await clock.wait_until(lambda: base.health().state == "error", 2.0, poll_s=0.01)
+        assert ok
+        assert "no other program" in base.health().message
+        holder.close()  # the other program lets go: the driver takes over by itself
+        emu_task = asyncio.ensure_future(emu.run())
+        try:
+            assert await clock.wait_until(lambda: base.mcu_state == p.McuState.ARMED, 4.0,
+                                          poll_s=0.01), base.health()
+        finally:
+            emu_task.cancel()
+            await asyncio.gather(emu_task, return_exceptions=True)
+    finally:
+        holder.close()
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        emu.close()

@@ -79,7 +79,8 @@ ACK_TIMEOUT_S = 0.3
 ACK_RETRIES = 3
 TX_HOLD_S = 0.15  # the board sends STATE at 10 Hz and SERVO_POS at 30 Hz: longer silence is odd
 PORT_HINT = ("is the Mega plugged in? Run `curio check`; on the Pi the udev rule in deploy/ "
-             "names it /dev/curio-arduino, and the user needs the dialout group")
+             "names it /dev/curio-arduino, and the user needs the dialout group; no other "
+             "program (arduino-cli upload, a serial monitor) may hold the port")
 
 
 class McuClock:
@@ -293,7 +294,7 @@ class ArduinoBase:
         self._phase = "starting"
         self.publish_health()
         reader, writer = await serial_asyncio_fast.open_serial_connection(
-            url=self.port, baudrate=self.cfg.baud)
+            url=self.port, baudrate=self.cfg.baud, exclusive=True)
         self._writer = writer
         if self._opened_before:
             self.counters["reconnects"] += 1
