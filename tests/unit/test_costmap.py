@@ -422,3 +422,21 @@ async def test_costmap_node_places_a_scan_with_the_pose_at_its_stamp(bus: Bus) -
     assert marked.shape[0] == 1
     x, _ = cm.cell_to_world(int(marked[0, 0]), int(marked[0, 1]))
     assert x == pytest.approx(2.3 + 0.152, abs=0.05)
+
+
+def test_scan_on_a_rotated_map_marks_the_right_place() -> None:
+    grid = free_grid(200, origin=Pose2D(10.0, -2.0, math.pi / 2))  # covers x 0..10, y -2..8
+    cm = Costmap(grid, RobotConfig(laser_pose=(0.0, 0.0, 0.0)), CostmapConfig())
+    pose = Pose2D(5.0, 3.0, math.pi / 4)
+    ranges = np.full(360, np.inf)
+    ranges[beam_index(0.0)] = 2.0
+    cm.update_from_scan(make_scan(ranges), pose)
+    hit_x = 5.0 + 2.0 * math.cos(math.pi / 4)
+    hit_y = 3.0 + 2.0 * math.sin(math.pi / 4)
+    assert cm.cost_at(hit_x, hit_y) == LETHAL
+    assert cm.obstacle_mask().sum() == 1
+    # inflation around the hit, in map coordinates: 0.2 m away inscribed, 1 m away free
+    back = 2.0 - 0.2
+    assert cm.cost_at(5.0 + back * math.cos(math.pi / 4), 3.0 + back * math.sin(math.pi / 4)) \
+        == INSCRIBED
+    assert cm.cost_at(5.0 + math.cos(math.pi / 4), 3.0 + math.sin(math.pi / 4)) == 0
