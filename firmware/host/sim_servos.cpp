@@ -16,6 +16,7 @@ const SimServo* SimServoBus::servo(uint8_t id) const {
 }
 
 void SimServoBus::write(const uint8_t* data, uint8_t n) {
+  if (echo) out_.insert(out_.end(), data, data + n);
   for (uint8_t i = 0; i < n; ++i) parser_.push(data[i]);
   lx16a::Packet p;
   while (parser_.next(p)) handle(p);

@@ -38,6 +38,7 @@ class SimServoBus : public ServoLink {
   double counts_per_ms_per_duty = 0.0015;  // duty 1000 -> one turn a second
   uint32_t latency_ms = 1;
   bool silent = false;  // every servo stops answering (unplugged bus)
+  bool echo = false;    // the half-duplex adapter echoes what the master sends
 
  private:
   void handle(const lx16a::Packet& p);

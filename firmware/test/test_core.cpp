@@ -292,7 +292,40 @@ static void test_sumd() {
   CHECK(frames == 1 && d.crc_errors == 1);
 }
 
+static void test_bus_echo_and_raw() {
+  // A BusLinker that echoes our own bytes: reads still get the servo's reply, not the echo.
+  Rig r;
+  r.bus.echo = true;
+  r.ctrl.boot(0, 0x01);
+  r.run(200);
+  const Frame* pos = r.host.last(MSG_SERVO_POS);
+  CHECK(pos && get_u16(pos->payload + 4) == 0x3FF);
+  CHECK(pos && get_i16(pos->payload + 6 + 2 * 6) == 500);  // steering FL reads its position
+  // SERVO_RAW while disarmed: an ID_READ is forwarded and its reply returned.
+  uint8_t pkt[16];
+  uint8_t n = lx16a::read_request(pkt, 131, lx16a::ID_READ);
+  std::vector<uint8_t> raw = {n};
+  raw.insert(raw.end(), pkt, pkt + n);
+  r.send(MSG_SERVO_RAW, raw);
+  r.run(100);
+  const Frame* rep = r.host.last(MSG_SERVO_RAW_REPLY);
+  CHECK(rep && rep->payload[0] == 0 && rep->payload[1] == 7 && rep->payload[2 + 5] == 131);
+  // A write gets no reply (its echo is not taken for one): status 1 after the timeout.
+  n = lx16a::move_time(pkt, 111, 600, 100);
+  raw.assign(1, n);
+  raw.insert(raw.end(), pkt, pkt + n);
+  r.send(MSG_SERVO_RAW, raw);
+  r.run(100);
+  rep = r.host.last(MSG_SERVO_RAW_REPLY);
+  CHECK(rep && rep->payload[0] == 1 && rep->payload[1] == 0);
+  // Refused while armed.
+  r.send(MSG_ARM, {1});
+  r.send(MSG_SERVO_RAW, raw);
+  CHECK(r.host.last(MSG_ACK)->payload[1] == MSG_SERVO_RAW && r.host.last(MSG_ACK)->payload[2] == ACK_WRONG_STATE);
+}
+
 int main() {
+  test_bus_echo_and_raw();
   test_sumd();
   test_crc_and_vectors();
   test_parser_resync();

@@ -219,7 +219,9 @@ void Controller::run_servo_bus(uint32_t now_ms) {
       while (servo_parser_.next(reply)) {
         uint8_t want_cmd = j.kind == JOB_READ_POS ? lx16a::POS_READ
                            : j.kind == JOB_READ_VIN ? lx16a::VIN_READ : 0;
-        bool match = j.kind == JOB_RAW ? (reply.n > 0 && (j.id == lx16a::BROADCAST_ID || reply.id == j.id))
+        bool echo_of_raw = j.kind == JOB_RAW && reply.n + 6 == raw_n_ && reply.cmd == raw_[4] &&
+                           memcmp(reply.params, raw_ + 5, reply.n) == 0;
+        bool match = j.kind == JOB_RAW ? (!echo_of_raw && (j.id == lx16a::BROADCAST_ID || reply.id == j.id))
                                        : (reply.id == j.id && reply.cmd == want_cmd && reply.n == 2);
         if (match) {  // an echo of our own request has no params and never matches
           finish_job(true, &reply, now_ms);
