@@ -175,9 +175,9 @@ async def test_board_reset_reconfigures_and_rearms() -> None:
 
 
 async def test_no_bytes_streamed_into_the_bootloader() -> None:
-    cfg = FAST.model_copy(update={"link_timeout_s": 1.5})
+    cfg = FAST.model_copy(update={"link_timeout_s": 2.5})
     async with make_rig(cfg, boot_delay_s=0.1) as rig:
-        rig.emu.boot_delay_s = 0.8  # a slow bootloader after a spontaneous reset
+        rig.emu.boot_delay_s = 1.5  # a slow bootloader after a spontaneous reset
         rig.emu.reset()
         await rig.clock.sleep(0.3)  # the driver notices the silence within 0.15 s
         held_at = rig.emu.bytes_in
