@@ -75,6 +75,7 @@ Six = tuple[int | None, int | None, int | None, int | None, int | None, int | No
 CommandFn = Callable[[float, float, RobotConfig, float], ServoCommand]
 HEARTBEAT_PERIOD_S = 0.2
 HEALTH_PERIOD_S = 1.0
+RECOVERED_NOTE_S = 60.0  # how long an "ok" health still mentions the last problem
 ACK_TIMEOUT_S = 0.3
 ACK_RETRIES = 3
 TX_HOLD_S = 0.15  # the board sends STATE at 10 Hz and SERVO_POS at 30 Hz: longer silence is odd
@@ -253,7 +254,8 @@ class ArduinoBase:
 
     def _assess(self) -> tuple[str, str]:
         recent = ""
-        if self.last_error and self._last_error_s is not None:
+        if self.last_error and self._last_error_s is not None and \
+                self.clock.now() - self._last_error_s < RECOVERED_NOTE_S:
             recent = f" (recovered from: {self.last_error})"
         if self._phase == "disconnected":
             return "error", f"link down: {self.last_error or 'not connected'}; reconnecting"
