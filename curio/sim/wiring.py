@@ -10,6 +10,7 @@
   ``/scan`` (``cfg.sim.lidar_rate_hz``), ``/imu`` (``cfg.sim.imu_rate_hz``), ``/wheels``
   (``cfg.sim.wheel_feedback_rate_hz``) and ``/battery`` (1 Hz). In ``emulated`` mode the
   byte-exact device emulators pull from the world instead.
+* both modes: ``/health`` (name ``simulator``, 1 Hz) with collision, step and scan counters.
 """
 
 from __future__ import annotations
@@ -22,13 +23,22 @@ from curio.bus import Bus
 from curio.clock import Clock
 from curio.config import Config
 from curio.drivers.kinematics import twist_to_servo_command
-from curio.messages import BatteryState, Event, Odometry, ServoCommand, Twist, WheelEncoders
+from curio.messages import (
+    BatteryState,
+    DriverHealth,
+    Event,
+    Odometry,
+    ServoCommand,
+    Twist,
+    WheelEncoders,
+)
 from curio.sim.world import World
 from curio.topics import (
     BATTERY,
     CMD_VEL,
     EVENTS,
     GROUND_TRUTH,
+    HEALTH,
     IMU,
     SCAN,
     SERVO_CMD,
@@ -100,10 +110,16 @@ class Simulator:
             self.bus.publish(WHEELS, WheelEncoders(t, (p[0], p[1], p[2], p[3], p[4], p[5])))
 
     async def run_battery(self) -> None:
-        """Publish the servo pack voltage once a second."""
+        """Publish the servo pack voltage (``sim`` mode) and the simulator's health, 1 Hz."""
         async for t in _every(self.clock, 1.0, phase_s=0.003):
-            volts = self.world.battery_voltage()
-            self.bus.publish(BATTERY, BatteryState(t, volts, low=volts < LOW_BATTERY_V))
+            if self.publish_sensors:
+                volts = self.world.battery_voltage()
+                self.bus.publish(BATTERY, BatteryState(t, volts, low=volts < LOW_BATTERY_V))
+            self.bus.publish(HEALTH, DriverHealth(t, "simulator", "ok", counters={
+                "collisions": float(self.world.collisions),
+                "physics_steps": float(self.physics_steps),
+                "scans": float(self.scans),
+                "in_contact": float(self.world.in_contact)}))
 
 
 class SimBase:
@@ -178,6 +194,7 @@ def build_sim(app: App) -> None:
     simulator = Simulator(cfg, app.bus, app.clock, world, publish_sensors=sim_mode)
     app.simulator = simulator
     app.add(Part("sim.physics", run=simulator.run_physics))
+    app.add(Part("sim.battery", run=simulator.run_battery))
     if not sim_mode:
         return
     base = SimBase(cfg, app.bus, app.clock, world)
@@ -188,4 +205,3 @@ def build_sim(app: App) -> None:
     app.add(Part("sim.lidar", run=simulator.run_scan))
     app.add(Part("sim.imu", run=simulator.run_imu))
     app.add(Part("sim.wheels", run=simulator.run_wheels))
-    app.add(Part("sim.battery", run=simulator.run_battery))

@@ -21,6 +21,7 @@ from curio.topics import (
     CMD_VEL,
     EVENTS,
     GROUND_TRUTH,
+    HEALTH,
     IMU,
     SCAN,
     SERVO_CMD,
@@ -65,6 +66,9 @@ async def test_sensor_rates_and_frames() -> None:
     assert gt is not None and gt.frame_id == "map" and gt.pose == Pose2D(1.0, 2.0, 0.0)
     scan = bus.latest(SCAN)
     assert scan is not None and scan.frame_id == "laser" and len(scan.ranges_m) == 360
+    health = bus.latest(HEALTH)
+    assert health is not None and health.name == "simulator"
+    assert health.counters["scans"] == 10 and health.counters["collisions"] == 0
 
 
 async def test_simbase_drives_and_times_out() -> None:
