@@ -336,7 +336,8 @@ class SafetyConfig(Section):
     max_accel_mps2: float = Field(0.8, gt=0.0)
     max_angular_accel_radps2: float = Field(3.0, gt=0.0)
     stop_distance_m: float = Field(0.10, ge=0.0, description="margin around the footprint")
-    slow_distance_m: float = Field(0.5, ge=0.0)
+    slow_distance_m: float = Field(
+        0.3, ge=0.0, description="approached obstacles nearer than this ahead slow the rover")
     lookahead_s: float = Field(1.0, gt=0.0)
     cmd_timeout_s: float = Field(0.5, gt=0.0)
     teleop_timeout_s: float = Field(0.5, gt=0.0)

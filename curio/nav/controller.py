@@ -52,6 +52,7 @@ F64 = npt.NDArray[np.float64]
 
 LETHAL = 254
 INSCRIBED = 253
+OUTLINE_MARGIN_M = 0.015
 
 
 class CostOracle(Protocol):
@@ -282,6 +283,8 @@ class LocalController:
         if self._perimeter_pts is None:
             poly = np.asarray(getattr(self.costmap, "footprint", self.robot.footprint),
                               dtype=np.float64).reshape(-1, 2)
+            # A little extra so a graze between the outline's samples is still seen.
+            poly = poly + np.sign(poly) * OUTLINE_MARGIN_M
             step = 0.5 * float(getattr(self.costmap, "resolution_m", 0.05))
             pts = []
             for a, b in zip(poly, np.roll(poly, -1, axis=0), strict=True):
