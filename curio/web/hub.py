@@ -388,6 +388,7 @@ class Hub:
                 "max_angular_radps": min(self.cfg.robot.max_angular_radps,
                                          self.cfg.nav.safety.max_angular_radps),
                 "name": self.cfg.robot.name,
+                "tree": self.cfg.bt.tree,
             },
         }
 

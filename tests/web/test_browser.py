@@ -350,3 +350,24 @@ async def test_teleop_moves_and_release_stops(tmp_path: Path) -> None:
         await clock.sleep(1.0)
         assert math.dist(held, truth_xy(app)) < 0.02, "the rover kept moving after the key"
         assert b.errors == []
+
+
+async def test_tour_start_and_stop_buttons(tmp_path: Path) -> None:
+    """With the tour tree: Start tour starts it, Stop this trip ends it, both from the tree's
+    state. Drives: behaviour tree (tour), navigation, sim."""
+    cfg = make_cfg(tmp_path / "data", 'bt.tree="tour"',
+                   'bt.tour_stops=[{name="Lobby", x_m=2.0, y_m=-2.5, dwell_s=1.0, '
+                   'message="Welcome"}]')
+    async with running_app(cfg) as (app, _clock), browser_on(app.web_url or "") as b:
+        page = b.page
+        assert await page.is_visible("#startTour")
+        assert not await page.is_visible("#cancelTrip")
+        await page.click("#startTour")
+        await b.wait_js("['tour', 'moving'].includes(window.curio.S.status.state)")
+        await b.wait_js("document.querySelector('#cmdMsg').textContent.includes('Tour started')")
+        await b.wait_js("!document.querySelector('#cancelTrip').classList.contains('hidden')")
+        await b.shot("12-tour")
+        await page.click("#cancelTrip")
+        await b.wait_js("window.curio.S.status.state === 'idle'")
+        assert not await page.is_visible("#cancelTrip")
+        assert b.errors == []

@@ -124,10 +124,16 @@
     const homeOn = state === "going_home" || (S.progress && S.progress.path_id === 0 && state !== "idle");
     home.classList.toggle("on", !!homeOn);
     home.textContent = state === "going_home" ? "⌂ Going home…" : "⌂ Go Home";
+    const isTour = S.robot && S.robot.tree === "tour";
+    $("startTour").classList.toggle("hidden", !isTour);
+    const tripOn = ["moving", "going_home", "tour", "paused", "needs_help"].includes(state);
+    $("cancelTrip").classList.toggle("hidden", !tripOn);
+    $("cancelTrip").dataset.action = state === "tour" ? "stop_tour" : "cancel";
     const canControl = S.control && S.connected;
-    for (const id of ["goHome", "pause", "pathEnter", "helpDone", "newPath", "renamePath", "deletePath", "releaseEstop"]) {
+    for (const id of ["goHome", "pause", "startTour", "cancelTrip", "pathEnter", "helpDone", "newPath", "renamePath", "deletePath", "releaseEstop"]) {
       $(id).disabled = !canControl;
     }
+    if (state === "tour") $("startTour").disabled = true;
     $("estop").disabled = !S.control;  // tried even while the live link is down
     $("estop").classList.toggle("engaged", !!estopOn);
     $("estopBanner").classList.toggle("hidden", !estopOn);
@@ -765,6 +771,8 @@
   $("goHome").addEventListener("click", () => command("go_home"));
   $("pause").addEventListener("click", () => command($("pause").dataset.action || "pause"));
   $("helpDone").addEventListener("click", () => command("help_done"));
+  $("startTour").addEventListener("click", () => command("start_tour"));
+  $("cancelTrip").addEventListener("click", () => command($("cancelTrip").dataset.action || "cancel"));
   $("estop").addEventListener("click", () => { stopTeleop(); command("estop"); });
   $("releaseEstop").addEventListener("click", () => command("release_estop"));
   $("pathForm").addEventListener("submit", async (ev) => {
