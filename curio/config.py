@@ -96,8 +96,15 @@ class ArduinoConfig(Section):
     steer_move_ms: int = Field(50, ge=0, le=30000)
     low_battery_v: float = Field(6.6, ge=0.0, le=20.0)
     persist_steer_trim: bool = Field(False, description="also save trims in servo EEPROM")
-    rc_enabled: bool = Field(False, description="the Mega reports RC receiver channels")
+    rc_enabled: bool = Field(
+        False, description="RC transmitter teleop: the Mega reports the receiver's channels and "
+        "the driver publishes them on /cmd_vel_teleop (1100..1900 us -> full speed)"
+    )
     rc_pwm: bool = Field(False, description="RC via PWM pins instead of SUMD")
+    rc_linear_channel: int = Field(0, ge=0, le=15, description="raw receiver order, 0-based")
+    rc_angular_channel: int = Field(1, ge=0, le=15, description="raw receiver order, 0-based")
+    rc_enable_channel: int = Field(4, ge=0, le=15, description="above 1800 us: teleop off")
+    rc_angular_sign: Literal[-1, 1] = 1
 
 
 class LidarConfig(Section):
@@ -320,9 +327,9 @@ class ControllerConfig(Section):
         0.3, gt=0.0, description="speed profile towards the goal: v <= sqrt(2 a d)")
     min_speed_mps: float = Field(0.05, ge=0.0)
     slow_clearance_m: float = Field(
-        0.25, ge=0.0, description="slow down when an obstacle is nearer than this to the "
+        0.15, ge=0.0, description="slow down when an obstacle is nearer than this to the "
         "footprint")
-    slow_min_fraction: float = Field(0.5, gt=0.0, le=1.0)
+    slow_min_fraction: float = Field(0.6, gt=0.0, le=1.0)
     collision_horizon_s: float = Field(1.2, gt=0.0)
     blocked_timeout_s: float = Field(
         3.0, gt=0.0, description="no admissible command for this long: the path is blocked")

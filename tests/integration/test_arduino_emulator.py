@@ -334,3 +334,34 @@ async def test_port_held_by_another_program() -> None:
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
         emu.close()
+
+
+async def test_rc_transmitter_teleop() -> None:
+    from curio.topics import CMD_VEL_TELEOP
+
+    cfg = FAST.model_copy(update={"rc_enabled": True})
+    async with make_rig(cfg) as rig:
+        teleop = rig.bus.subscribe(CMD_VEL_TELEOP, maxsize=100)
+        sticks = [1500] * 12
+        sticks[0], sticks[1], sticks[4] = 1900, 1300, 1000  # full ahead, half right, on
+        rig.emu.firmware.rc_channels_us = tuple(sticks)
+        await rig.clock.sleep(0.3)
+        got = teleop.drain()
+        assert len(got) >= 3  # 20 Hz
+        assert got[-1].linear_mps == pytest.approx(0.37)
+        assert got[-1].angular_radps == pytest.approx(-0.5 * 1.45)
+        assert got[-1].source == "rc"
+        sticks[4] = 1900  # the transmitter's switch turns teleop off
+        rig.emu.firmware.rc_channels_us = tuple(sticks)
+        await rig.clock.sleep(0.1)
+        teleop.drain()
+        await rig.clock.sleep(0.3)
+        assert teleop.drain() == []
+        sticks[4] = 1000
+        rig.emu.firmware.rc_channels_us = tuple(sticks)
+        rig.emu.firmware.rc_flags = p.RC_FAILSAFE  # receiver failsafe: nothing is published
+        await rig.clock.sleep(0.1)
+        teleop.drain()
+        await rig.clock.sleep(0.3)
+        assert teleop.drain() == []
+        assert rig.base.rc is not None and rig.base.rc.flags & p.RC_FAILSAFE

@@ -32,6 +32,11 @@ board), ``mcu_rx_crc_err`` (frames to the board, as the board counts them), ``re
 ``nacks``, ``bad_payloads``, ``rx_frames``, ``tx_frames``, ``heartbeat_echo_age_ms``,
 ``mcu_state`` (−1 unknown, else :class:`~curio.drivers.arduino.protocol.McuState`).
 
+With ``rc_enabled`` the board reports its RC receiver and the driver turns fresh, valid frames
+into ``/cmd_vel_teleop`` (source ``rc``; the original's mapping: 1100..1900 µs to full wheel
+speed and yaw rate, a switch channel above 1800 µs turns it off); the safety stage gives teleop
+precedence while it is fresh.
+
 The latched ``/estop`` is forwarded as the firmware's ESTOP (latched on the board too) and
 released with ARM.
 
@@ -65,7 +70,7 @@ from curio.drivers.arduino import protocol as p
 from curio.drivers.arduino._loop import Pacer, every, wait_until
 from curio.drivers.kinematics import twist_to_servo_command
 from curio.messages import BatteryState, DriverHealth, EStop, ServoCommand, Twist, WheelEncoders
-from curio.topics import BATTERY, CMD_VEL, ESTOP, HEALTH, SERVO_CMD, WHEELS
+from curio.topics import BATTERY, CMD_VEL, CMD_VEL_TELEOP, ESTOP, HEALTH, SERVO_CMD, WHEELS
 
 __all__ = ["ArduinoBase", "CommandFn", "McuClock"]
 
@@ -184,7 +189,7 @@ class ArduinoBase:
             "reconnects": 0, "link_losses": 0, "rx_frames": 0, "tx_frames": 0,
             "bad_payloads": 0, "nacks": 0, "mcu_resets": 0, "watchdog_trips": 0,
             "servo_read_failures": 0, "mcu_rx_crc_err": 0, "tx_holds": 0,
-            "heartbeat_echo_age_ms": -1.0,
+            "heartbeat_echo_age_ms": -1.0, "rc_teleop": 0,
         }
 
     # --- public -------------------------------------------------------------------------------
@@ -543,8 +548,30 @@ class ArduinoBase:
             self.servo_status = msg
         elif isinstance(msg, p.RcChannels):
             self.rc = msg
+            if self.cfg.rc_enabled:
+                self._rc_teleop(msg, now)
         elif isinstance(msg, p.Log):
             log.info("mega: %s", msg.text)
+
+    def _rc_teleop(self, msg: p.RcChannels, now: float) -> None:
+        """The original's RC teleop: sticks to ``/cmd_vel_teleop`` while the switch allows."""
+        c = self.cfg
+        if not msg.flags & p.RC_NEW or msg.flags & (p.RC_FAILSAFE | p.RC_LOST):
+            return  # no fresh, valid receiver frame: publish nothing (teleop times out)
+        ch = msg.channels_us
+        if len(ch) <= max(c.rc_linear_channel, c.rc_angular_channel, c.rc_enable_channel):
+            return
+        if ch[c.rc_enable_channel] > 1800:
+            return  # teleop switched off on the transmitter
+
+        def stick(us: int) -> float:
+            return max(-1.0, min(1.0, (us - 1500) / 400.0))
+
+        self.counters["rc_teleop"] += 1
+        self.bus.publish(CMD_VEL_TELEOP, Twist(
+            stamp=now, linear_mps=stick(ch[c.rc_linear_channel]) * self.robot.max_wheel_speed_mps,
+            angular_radps=stick(ch[c.rc_angular_channel]) * self.robot.max_angular_radps
+            * c.rc_angular_sign, source="rc"))
 
     def _on_state(self, msg: p.State) -> None:
         try:

@@ -42,8 +42,9 @@ cable: the pty disappears, and comes back as a fresh one), :meth:`inject_garbage
 :meth:`corrupt_rx` (drop frames from the host as CRC errors for a while), :meth:`truncate_tx`,
 :meth:`reset` (a reboot: wheels stopped, boot window, disarmed), :meth:`stall` (the board stops
 talking and listening for a while, its watchdogs still running), ``servo_read_fail_rate``
-(per-read failures in SERVO_POS) and ``firmware.proto_version`` (an old firmware). Times are in
-seconds of the injected clock.
+(per-read failures in SERVO_POS) and ``firmware.proto_version`` (an old firmware). An RC
+receiver: set ``firmware.rc_channels_us`` (µs, raw receiver order) and ``firmware.rc_flags``
+(``protocol.RC_FAILSAFE`` / ``RC_LOST``). Times are in seconds of the injected clock.
 """
 
 from __future__ import annotations
@@ -153,6 +154,10 @@ class FirmwareModel:
     next_status_ms: int = 0
     decoder: p.FrameDecoder = field(default_factory=p.FrameDecoder)
     proto_version: int = p.PROTO_VERSION  # what INFO announces (a knob: "old firmware")
+    rc_channels_us: tuple[int, ...] | None = None  # an RC receiver (None: none fitted)
+    rc_flags: int = 0  # extra RC flags (failsafe, lost)
+    rc_frames: int = 0
+    next_rc_ms: int = 0
 
     # --- output ---------------------------------------------------------------------------------
 
@@ -329,6 +334,12 @@ class FirmwareModel:
             self._emit(p.Battery(_median(vin)))
         if now_ms >= self.next_state_ms:
             self._emit_state(now_ms)
+        if self.config.flags & 0x02 and self.rc_channels_us is not None and \
+                now_ms >= self.next_rc_ms:  # RC at 20 Hz when enabled and a receiver talks
+            self.next_rc_ms = now_ms + 50
+            self.rc_frames = (self.rc_frames + 1) & 0xFF
+            self._emit(p.RcChannels(now_ms, p.RC_NEW | self.rc_flags, self.rc_frames,
+                                    self.rc_channels_us))
 
 
 @dataclass

@@ -78,6 +78,10 @@ FRAME_OVERHEAD = 7  # header + CRC
 PROTO_VERSION = 1
 STEER_UNCHANGED = 0xFFFF  # SERVO_CMD steering value: leave this servo where it is
 ADC_NOT_FITTED = 0xFFFF  # BATTERY adc_mV: no divider on A0
+RC_NEW = 0x01  # RC.flags: a new receiver frame since the last report
+RC_FAILSAFE = 0x02  # the receiver is in failsafe (SUMD status 0x81)
+RC_LOST = 0x04  # no valid receiver frame for 100 ms
+RC_SUMH = 0x08
 
 DEFAULT_WHEEL_IDS: tuple[int, ...] = (11, 12, 13, 21, 22, 23)  # FL, ML, BL, FR, MR, BR
 DEFAULT_STEER_IDS: tuple[int, ...] = (111, 131, 211, 231)  # FL, BL, FR, BR
