@@ -100,7 +100,6 @@ class ArduinoConfig(Section):
         False, description="RC transmitter teleop: the Mega reports the receiver's channels and "
         "the driver publishes them on /cmd_vel_teleop (1100..1900 us -> full speed)"
     )
-    rc_pwm: bool = Field(False, description="RC via PWM pins instead of SUMD")
     rc_linear_channel: int = Field(0, ge=0, le=15, description="raw receiver order, 0-based")
     rc_angular_channel: int = Field(1, ge=0, le=15, description="raw receiver order, 0-based")
     rc_enable_channel: int = Field(4, ge=0, le=15, description="above 1800 us: teleop off")

@@ -423,8 +423,7 @@ class ArduinoBase:
                            cmd_timeout_ms=round(c.mcu_cmd_timeout_s * 1000),
                            pos_rate_hz=round(c.feedback_rate_hz), status_rate_hz=1,
                            steer_move_ms=c.steer_move_ms,
-                           flags=(1 if c.persist_steer_trim else 0) | (2 if c.rc_enabled else 0)
-                           | (4 if c.rc_pwm else 0))
+                           flags=(1 if c.persist_steer_trim else 0) | (2 if c.rc_enabled else 0))
 
     async def _configure(self, reader_task: asyncio.Future[None]) -> None:
         if self.info is not None and self.info.proto_ver != p.PROTO_VERSION:
