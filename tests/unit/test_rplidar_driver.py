@@ -99,13 +99,18 @@ async def test_scans_in_laser_frame(rig: Rig) -> None:
 async def test_scan_stamps_are_revolution_starts(rig: Rig) -> None:
     """Reads are batched (read_interval_s); the stamp is still the revolution's start."""
     await rig.next_scan()
-    errors = []
-    for _ in range(5):
+    errors: list[float] = []
+    durations: list[float] = []
+    for _ in range(7):
         scan = await rig.next_scan()
         nearest = min(CAST_TIMES, key=lambda t: abs(t - scan.stamp))
         errors.append(scan.stamp - nearest)
-        assert scan.scan_time_s == pytest.approx(0.1, abs=0.03)
-    assert max(abs(e) for e in errors) < 0.02, errors
+        durations.append(scan.scan_time_s)
+    durations.sort()
+    assert durations[len(durations) // 2] == pytest.approx(0.1, abs=0.02)
+    errors.sort(key=abs)
+    assert abs(errors[len(errors) // 2]) < 0.01, errors  # median: robust to a starved read
+    assert abs(errors[-1]) < 0.05, errors
 
 
 async def test_unplug_replug_recovers(rig: Rig) -> None:
