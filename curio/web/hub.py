@@ -389,6 +389,8 @@ class Hub:
                                          self.cfg.nav.safety.max_angular_radps),
                 "name": self.cfg.robot.name,
                 "tree": self.cfg.bt.tree,
+                "tour_stops": [{"name": t.name, "x_m": t.x_m, "y_m": t.y_m}
+                               for t in self.cfg.bt.tour_stops],
             },
         }
 

@@ -620,6 +620,14 @@
       }
     }
     if (S.robot && S.robot.home) drawMarker(S.robot.home[0], S.robot.home[1], "#7c3aed", "⌂", 11);
+    if (S.robot && S.robot.tree === "tour") {
+      (S.robot.tour_stops || []).forEach((t, i) => {
+        drawMarker(t.x_m, t.y_m, "#0f766e", String(i + 1), 10);
+        const [sx, sy] = toScreen(t.x_m, t.y_m);
+        ctx.font = "bold 12px system-ui, sans-serif"; ctx.fillStyle = "#0f766e";
+        ctx.fillText(t.name, sx + 13, sy + 4);
+      });
+    }
     polyline(S.plan, "#16a34a", 3);
     polyline(S.localPlan, "#06b6d4", 2);
     if (S.obstacles) {
