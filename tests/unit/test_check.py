@@ -162,3 +162,13 @@ def test_port_discovery_by_usb_id() -> None:
     assert [p.device for p in arduinos] == ["/dev/ttyACM0"]
     assert [p.device for p in clones] == ["/dev/ttyUSB1"]
     assert [p.device for p in lidars] == ["/dev/ttyUSB0"]
+
+
+def test_emulate_usage_errors(tmp_path: Path) -> None:
+    from curio.drivers import emulate
+
+    assert emulate.main(["rplidar", "--map", str(tmp_path / "missing.yaml")]) == 2
+    assert emulate.main(["arduino", "--duration", "0"]) == 2
+    assert emulate.main(["rplidar", "--set", "sim.lidar_rate_hz=50"]) == 2  # out of range
+    with pytest.raises(SystemExit):
+        emulate.main(["bno055"])  # argparse: not an emulated serial device
