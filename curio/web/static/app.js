@@ -942,7 +942,11 @@
     if (keys.size === 0 && !stick.held) stopTeleop();
   });
   window.addEventListener("blur", stopTeleop);
-  document.addEventListener("visibilitychange", () => { if (document.hidden) stopTeleop(); });
+  document.addEventListener("visibilitychange", () => {
+    if (document.hidden) stopTeleop();
+    // A hidden tab asks for 1 update a second (status and events still arrive at once).
+    if (S.ws && S.ws.readyState === WebSocket.OPEN) S.ws.send(JSON.stringify({ op: "rate", hz: document.hidden ? 1 : 60 }));
+  });
 
   // ----- start ------------------------------------------------------------------------------------
   async function start() {
