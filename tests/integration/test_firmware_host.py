@@ -289,3 +289,21 @@ async def test_emulator_answers_exactly_like_the_firmware(build_dir: Path,
         ("counters", 1, 14),
     ]
     assert em == fw
+
+
+async def test_servo_raw_for_setup_tools(build_dir: Path, tmp_path: Path) -> None:
+    from curio.drivers.arduino import lx16a
+
+    with firmware(build_dir, tmp_path) as (_, port):
+        async with driver(port) as rig:
+            await rig.until(rig.armed)
+            request = lx16a.read_request(131, lx16a.Cmd.ID_READ)
+            with pytest.raises(RuntimeError, match="disarm first"):
+                await rig.base.servo_raw(request)
+            await rig.base.halt()
+            await rig.until(lambda: rig.base.mcu_state == p.McuState.DISARMED, 2.0)
+            reply = await rig.base.servo_raw(request)
+            assert reply is not None
+            packets = lx16a.PacketParser().feed(reply)
+            assert packets == [lx16a.Lx16aPacket(131, lx16a.Cmd.ID_READ, bytes([131]))]
+            assert await rig.base.servo_raw(lx16a.move_time(111, 600, 100)) is None  # a write

@@ -162,6 +162,7 @@ class ArduinoBase:
         self._estop = False
         self._halted = False
         self._opened_before = False
+        self._raw_reply: p.ServoRawReply | None = None
         self.rx_error_window_s = 5.0  # how long corrupt input keeps the health "degraded"
         self._rx_bad_seen = 0
         self._rx_bad_base = 0
@@ -228,6 +229,31 @@ class ArduinoBase:
         finally:
             drained.cancel()
             timer.cancel()
+
+    async def servo_raw(self, packet: bytes, timeout_s: float = 0.5) -> bytes | None:
+        """Forward one LX-16A packet to the servo bus and return the servo's reply packet
+        (``None``: no reply, as for every write). For setup tools (servo ids, limits, LEDs);
+        the board refuses it while armed, so call :meth:`halt` first.
+
+        Raises:
+            RuntimeError: not connected, or the board refused (the message says why).
+            TimeoutError: the board did not answer within ``timeout_s``.
+        """
+        if self._writer is None:
+            raise RuntimeError(f"the Arduino link is not up ({self.health().message})")
+        self._raw_reply = None
+        seq = self._send(p.ServoRaw(packet))
+        key = (seq, int(p.MsgId.SERVO_RAW))
+        await wait_until(self.clock, lambda: self._raw_reply is not None or key in self._acks,
+                         timeout_s, self._rx_event)
+        if key in self._acks:
+            status = p.AckStatus(self._acks.pop(key))
+            hint = ": disarm first (halt())" if status == p.AckStatus.WRONG_STATE else ""
+            raise RuntimeError(f"the Mega refused SERVO_RAW ({status.name}){hint}")
+        reply = self._raw_reply
+        if reply is None:
+            raise TimeoutError(f"no SERVO_RAW_REPLY within {timeout_s:g} s")
+        return reply.data if reply.status == 0 else None
 
     def health(self) -> DriverHealth:
         """The driver's health now: state, what is wrong and what to do, counters."""
@@ -543,6 +569,8 @@ class ArduinoBase:
             if msg.proto_ver != p.PROTO_VERSION:
                 self._error(f"firmware speaks protocol {msg.proto_ver}, this driver "
                             f"{p.PROTO_VERSION}: re-flash firmware/ (see firmware/README.md)")
+        elif isinstance(msg, p.ServoRawReply):
+            self._raw_reply = msg
         elif isinstance(msg, p.ServoStatus):
             self.servo_status = msg
         elif isinstance(msg, p.RcChannels):
