@@ -86,7 +86,7 @@ def _build(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         err.write(f"curio map build: --out must name a .yaml file, got {out_path}\n")
         return 2
     total = _count_scans(log_path)
-    progress = _Progress(total, err, enabled=not args.quiet and total > 200)
+    progress = _Progress(total, err, enabled=not args.quiet and total > 100)
     params = MapperParams(resolution_m=args.resolution, max_range_m=args.max_range)
     t0 = wall_perf_counter()
     try:

@@ -81,6 +81,7 @@ class MapperParams:
     loop_drift_rad_per_m: float = 0.003
     loop_neighbours: int = 12
     loop_cooldown: int = 15
+    loop_try_every: int = 3
     odom_sigma_xy_m: float = 0.05
     odom_sigma_yaw_rad: float = 0.02
     loop_sigma_xy_m: float = 0.05
@@ -363,7 +364,7 @@ class ScanMapper:
         self._integrate(kf)
         if self._cooldown > 0:
             self._cooldown -= 1
-        elif k > 0 and self._try_loop(k):
+        elif k > 0 and k % self.p.loop_try_every == 0 and self._try_loop(k):
             self._optimize()
             self._cooldown = self.p.loop_cooldown
         self._field = DistanceField(self.grid.window(self.pose.x, self.pose.y, self.p.window_m),
