@@ -83,6 +83,7 @@ DUTY_DEADBAND = 20  # |duty| below this does not turn the motor
 WHEEL_ACCEL_RADPS2 = 40.0  # servo shaft acceleration limit
 CONTACT_RELEASE_M = 0.05  # a contact ends after moving this far from where it began
 CONTACT_RELEASE_RAD = 0.1
+LIDAR_NOISE_BLOCK = 50  # lidar noise is drawn for this many scans at a time
 IMU_NOISE_BLOCK = 1000  # IMU noise is drawn in blocks (fast, and still deterministic)
 IMU_YAW_SIGMA_RAD = 0.002  # BNO055 fusion heading jitter
 BATTERY_FULL_V = 8.1
@@ -232,6 +233,10 @@ class World:
         self._contacts_stale = False
         self._enc_stuck = [0] * 6
         self._imu_noise: list[list[float]] = []
+        self._beam_angles: dict[int, F64] = {}
+        self._lidar_gauss = np.zeros((0, 0))
+        self._lidar_uniform = np.zeros((0, 0))
+        self._lidar_k = 0
         self._imu_k = 0
         self._battery_base_v = BATTERY_FULL_V
         self._battery_t0 = 0.0
@@ -559,27 +564,44 @@ class World:
         return self._pose @ Pose2D(lx, ly, lyaw)
 
     def cast_scan(self, stamp: float) -> LaserScan:
-        """One lidar revolution from the current pose (``laser`` frame, noisy)."""
+        """One lidar revolution from the current pose (``laser`` frame, noisy).
+
+        The revolution is taken at one instant (the real A1 sweeps for 0.1–0.18 s while the
+        rover moves). Range noise is Gaussian; each beam independently drops out (``inf``) or
+        returns garbage (``nan``) with the configured fractions; returns closer than
+        ``lidar_range_min_m`` read ``inf`` (distance 0, as ``rplidar_ros`` maps it).
+        """
         sim = self.cfg.sim
         n = sim.lidar_beams
         inc = 2.0 * math.pi / n
-        angles = -math.pi + np.arange(n, dtype=np.float64) * inc
+        angles = self._beam_angles.get(n)
+        if angles is None:
+            angles = -math.pi + np.arange(n, dtype=np.float64) * inc
+            self._beam_angles[n] = angles
         ranges = self.cast_ranges(angles, sim.lidar_range_max_m)
         noise = sim.noise
-        rng = self._rng_lidar
+        gauss, u = self._lidar_noise_row(n)
         if noise.lidar_range_sigma_m > 0.0:
-            ranges = ranges + rng.normal(0.0, noise.lidar_range_sigma_m, n)
-        ranges[ranges < sim.lidar_range_min_m] = np.inf  # too close: no return, as rplidar_ros
-        u = rng.uniform(size=n)
-        ranges[u < noise.lidar_dropout_fraction] = np.inf
-        ranges[(u >= noise.lidar_dropout_fraction)
-               & (u < noise.lidar_dropout_fraction + noise.lidar_invalid_fraction)] = np.nan
-        ranges[ranges > sim.lidar_range_max_m] = np.inf
+            ranges += noise.lidar_range_sigma_m * gauss
+        p_drop = noise.lidar_dropout_fraction
+        gone = (ranges < sim.lidar_range_min_m) | (ranges > sim.lidar_range_max_m) | (u < p_drop)
+        ranges[gone] = np.inf
+        ranges[(u >= p_drop) & (u < p_drop + noise.lidar_invalid_fraction)] = np.nan
         out = ranges.astype(np.float32)
         out.flags.writeable = False
         return LaserScan(stamp=stamp, angle_min_rad=-math.pi, angle_increment_rad=inc,
                          range_min_m=sim.lidar_range_min_m, range_max_m=sim.lidar_range_max_m,
                          ranges_m=out, scan_time_s=1.0 / sim.lidar_rate_hz)
+
+    def _lidar_noise_row(self, n: int) -> tuple[F64, F64]:
+        """The next scan's Gaussian and uniform draws (drawn in blocks: fast, deterministic)."""
+        if self._lidar_k >= LIDAR_NOISE_BLOCK or self._lidar_gauss.shape[1] != n:
+            self._lidar_gauss = self._rng_lidar.standard_normal((LIDAR_NOISE_BLOCK, n))
+            self._lidar_uniform = self._rng_lidar.random((LIDAR_NOISE_BLOCK, n))
+            self._lidar_k = 0
+        k = self._lidar_k
+        self._lidar_k += 1
+        return self._lidar_gauss[k], self._lidar_uniform[k]
 
     def cast_ranges(self, angles_rad: F64, max_range_m: float) -> F64:
         """Noise-free ranges (m) along laser-frame ``angles_rad`` from the current laser pose."""
@@ -588,10 +610,16 @@ class World:
         ranges = self.raycaster.cast(laser.x, laser.y, world_angles, max_range_m)
         if self._shapes_dirty:
             self._update_shapes()
-        if self._segs.size or self._circles.size:
+        segs, circles = self._segs, self._circles
+        if circles.size:
+            reach = np.hypot(circles[:, 0] - laser.x, circles[:, 1] - laser.y) - circles[:, 2]
+            circles = circles[reach < max_range_m]
+        if segs.size or circles.size:
             dx, dy = np.cos(world_angles), np.sin(world_angles)
-            ranges = np.minimum(ranges, cast_segments(laser.x, laser.y, dx, dy, self._segs))
-            ranges = np.minimum(ranges, cast_circles(laser.x, laser.y, dx, dy, self._circles))
+            if segs.size:
+                np.minimum(ranges, cast_segments(laser.x, laser.y, dx, dy, segs), out=ranges)
+            if circles.size:
+                np.minimum(ranges, cast_circles(laser.x, laser.y, dx, dy, circles), out=ranges)
         ranges[ranges > max_range_m] = np.inf
         return ranges
 
