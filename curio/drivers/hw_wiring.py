@@ -48,6 +48,7 @@ def build_device_drivers(app: App) -> None:
     dcfg = cfg.drivers
     arduino_port = dcfg.arduino.port
     lidar_port = dcfg.lidar.port
+    calibration_file = dcfg.imu.calibration_file
     lidar_motor: Callable[[bool], None] | None = None
     open_bus: Callable[[], SMBusLike] | None = None
     offload = True
@@ -83,6 +84,8 @@ def build_device_drivers(app: App) -> None:
         lidar_motor = lidar_emu.set_motor
         open_bus = imu_bus.reopen
         offload = False
+        # The emulated chip's calibration must never be restored into the real one.
+        calibration_file = "emulated-" + calibration_file
 
     base = ArduinoBase(dcfg.arduino, cfg.robot, app.bus, app.clock, port=arduino_port)
     lidar = RplidarDriver(dcfg.lidar, app.clock, app.bus, port=lidar_port, motor=lidar_motor)
@@ -90,7 +93,7 @@ def build_device_drivers(app: App) -> None:
         dcfg.imu,
         app.clock,
         app.bus,
-        calibration_path=cfg.data_path(dcfg.imu.calibration_file),
+        calibration_path=cfg.data_path(calibration_file),
         open_bus=open_bus,
         offload=offload,
     )
