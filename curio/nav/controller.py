@@ -222,6 +222,12 @@ class LocalController:
             self._cum = np.zeros(len(arr))
         self._index = 0
 
+    @property
+    def plan_index(self) -> int:
+        """Index of the plan pose nearest the rover at the last cycle (the plan before it is
+        behind the rover)."""
+        return self._index
+
     def clear_plan(self) -> None:
         """Stop following (the next compute returns IDLE and zero)."""
         self.plan = np.zeros((0, 3))

@@ -311,7 +311,7 @@ class NavigatorNode:
         if len(self.controller.plan) == 0:
             return False
         plan = self.controller.plan
-        i0 = self.controller._index
+        i0 = self.controller.plan_index
         ahead = plan[i0:i0 + 60]
         costs = self.costmap.costs()
         rows = np.empty(len(ahead), dtype=np.int64)

@@ -67,7 +67,7 @@ class RecoveryOutcome:
     detail: str = ""
 
 
-def points_behind_distance_m(points_base: F64, footprint: F64, corridor_margin_m: float = 0.05
+def points_behind_distance_m(points_base: F64, footprint: F64, corridor_margin_m: float = 0.02
                              ) -> float:
     """Distance from the footprint's rear edge to the nearest point straight behind it, m.
 
