@@ -42,6 +42,7 @@ class Rig:
         self.scans = bus.subscribe(SCAN)
         self.events = bus.subscribe(EVENTS)
         self.health = bus.subscribe(HEALTH, maxsize=100)
+        self.driver_task: asyncio.Task[None] | None = None
 
     async def next_scan(self, timeout_s: float = 3.0) -> LaserScan:
         self.scans.drain()
@@ -72,7 +73,9 @@ async def rig() -> AsyncIterator[Rig]:
                       reply_timeout_s=0.3)
     driver = RplidarDriver(cfg, clock, bus, motor=emu.set_motor)
     tasks = [asyncio.create_task(emu.run()), asyncio.create_task(driver.run())]
-    yield Rig(clock, bus, emu, driver)
+    rig = Rig(clock, bus, emu, driver)
+    rig.driver_task = tasks[1]
+    yield rig
     for t in tasks:
         t.cancel()
     await asyncio.gather(*tasks, return_exceptions=True)
@@ -192,3 +195,15 @@ async def test_wrong_device_message(tmp_path: Any) -> None:
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
         await emu.close()
+
+
+async def test_shutdown_stops_scanning_and_motor(rig: Rig) -> None:
+    await rig.next_scan()
+    assert rig.emu.scanning and rig.emu.motor_on
+    task = rig.driver_task
+    assert task is not None
+    task.cancel()
+    await asyncio.gather(task, return_exceptions=True)
+    ok = await rig.clock.wait_until(lambda: not rig.emu.scanning, 1.0, 0.01)
+    assert ok  # STOP reached the device
+    assert not rig.emu.motor_on

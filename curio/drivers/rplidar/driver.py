@@ -123,8 +123,10 @@ class RplidarDriver:
                     await self._session()
                 except LidarFault as exc:
                     self._report_down(str(exc))
-                finally:
-                    await self._close_port()
+                except BaseException:
+                    await self._close_port(stop=True)  # shutting down: scanning and motor off
+                    raise
+                await self._close_port()
                 await self.clock.sleep(self.cfg.reconnect_s)
         finally:
             health_task.cancel()
