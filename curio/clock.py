@@ -91,6 +91,22 @@ class Clock(Protocol):
         """Sleep until ``now() >= t_s``."""
         ...
 
+    def every(
+        self, period_s: float, stats: RateStats | None = None, *, phase_s: float = 0.0
+    ) -> AsyncIterator[float]:
+        """Yield the clock time once every ``period_s`` seconds, without drift."""
+        ...
+
+    async def wait_for(self, awaitable: Awaitable[T], timeout_s: float) -> T:
+        """Await ``awaitable`` for at most ``timeout_s`` of clock time (TimeoutError after)."""
+        ...
+
+    async def wait_until(
+        self, predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.05
+    ) -> bool:
+        """Poll ``predicate`` until it holds; False after ``timeout_s``."""
+        ...
+
 
 async def _yield_once() -> None:
     """Give every other ready task one turn (a zero-length sleep)."""

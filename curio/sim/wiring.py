@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import AsyncIterator
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING
 
 from curio.bus import Bus
 from curio.clock import Clock
@@ -56,9 +56,8 @@ LOW_BATTERY_V = 6.6
 
 
 def _every(clock: Clock, period_s: float, phase_s: float) -> AsyncIterator[float]:
-    """``clock.every`` (both clocks implement it; the ``Clock`` protocol does not declare it)."""
-    every = clock.every  # type: ignore[attr-defined]
-    return cast(AsyncIterator[float], every(period_s, phase_s=phase_s))
+    """``clock.every`` with a phase offset."""
+    return clock.every(period_s, phase_s=phase_s)
 
 
 class Simulator:
