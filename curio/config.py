@@ -255,6 +255,10 @@ class LocalizationConfig(Section):
     scan_match_max_residual_m: float = Field(0.15, gt=0.0)
     inlier_distance_m: float = Field(0.12, gt=0.0, description="beam counts as fitting the map")
     lost_inlier_fraction: float = Field(0.45, ge=0.0, le=1.0)
+    ok_inlier_fraction: float = Field(
+        0.7, ge=0.0, le=1.0, description="'ok' needs this share of beams on the map")
+    recheck_after_scans: int = Field(
+        20, ge=1, description="middling fit this many updates in a row: search the map")
     lost_std_xy_m: float = Field(0.6, gt=0.0)
     lost_after_scans: int = Field(5, ge=1, description="poor scans in a row before 'lost'")
     auto_relocalize: bool = Field(True, description="global search when lost")

@@ -276,6 +276,7 @@ class Localizer:
         self.covariance: F64 = np.diag([0.25, 0.25, 0.07])
         self.inlier_fraction = 1.0
         self.poor_scans = 0
+        self.mediocre_scans = 0
         self.state: State = "uncertain"
         self.updates = 0
         self.search: _GlobalSearch | None = None
@@ -481,13 +482,20 @@ class Localizer:
         std_xy = math.sqrt(max(self.covariance[0, 0], self.covariance[1, 1]))
         std_yaw = math.sqrt(self.covariance[2, 2])
         poor = self.inlier_fraction < self.cfg.lost_inlier_fraction
+        mediocre = self.inlier_fraction < self.cfg.ok_inlier_fraction
         self.poor_scans = self.poor_scans + 1 if poor else 0
+        self.mediocre_scans = self.mediocre_scans + 1 if mediocre else 0
         if self.poor_scans >= self.cfg.lost_after_scans or std_xy > self.cfg.lost_std_xy_m:
             self.state = "lost"
             if self.cfg.auto_relocalize and self.search is None:
                 self._start_search()
-        elif poor or std_xy > 0.2 or std_yaw > 0.2 or self.search is not None:
+        elif mediocre or std_xy > 0.2 or std_yaw > 0.2 or self.search is not None:
             self.state = "uncertain"
+            # A middling fit for a long time: maybe a look-alike place. Check the whole map;
+            # the current pose stays a candidate, so a right pose amid clutter is kept.
+            if (self.cfg.auto_relocalize and self.search is None
+                    and self.mediocre_scans >= self.cfg.recheck_after_scans):
+                self._start_search()
         else:
             self.state = "ok"
 
@@ -589,6 +597,10 @@ class Localizer:
                            max_residual_m=self.cfg.scan_match_max_residual_m,
                            inlier_m=self.cfg.inlier_distance_m)
             results.append((m.inlier_fraction, m.pose))
+        current = scan_match(self.field, pts, self.pose, iterations=6,
+                             max_residual_m=self.cfg.scan_match_max_residual_m,
+                             inlier_m=self.cfg.inlier_distance_m)
+        results.append((current.inlier_fraction, current.pose))
         results.sort(key=lambda item: -item[0])
         good = [r for r in results if r[0] >= max(self.cfg.lost_inlier_fraction,
                                                  0.8 * results[0][0])]
@@ -616,6 +628,7 @@ class Localizer:
         self.particles = np.vstack(parts)
         self.weights = np.full(len(self.particles), 1.0 / len(self.particles))
         self.poor_scans = 0
+        self.mediocre_scans = 0
         self.w_slow = self.w_fast = 0.0
         self.pose = hyps[0][1]
         self.state = "uncertain"
