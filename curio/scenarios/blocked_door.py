@@ -17,6 +17,9 @@ doorway, the tour finished, no collision.
 from __future__ import annotations
 
 import math
+import shutil
+import tempfile
+from pathlib import Path
 from typing import Any
 
 from curio.config import Config, TourStopConfig
@@ -46,10 +49,13 @@ class BlockedDoorScenario(Scenario):
     reopen_after_s = 15.0
 
     def configure(self, cfg: Config, args: ScenarioArgs) -> Config:
-        """The tour tree, no speech, the building's tour when none is configured."""
+        """The tour tree, no speech, the building's tour when none is configured; paths in a
+        scratch file (the operator's saved paths are not touched)."""
         stops = cfg.bt.tour_stops or _building_tour()
+        self._tmp = tempfile.mkdtemp(prefix="curio-blocked-door-")
         bt = cfg.bt.model_copy(update={"tree": "tour", "autostart_path": None, "speak": False,
-                                       "tour_stops": stops, "tour_loop": False})
+                                       "tour_stops": stops, "tour_loop": False,
+                                       "paths_file": str(Path(self._tmp) / "paths.json")})
         return cfg.model_copy(update={"bt": bt})
 
     async def run(self, ctx: ScenarioContext) -> None:
@@ -73,6 +79,7 @@ class BlockedDoorScenario(Scenario):
         finally:
             events_sub.close()
             status_sub.close()
+            shutil.rmtree(self._tmp, ignore_errors=True)
 
     async def _script(self, ctx: ScenarioContext, of: Any, statuses: list[str]) -> None:
         stops = ctx.cfg.bt.tour_stops

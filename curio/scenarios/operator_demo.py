@@ -8,14 +8,21 @@ home at (0, 0)), every step through the dashboard's reliable OPERATOR commands:
    (1,1)).
 3. **Pause** on the leg to (2,2): the goal is cancelled and the rover stands still.
 4. **Resume**: the same waypoint (2,2) is sent again.
-5. **Go Home** on the leg to (3,4): status ``Going home``.
-6. **An obstacle is placed**: a barrier across the lobby between the rover and home (a
-   ``world.add_box``), so no route leads home.
-7. **HELP ME**: the blocked-path detector reports blocked, the tree asks for help once and
-   holds (status ``Needs help``).
-8. **The obstacle is removed** (``world.remove_object``).
-9. **Thanks! and resume**: the way stays clear for ``bt.help_clear_s``, ``help.resolved``
-   ("Thanks!"), the rover resumes the trip home and arrives at (0,0).
+5. **Go Home** on the leg to (3,4): status ``Going home``, then ``Arrived at (0,0)``.
+6. **A path clicked on the map** (created through the path manager, as the dashboard does):
+   through the lobby archway and the corridor into the library, whose doorway is its only way
+   in; ``select_path`` (leaving home: from its first waypoint).
+7. **An obstacle is placed** in front of the rover: a cart filling the library doorway
+   (``world.add_box``), so no route leads on.
+8. **HELP ME**: the way is blocked and navigation's recovery does not free it; the tree asks
+   for help once and holds (status ``Needs help``).
+9. **The obstacle is removed** (``world.remove_object``): **Thanks! and resume**: the way stays
+   clear for ``bt.help_clear_s``, ``help.resolved`` ("Thanks!"), and the rover resumes the
+   path at the same waypoint and drives it to its end.
+
+(The obstacle sits in a doorway, not across the lobby on the way home: in open floor the
+planner rightly drives around a box, and a wall across the whole lobby is no longer the building
+the localisation knows.)
 
 Checked (``ctx.check``): the status lines in order, the per-waypoint progress of each path,
 one help request and its resolution in order, the rover standing still while paused and while
@@ -24,6 +31,10 @@ asking for help, no collision.
 
 from __future__ import annotations
 
+import math
+import shutil
+import tempfile
+from pathlib import Path
 from typing import Any
 
 from curio.config import Config
@@ -34,8 +45,13 @@ from curio.topics import EVENTS, PROGRESS, STATUS
 
 __all__ = ["OperatorDemoScenario"]
 
-# The barrier: 0.2 m thick along x = 1.2 m across the whole lobby (y −6..7): home side sealed.
-BARRIER = (1.2, 0.5, 0.2, 13.0)
+# A path "clicked" on the map: through the lobby archway, along the corridor, into the library
+# (whose doorway at x 1.0..2.1, y 9.5..9.65 is its only way in).
+LIBRARY_PATH = [(5.0, 5.5), (5.0, 8.3), (1.55, 8.3), (1.0, 11.6)]
+DOORWAY = (1.55, 9.575)
+TRIGGER_M = 2.4
+# The obstacle: a 1.3 m × 0.4 m cart filling the library doorway.
+CART = (1.55, 9.575, 1.3, 0.4)
 
 
 class _Recorder:
@@ -109,9 +125,12 @@ class OperatorDemoScenario(Scenario):
     default_duration_s = 900.0
 
     def configure(self, cfg: Config, args: ScenarioArgs) -> Config:
-        """The follow-path tree, no autostart, no speech; the start at home."""
+        """The follow-path tree, no autostart, no speech, the configured default paths in a
+        scratch file (the operator's saved paths are neither used nor changed)."""
+        self._tmp = tempfile.mkdtemp(prefix="curio-operator-demo-")
         bt = cfg.bt.model_copy(update={"tree": "follow_path", "autostart_path": None,
-                                       "speak": False})
+                                       "speak": False,
+                                       "paths_file": str(Path(self._tmp) / "paths.json")})
         return cfg.model_copy(update={"bt": bt})
 
     async def run(self, ctx: ScenarioContext) -> None:
@@ -121,6 +140,7 @@ class OperatorDemoScenario(Scenario):
             await self._script(ctx, rec)
         finally:
             rec.close()
+            shutil.rmtree(self._tmp, ignore_errors=True)
 
     async def _still(self, ctx: ScenarioContext, seconds: float) -> float:
         """How far the rover moved (ground truth, metres) over ``seconds``."""
@@ -182,38 +202,61 @@ class OperatorDemoScenario(Scenario):
                   rec.last_progress(2) == ("reached", "reached", "skipped"),
                   str(rec.last_progress(2)))
 
-        # 6. An obstacle between the rover and home.
-        await ctx.sleep(1.0)
-        box = ctx.world.add_box(*BARRIER)
+        await rec.wait_event("path.finished", 240.0, path_id=0)
+        ctx.check("home: status sequence", _in_order(
+            rec.texts(mark), ["Going home", "Arrived at (0,0)"]), f"{rec.texts(mark)}")
+        ctx.check("home: the rover is at home", self._at(ctx, paths.get(0).waypoints[0]),
+                  f"at {ctx.truth()}")
+
+        # 6. A path clicked on the map (as the dashboard does), through the library doorway.
+        library = paths.create("Library", [])
+        for x, y in LIBRARY_PATH:
+            paths.add_waypoint(library.id, x, y)
+        ctx.goals_total += len(LIBRARY_PATH)
+        mark = len(rec.texts())
+        ctx.press("select_path", path_id=library.id)
+
+        def near_doorway() -> bool:
+            truth = ctx.truth()
+            return truth is not None and math.hypot(truth.x - DOORWAY[0],
+                                                    truth.y - DOORWAY[1]) < TRIGGER_M
+
+        if not await ctx.wait_until(near_doorway, 240.0, poll_s=0.2):
+            raise ScenarioFailed(f"the rover never came near the library doorway; "
+                                 f"statuses: {rec.texts(mark)[-5:]}")
+        # 7. An obstacle (a cart) placed in the doorway in front of the rover: no way in.
+        box = ctx.world.add_box(*CART)
         ctx.record("script", action="obstacle placed", box=box)
 
-        # 7. HELP ME.
+        # 8. HELP ME, once; the rover holds.
         requested = await rec.wait_event("help.requested", 180.0)
         await rec.wait_status("Needs help", 5.0, mark)
         await ctx.sleep(2.0)
         moved = await self._still(ctx, 5.0)
         ctx.check("asking for help: the rover holds", moved < 0.05, f"moved {moved:.3f} m")
+        ctx.check("no thanks while the way is blocked", not rec.of("help.resolved"))
 
-        # 8. The obstacle is removed.
+        # 9. The obstacle is removed: Thanks! and the path resumes to its end.
         ctx.world.remove_object(box)
+        removed_at = ctx.now()
         ctx.record("script", action="obstacle removed", box=box)
-
-        # 9. Thanks! and resume the trip home.
         resolved = await rec.wait_event("help.resolved", 120.0)
-        ctx.check("help resolved with Thanks!", resolved.detail.get("message") == "Thanks!"
-                  and resolved.detail.get("reason") == "clear", str(resolved.detail))
+        ctx.check("help resolved with Thanks! after the obstacle was removed",
+                  resolved.detail.get("message") == "Thanks!"
+                  and resolved.detail.get("reason") == "clear" and resolved.stamp >= removed_at,
+                  str(resolved.detail))
+        await rec.wait_event("path.finished", 240.0, path_id=library.id)
         ctx.check("one help request, then its resolution",
                   len(rec.of("help.requested")) == 1 and requested.stamp < resolved.stamp,
                   f"{len(rec.of('help.requested'))} requests")
-        await rec.wait_event("path.finished", 240.0, path_id=0)
-        tail = rec.texts(mark)
-        ctx.check("home: status sequence", _in_order(
-            tail, ["Going home", "Needs help", "Going home", "Arrived at (0,0)"]), f"{tail}")
-        truth = ctx.truth() or Pose2D(99.0, 99.0)
-        home = paths.get(0).waypoints[0]
-        ctx.check("home: the rover is at home",
-                  truth.distance_to(Pose2D(home.x_m, home.y_m)) < 0.4,
-                  f"at ({truth.x:.2f}, {truth.y:.2f})")
+        last = paths.get(library.id).waypoints[-1]
+        ctx.check("resumed to the end of the path", _in_order(
+            rec.texts(mark), ["Needs help", f"Moving to {last.label()}",
+                              f"Arrived at {last.label()}"]), f"{rec.texts(mark)}")
+        ctx.check("library path progress all reached",
+                  rec.last_progress(library.id) == ("reached",) * len(LIBRARY_PATH),
+                  str(rec.last_progress(library.id)))
+        ctx.check("at the end of the path", self._at(ctx, last), f"at {ctx.truth()}")
         ctx.goals_reached = len(rec.of("waypoint.reached"))
         ctx.check("no rejected command", not rec.of("bt.command_rejected"),
                   str([e.detail for e in rec.of("bt.command_rejected")]))
@@ -221,3 +264,8 @@ class OperatorDemoScenario(Scenario):
                   str([e.detail for e in rec.of("collision")]))
         ctx.metrics["statuses"] = rec.texts()
         ctx.metrics["help_wait_s"] = resolved.detail.get("waited_s")
+
+    @staticmethod
+    def _at(ctx: ScenarioContext, wp: Any) -> bool:
+        truth = ctx.truth()
+        return truth is not None and truth.distance_to(Pose2D(wp.x_m, wp.y_m)) < 0.4

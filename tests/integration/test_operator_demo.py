@@ -19,13 +19,14 @@ async def test_operator_demo(tmp_path: Path) -> None:
                                 ScenarioArgs(seed=1, duration_s=400.0))
     assert report["success"], report["failure"]
     checks = {c["name"]: c["ok"] for c in report["checks"]}
-    assert all(checks.values()) and len(checks) >= 14
+    assert all(checks.values()) and len(checks) >= 18
     statuses = report["metrics"]["statuses"]
     expected = ["Moving to (0.2,0)", "Arrived at (0.2,0)", "Moving to (-0.2,0)",
                 "Arrived at (-0.2,0)", "Moving to (0.5,0)", "Arrived at (0.5,0)",
                 "Moving to (1,1)", "Arrived at (1,1)", "Moving to (2,2)", "Paused",
                 "Moving to (2,2)", "Arrived at (2,2)", "Moving to (3,4)", "Going home",
-                "Needs help", "Going home", "Arrived at (0,0)"]
+                "Arrived at (0,0)", "Moving to (5,5.5)", "Arrived at (5,5.5)",
+                "Moving to (1,11.6)", "Needs help", "Moving to (1,11.6)", "Arrived at (1,11.6)"]
     it = iter(statuses)
     assert all(any(s == want for s in it) for want in expected), statuses
     kinds = [e["kind"] for e in report["events"]]
@@ -33,6 +34,7 @@ async def test_operator_demo(tmp_path: Path) -> None:
     assert kinds.index("help.requested") < kinds.index("help.resolved")
     accepted = [e["detail"]["action"] for e in report["events"]
                 if e["kind"] == "bt.command_accepted"]
-    assert accepted == ["select_path", "select_path", "pause", "resume", "go_home"]
+    assert accepted == ["select_path", "select_path", "pause", "resume", "go_home",
+                        "select_path"]
     assert report["collisions"] == 0
-    assert report["goals_reached"] == report["goals_total"] == 6
+    assert report["goals_reached"] == report["goals_total"] == 10
