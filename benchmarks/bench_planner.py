@@ -28,7 +28,8 @@ A* do not, so their optimum can be a hair longer.
 Figures: time per plan (median, mean, p99 in ms, wall clock; ``cpu_median_ms``/``cpu_mean_ms``
 the same in thread CPU time, which a busy machine disturbs less), success rate, mean path length,
 and ratios: time against Curio's (median) and path length against MCP's (mean of per-pair
-ratios). Path length is the Euclidean length of the returned polyline. For Curio,
+ratios; ``cpu_vs_curio`` compares median CPU times). Path length is the Euclidean length of the
+returned polyline. For Curio,
 ``grid_path_vs_mcp`` also compares its raw A* cell path (before shortcutting and smoothing).
 """
 
@@ -278,12 +279,15 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
                 raw_len[i] = raw
 
     curio_median = float(np.median(times["curio"]))
+    curio_cpu_median = float(np.median(cpu["curio"]))
     m_len = lengths["skimage_mcp"]
     rows: list[dict[str, Any]] = []
     for name in subjects:
         note = f"first {n_py} pairs only (slow)" if name == "python_heapq" else ""
         rows.append(_summary(name, times[name], cpu[name], ok[name], lengths[name], m_len,
                              curio_median, note=note))
+    for row in rows:
+        row["cpu_vs_curio"] = row["cpu_median_ms"] / curio_cpu_median if curio_cpu_median else 1.0
     raw_ratios = [raw_len[i] / m_len[i] for i in raw_len if i in m_len and m_len[i] > 0]
     rows[0]["grid_path_vs_mcp"] = float(np.mean(raw_ratios)) if raw_ratios else float("nan")
     for row in rows:
