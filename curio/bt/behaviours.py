@@ -294,6 +294,11 @@ class Operator2BB(CurioBehaviour):
     def _route_command(self, cmd: OperatorCommand, estop: bool, paused: bool) -> None:
         ctx = self.ctx
         action = cmd.action
+        if ctx.tree_kind == "two_step":
+            ctx.reject(_req(cmd), action, "The two-step tree only patrols its two goals (Pause "
+                                          "stops it, Go Home sends it home); paths and tours "
+                                          "need bt.tree = 'follow_path' or 'tour'.")
+            return
         if action in ("select_path", "start_tour"):
             if estop:
                 ctx.reject(_req(cmd), action, "The e-stop is engaged: release it first.")

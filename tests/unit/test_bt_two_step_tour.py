@@ -79,6 +79,17 @@ def test_two_step_estop_and_pause() -> None:
     assert h.status.text == "Paused"
 
 
+def test_two_step_refuses_route_commands() -> None:
+    h = two_step()
+    h.tick()
+    for action in ("select_path", "cancel", "start_tour"):
+        h.press(action, path_id=1 if action == "select_path" else None)
+    h.tick()
+    rejected = h.of("bt.command_rejected")
+    assert len(rejected) == 3 and all("two-step tree" in e.detail["message"] for e in rejected)
+    assert len(h.nav.goals) == 1
+
+
 # --- tour -----------------------------------------------------------------------------------
 
 
