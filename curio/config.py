@@ -264,7 +264,8 @@ class LocalizationConfig(Section):
     auto_relocalize: bool = Field(True, description="global search when lost")
     global_step_m: float = Field(0.3, gt=0.0)
     global_yaw_step_rad: float = Field(0.17, gt=0.0)
-    global_poses_per_scan: int = Field(60000, ge=1000, description="search budget per scan")
+    global_poses_per_scan: int = Field(
+        20000, ge=1000, description="global search: poses scored per scan (~25 ms per 20000)")
     global_std_xy_m: float = Field(
         50.0, gt=0.0, description="an INITIAL_POSE std above this asks for global localisation"
     )

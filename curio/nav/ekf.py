@@ -45,6 +45,7 @@ __all__ = ["EkfNode", "OdomEkf", "build_ekf_part"]
 F64 = npt.NDArray[np.float64]
 
 X, Y, YAW, V, W, B = range(6)
+MAX_EXTRAPOLATION_S = 0.25
 
 
 class OdomEkf:
@@ -85,11 +86,16 @@ class OdomEkf:
         return Pose2D(float(s[X]), float(s[Y]), wrap_angle(float(s[YAW])))
 
     def odometry_at(self, t_s: float) -> Odometry:
-        """The state extrapolated to ``t_s`` (without changing the filter) as an Odometry."""
+        """The state extrapolated to ``t_s`` (without changing the filter) as an Odometry.
+
+        The extrapolation stops ``MAX_EXTRAPOLATION_S`` after the last measurement, so a dead
+        sensor freezes the pose instead of driving it away.
+        """
         s, p = self.x, self.P
         if self.t_s is not None and t_s > self.t_s:
-            s, f = self._propagate(s, t_s - self.t_s)
-            p = f @ p @ f.T + self._q(t_s - self.t_s)
+            dt = min(t_s - self.t_s, MAX_EXTRAPOLATION_S)
+            s, f = self._propagate(s, dt)
+            p = f @ p @ f.T + self._q(dt)
         cov = p[:3, :3]
         return Odometry(t_s, Pose2D(float(s[X]), float(s[Y]), wrap_angle(float(s[YAW]))),
                         float(s[V]), float(s[W]), tuple(float(v) for v in cov.ravel()))
