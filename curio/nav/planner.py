@@ -7,7 +7,7 @@ metre is ``1 + cost_penalty · cost / 252`` so paths keep away from walls; cells
 path is then shortcut along straight segments that are collision-free *and no more expensive*
 than the grid path they replace, resampled every ``path_step_m`` and lightly smoothed (a point
 that would move into a higher cost is left where it was). Headings follow the path; the last
-pose carries the goal's heading.
+pose carries the goal's heading (a NaN goal heading means "any": it keeps the path's).
 
 Errors are the typed :mod:`curio.nav.api` ones with a sentence saying where and why:
 :class:`StartOutsideMapError`, :class:`StartBlockedError`, :class:`GoalOutsideMapError`,
@@ -143,12 +143,12 @@ class GlobalPlanner:
         inv = origin.inverse()
         lut = self._lut
 
-        if not all(math.isfinite(v) for v in start.as_tuple()):
-            raise StartOutsideMapError(f"the start ({start.x}, {start.y}, {start.yaw}) is not a "
-                                       f"finite pose; x, y (m) and yaw (rad) must be numbers")
-        if not all(math.isfinite(v) for v in goal.as_tuple()):
-            raise GoalOutsideMapError(f"the goal ({goal.x}, {goal.y}, {goal.yaw}) is not a "
-                                      f"finite pose; x, y (m) and yaw (rad) must be numbers")
+        if not (math.isfinite(start.x) and math.isfinite(start.y)):
+            raise StartOutsideMapError(f"the start ({start.x}, {start.y}) is not a finite "
+                                       f"position; x and y (m) must be numbers")
+        if not (math.isfinite(goal.x) and math.isfinite(goal.y)):
+            raise GoalOutsideMapError(f"the goal ({goal.x}, {goal.y}) is not a finite "
+                                      f"position; x and y (m) must be numbers")
         sx, sy = inv.transform_point(start.x, start.y)
         s_r, s_c = math.floor(sy / resolution_m), math.floor(sx / resolution_m)
         if not (0 <= s_r < h and 0 <= s_c < w):
@@ -315,13 +315,17 @@ def _resample(verts: FloatArray, step_m: float) -> FloatArray:
 
 
 def _with_headings(world: FloatArray, goal_yaw: float) -> list[Pose2D]:
+    """Poses along the points, heading along the path; the last takes ``goal_yaw`` when it is
+    finite (a NaN goal heading means "any": the last pose keeps the path's direction)."""
     n = world.shape[0]
     if n == 1:
-        return [Pose2D(float(world[0, 0]), float(world[0, 1]), wrap_angle(goal_yaw))]
+        yaw = wrap_angle(goal_yaw) if math.isfinite(goal_yaw) else 0.0
+        return [Pose2D(float(world[0, 0]), float(world[0, 1]), yaw)]
     nxt = np.vstack([world[1:], world[-1:]])
     prv = np.vstack([world[:1], world[:-1]])
     d = nxt - prv
     yaws = np.arctan2(d[:, 1], d[:, 0])
     yaws[yaws >= np.pi] -= 2.0 * np.pi  # [-π, π) like wrap_angle
-    yaws[-1] = wrap_angle(goal_yaw)
+    if math.isfinite(goal_yaw):
+        yaws[-1] = wrap_angle(goal_yaw)
     return list(map(Pose2D, world[:, 0].tolist(), world[:, 1].tolist(), yaws.tolist()))

@@ -162,6 +162,15 @@ def test_headings_follow_the_path_and_end_with_the_goal_heading() -> None:
     assert (poses[-1].x, poses[-1].y) == pytest.approx((1.775, 0.275))
 
 
+def test_goal_without_heading_keeps_the_path_direction() -> None:
+    costs = np.zeros((40, 40), dtype=np.uint8)
+    poses = GlobalPlanner(PlannerConfig()).plan(Pose2D(0.5, 0.5, math.nan),
+                                                Pose2D(1.5, 1.5, math.nan), costs, RES, ORIGIN)
+    assert all(math.isfinite(p.yaw) for p in poses)
+    assert poses[-1].yaw == pytest.approx(math.pi / 4)
+    assert poses[0].yaw == pytest.approx(math.pi / 4)
+
+
 def test_output_spacing_follows_path_step() -> None:
     costs = np.zeros((60, 60), dtype=np.uint8)
     for step in (0.05, 0.2):
@@ -256,9 +265,9 @@ def test_every_error_has_a_clear_message() -> None:
         planner.plan(centre(1, 1), centre(38, 1), unknown, RES, ORIGIN)
     assert GlobalPlanner(PlannerConfig(allow_unknown=True)).plan(
         centre(1, 1), centre(38, 1), unknown, RES, ORIGIN)
-    with pytest.raises(StartOutsideMapError, match=r"start \(nan, 0\.5, 0\.0\) is not a finite"):
+    with pytest.raises(StartOutsideMapError, match=r"start \(nan, 0\.5\) is not a finite"):
         planner.plan(Pose2D(math.nan, 0.5), centre(1, 1), costs, RES, ORIGIN)
-    with pytest.raises(GoalOutsideMapError, match=r"goal \(0\.5, inf, 0\.0\) is not a finite"):
+    with pytest.raises(GoalOutsideMapError, match=r"goal \(0\.5, inf\) is not a finite"):
         planner.plan(centre(1, 1), Pose2D(0.5, math.inf), costs, RES, ORIGIN)
     for err in (StartOutsideMapError, GoalBlockedError, NoPathError):
         assert issubclass(err, NavError)
