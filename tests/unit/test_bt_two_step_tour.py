@@ -288,3 +288,33 @@ def test_way_probe_on_a_real_planner() -> None:
     probe.start(Pose2D(3.0, 1.0, 0.0), 2.0)
     result = probe.poll()
     assert result is not None and not result.clear and result.started_s == 2.0
+
+
+def test_pause_holds_a_low_battery_go_home_until_resume() -> None:
+    h = tour()
+    h.battery(7.4)
+    h.press("start_tour")
+    h.tick()
+    h.press("pause")
+    h.tick()
+    h.battery(6.2)
+    h.tick(4)
+    assert h.status.text == "Paused" and h.nav.active is None  # Pause outranks Battery
+    assert h.bb("battery_home_pending") is True
+    h.press("resume")
+    h.tick(2)
+    assert h.nav.target() == (0.0, 0.0) and h.status.text == "Going home"
+    assert h.bb("battery_home_pending") is False
+
+
+def test_change_path_status_when_the_path_vanished() -> None:
+    h = make_harness()
+    h.paths.create("Doomed", [])
+    h.paths.add_waypoint(3, 1.0, 1.0)
+    h.press("select_path", path_id=3)
+    h.runner.operator_feed.update()  # validated now...
+    h.paths.delete(3)  # ... deleted before the tree applies it
+    h.tick()
+    assert h.node("Change Path").status == Status.FAILURE
+    assert "There is no path 3" in h.last_message("bt.command_rejected")
+    assert h.nav.goals == []
