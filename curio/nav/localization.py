@@ -303,6 +303,7 @@ class Localizer:
         self.w_slow = self.w_fast = 0.0
         self.state = "uncertain"
         self._force_update = True
+        self._last_odom = None  # the motion before this call is already in ``pose``
         self.initialized = True
 
     def global_localization(self) -> None:
