@@ -195,6 +195,10 @@ class LocalController:
         self._xy_reached = False
         self._index = 0
         self._blocked_since: float | None = None
+        self._reverse_until = -math.inf
+        self._reverse_kappa = 0.0
+        self._reverses = 0
+        self._best_remaining = math.inf
         self.progress.reset()
 
     def set_plan(self, poses: F64 | list[Pose2D], goal: Pose2D | None = None,
@@ -366,6 +370,9 @@ class LocalController:
         i = self._nearest_index(pose)
         remaining = float(self._cum[-1] - self._cum[i]) + float(
             math.hypot(self.plan[i, 0] - pose.x, self.plan[i, 1] - pose.y))
+        if remaining < self._best_remaining - 0.3:
+            self._best_remaining = remaining
+            self._reverses = 0
         if dist_goal <= cfg.xy_goal_tolerance_m:
             self._xy_reached = True
         # --- goal: rotate to the final heading, then done.
@@ -392,7 +399,18 @@ class LocalController:
                 self._settle_until = now_s + cfg.steer_settle_s
         elif abs(heading_err) > cfg.rotate_enter_rad:
             self._rotating = True
+        lx_ly = (lx, ly)
+        if now_s < self._reverse_until:
+            out_r = self._continue_reverse(pose, dist_goal, remaining, now_s)
+            if out_r is not None:
+                return out_r
         if self._rotating:
+            if abs(self._v) < 1e-3 and self._rotation_blocked(pose, heading_err):
+                # The corners cannot swing round here: back out to make room.
+                out_r = self._start_reverse(pose, lx_ly, dist_goal, remaining, now_s)
+                if out_r is not None:
+                    return out_r
+                return self._blocked(pose, dist_goal, remaining, now_s)
             v, w = self._turn(heading_err)
             out = self._finish(pose, v, w, ControlStatus.ROTATING, dist_goal, remaining, now_s,
                                "turning towards the path")
@@ -441,6 +459,10 @@ class LocalController:
         if hit:
             alt = self._sample(pose, x_r, y_r, kmax)
             if alt is None:
+                if abs(self._v) < 0.05 and abs(heading_err) > cfg.rotate_exit_rad:
+                    out_r = self._start_reverse(pose, lx_ly, dist_goal, remaining, now_s)
+                    if out_r is not None:
+                        return out_r
                 return self._blocked(pose, dist_goal, remaining, now_s)
             v_alt, k_alt = alt
             status = ControlStatus.AVOIDING
@@ -450,6 +472,60 @@ class LocalController:
             w = v * self._kappa
         self._blocked_since = None
         return self._finish(pose, v, w, status, dist_goal, remaining, now_s, detail)
+
+    def _rotation_blocked(self, pose: Pose2D, err: float) -> bool:
+        """Whether turning in place towards ``err`` would sweep a corner into an obstacle."""
+        if self.costmap is None:
+            return False
+        traj = rollout(pose, 0.0, math.copysign(0.8, err), 0.5, 0.1)
+        hit, _ = self._collides(traj)
+        return hit
+
+    REVERSE_SPEED_MPS = 0.15
+    REVERSE_TIME_S = 1.5
+    MAX_REVERSES = 4  # per 0.3 m of progress along the plan
+
+    def _start_reverse(self, pose: Pose2D, target: tuple[float, float], dist_goal: float,
+                       remaining: float, now_s: float) -> ControlOutput | None:
+        """Back out along the admissible arc that best turns the rover towards ``target``
+        (a three-point turn where it cannot turn in place); None if none is admissible."""
+        if self.costmap is None or self._reverses >= self.MAX_REVERSES:
+            return None
+        kmax = 1.0 / max(self.cfg.min_turning_radius_m, 0.05)
+        kappas = np.linspace(-kmax, kmax, 9)
+        v = -self.REVERSE_SPEED_MPS
+        trajs = np.stack([rollout(pose, v, v * float(k), 1.0, 0.1) for k in kappas])
+        costs = self.trajectory_costs(trajs)
+        ok = ~(costs[:, 1:] >= LETHAL).any(axis=1)
+        if not ok.any():
+            return None
+        ends = trajs[:, -1, :]
+        bearing = np.arctan2(target[1] - ends[:, 1], target[0] - ends[:, 0])
+        err = np.abs((bearing - ends[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+        # Prefer backing straight out (the way it came in) unless an arc is clearly better.
+        err = err + 0.5 * np.abs(kappas) / kmax
+        err[~ok] = np.inf
+        j = int(np.argmin(err))
+        self._reverse_kappa = float(kappas[j])
+        self._reverse_until = now_s + self.REVERSE_TIME_S
+        self._reverses += 1
+        self._rotating = False
+        return self._continue_reverse(pose, dist_goal, remaining, now_s)
+
+    def _continue_reverse(self, pose: Pose2D, dist_goal: float, remaining: float,
+                          now_s: float) -> ControlOutput | None:
+        v_target = -self.REVERSE_SPEED_MPS
+        traj = rollout(pose, v_target, v_target * self._reverse_kappa, 0.6, 0.1)
+        hit, _ = self._collides(traj)
+        if hit:
+            self._reverse_until = -math.inf
+            return None
+        self._kappa = self._reverse_kappa
+        v = _approach(self._v, v_target, self.cfg.max_accel_mps2 * self.dt_s)
+        w = v * self._kappa
+        self._blocked_since = None
+        return self._finish(pose, v, w, ControlStatus.AVOIDING, dist_goal, remaining, now_s,
+                            "backing out to make room to turn")
 
     def _turn(self, err: float) -> tuple[float, float]:
         """In place towards ``err`` (radians): first stop driving, then turn."""

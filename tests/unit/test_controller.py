@@ -166,3 +166,31 @@ def test_no_progress_when_the_rover_does_not_move(ctrl: LocalController, cfg: Co
 def test_idle_without_a_plan(ctrl: LocalController) -> None:
     out = ctrl.compute(Pose2D(), 0.0)
     assert out.status is ControlStatus.IDLE and out.linear_mps == 0.0
+
+
+def test_backs_out_where_it_cannot_turn_in_place(cfg: Config) -> None:
+    grid = open_grid()
+    res = grid.resolution_m
+    # A dead-end alcove 0.8 m wide and 0.9 m deep, open towards −x; the rover in it facing
+    # its end. The goal is behind it: the corners cannot swing round inside the alcove.
+    def rc(x: float, y: float) -> tuple[int, int]:
+        return int((y - grid.origin.y) / res), int((x - grid.origin.x) / res)
+
+    r_lo, c0 = rc(-0.45, -0.45)
+    r_hi, c1 = rc(0.5, 0.45)
+    data = grid.data.copy()
+    data[r_lo - 2:r_lo, c0:c1 + 2] = 100  # lower wall
+    data[r_hi:r_hi + 2, c0:c1 + 2] = 100  # upper wall
+    data[r_lo - 2:r_hi + 2, c1:c1 + 2] = 100  # the end
+    cm = Costmap(OccupancyGrid(data, res, grid.origin), cfg.robot, cfg.nav.costmap)
+    ctrl = LocalController(cfg.nav.controller, cfg.robot, cm)
+    start = Pose2D(0.05, 0.0, 0.0)
+    assert cm.footprint_cost(start) < 254
+    xs = np.arange(0.05, -2.5, -0.05)
+    plan = np.stack([xs, np.zeros_like(xs), np.full_like(xs, math.pi)], axis=1)
+    ctrl.set_plan(plan, Pose2D(-2.5, 0.0, math.nan))
+    _pose, log = drive(ctrl, start, 80.0)
+    poses = np.array([[p.x, p.y, p.yaw] for _, p, _ in log])
+    assert (cm.footprint_costs(poses) < 254).all()  # never touched the alcove
+    assert any(o.linear_mps < 0 for _, _, o in log)  # it backed out ...
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED  # ... and got there
