@@ -32,6 +32,7 @@ failures by reason. Targets: success ≥ 98 %, zero collisions, mean time ≤ 1.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import multiprocessing
 import os
@@ -95,6 +96,28 @@ def _cfg(world: str, seed: int) -> Config:
                         f'sim.world="{world}"', f"sim.seed={seed}"])
 
 
+def _away_from_people(map_yaml: Path, pts: np.ndarray, margin_m: float = 0.8) -> np.ndarray:
+    """Mask of points farther than a person's radius + ``margin_m`` from every walking route
+    of the world (a start or goal there would overlap someone walking by)."""
+    from curio.sim.world import load_world_spec, world_spec_path
+
+    spec_path = world_spec_path(map_yaml)
+    keep = np.ones(len(pts), dtype=bool)
+    if not spec_path.is_file():
+        return keep
+    for person in load_world_spec(spec_path).people:
+        route = [tuple(map(float, q)) for q in person.route]
+        if person.loop and len(route) > 2:
+            route.append(route[0])
+        for (x1, y1), (x2, y2) in itertools.pairwise(route):
+            ax, ay = x2 - x1, y2 - y1
+            den = max(ax * ax + ay * ay, 1e-12)
+            t = np.clip(((pts[:, 0] - x1) * ax + (pts[:, 1] - y1) * ay) / den, 0.0, 1.0)
+            d = np.hypot(pts[:, 0] - (x1 + t * ax), pts[:, 1] - (y1 + t * ay))
+            keep &= d > person.radius_m + margin_m
+    return keep
+
+
 def pick_pairs(world: str, n: int, seed: int) -> list[tuple[Pose2D, Pose2D]]:
     """``n`` (start, goal) pairs: free, 3..15 m apart, joined in the static costmap."""
     from curio.nav.api import NavError
@@ -103,6 +126,7 @@ def pick_pairs(world: str, n: int, seed: int) -> list[tuple[Pose2D, Pose2D]]:
 
     cfg = _cfg(world, seed)
     pts, cm = free_poses(cfg, clearance_m=0.15)
+    pts = pts[_away_from_people(Path(world), pts)]
     planner = GlobalPlanner(cfg.nav.planner)
     rng = np.random.default_rng([seed, 0x4E41])
     out: list[tuple[Pose2D, Pose2D]] = []
