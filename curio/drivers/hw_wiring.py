@@ -98,6 +98,10 @@ def build_device_drivers(app: App) -> None:
         offload=offload,
     )
     app.base, app.lidar, app.imu = base, lidar, imu
+    if dcfg.mode == "emulated":
+        # Hold the simulated clock while pty bytes are in flight (exact byte accounting).
+        arduino_emu.pair(base)
+        lidar_emu.pair(lidar)
     app.add(Part("arduino", run=base.run))
     app.add_halt_hook(base.halt)
     app.add(Part("lidar", run=lidar.run, close=lidar.close))

@@ -34,7 +34,7 @@ import numpy as np
 from curio.bus import Bus
 from curio.clock import Clock
 from curio.config import LidarConfig
-from curio.drivers.health import every, wait_event
+from curio.drivers.health import BytePacer, every, wait_event
 from curio.drivers.rplidar import protocol as p
 from curio.messages import DriverHealth, Event, LaserScan
 from curio.topics import EVENTS, HEALTH, SCAN
@@ -102,6 +102,11 @@ class RplidarDriver:
             "short_scans": 0,
         }
         self._transport: Any = None
+        self.bytes_sent = 0
+        self.bytes_received = 0
+        self.read_interval_s = cfg.read_interval_s
+        #: holds a simulated clock until the emulator has read our bytes (emulated mode)
+        self.pacer = BytePacer(clock, lambda: self.bytes_sent)
         self._rx = bytearray()
         self._rx_event = asyncio.Event()
         self._paused = asyncio.Event()
@@ -184,7 +189,7 @@ class RplidarDriver:
         while True:
             await self._paused.wait()
             self._paused.clear()
-            await self.clock.sleep(self.cfg.read_interval_s)
+            await self.clock.sleep(self.read_interval_s)
             if self._transport is not None and not self._lost:
                 with contextlib.suppress(Exception):
                     self._transport.resume_reading()
@@ -238,14 +243,21 @@ class RplidarDriver:
         with contextlib.suppress(Exception):
             transport.close()
 
+    @property
+    def connected(self) -> bool:
+        """True while the port is open and working."""
+        return self._transport is not None and not self._lost
+
     def _write(self, data: bytes) -> None:
         if self._transport is None or self._lost:
             raise LidarFault(f"the lidar at {self.port} is not connected")
         self._transport.write(data)
+        self.bytes_sent += len(data)
 
     async def _stop_and_flush(self) -> None:
         self._mode = "reply"
         self._write(p.encode_request(p.Cmd.STOP))
+        await self.pacer.settle()
         await self.clock.sleep(0.01)
         self._rx.clear()
         self._decoder.reset()
@@ -254,6 +266,7 @@ class RplidarDriver:
     async def _reset(self) -> None:
         self.counters["resets"] += 1
         self._write(p.encode_request(p.Cmd.RESET))
+        await self.pacer.settle()
         await self.clock.sleep(self.cfg.reset_wait_s)  # the A1 prints a banner meanwhile
         self._rx.clear()
 
@@ -267,6 +280,7 @@ class RplidarDriver:
     async def _request(self, cmd: int, descriptor: bytes, length: int, what: str) -> bytes:
         self._rx.clear()
         self._write(p.encode_request(cmd))
+        await self.pacer.settle()
         data = await self._read_exact(p.DESCRIPTOR_LEN + length, what)
         if data[: p.DESCRIPTOR_LEN] != descriptor:
             raise LidarFault(
@@ -302,6 +316,7 @@ class RplidarDriver:
         self._rev_start = None
         self._mode = "descriptor"
         self._write(p.encode_request(p.Cmd.SCAN))
+        await self.pacer.settle()
         deadline = self.clock.now() + self.cfg.reply_timeout_s
         while self._mode == "descriptor":
             if self._lost:
@@ -330,6 +345,7 @@ class RplidarDriver:
         self._rx_event.set()
 
     def _on_data(self, data: bytes) -> None:
+        self.bytes_received += len(data)
         if self._mode == "stream":
             self._on_stream(data)
             return
@@ -349,7 +365,7 @@ class RplidarDriver:
 
     def _on_stream(self, data: bytes) -> None:
         now = self.clock.now()
-        if self.cfg.read_interval_s > 0 and self._transport is not None:
+        if self.read_interval_s > 0 and self._transport is not None:
             self._transport.pause_reading()
             self._paused.set()
         batch = self._decoder.feed(data)

@@ -34,8 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from curio.clock import Clock
-from curio.drivers.health import every
+from curio.clock import Clock, SimClock
+from curio.drivers.health import BytePacer, every
 from curio.drivers.rplidar import protocol as p
 from curio.drivers.rplidar.ptydevice import PtyDevice
 from curio.messages import LaserScan
@@ -111,6 +111,8 @@ class RplidarEmulator:
         self._tasks: set[asyncio.Task[None]] = set()
         self.revolutions_sent = 0
         self.requests: list[int] = []
+        #: holds a simulated clock until the driver has read our bytes (see :meth:`pair`)
+        self.pacer = BytePacer(clock, lambda: self.device.bytes_written)
 
     # --- life cycle ---------------------------------------------------------------------------
     @property
@@ -131,18 +133,37 @@ class RplidarEmulator:
         async for now in every(self.clock, period):
             if not self._streaming(now):
                 chunks, k = [], 0
+                await self.pacer.settle()  # replies to requests
                 continue
             if k == 0:
                 chunks = self._revolution_chunks(now)
             if not self.faults.stalled:
                 self.device.write(chunks[k])
             k = (k + 1) % self.chunks_per_rev
+            await self.pacer.settle()
 
     async def close(self) -> None:
         """Remove the pty and its link."""
         for task in list(self._tasks):
             task.cancel()
         self.device.close()
+
+    def pair(self, driver: Any) -> None:
+        """Pace a fast simulated clock with ``driver`` (an ``RplidarDriver`` on this port).
+
+        On a ``SimClock`` running faster than 2× real time (emulated mode) each side then holds
+        the clock until the other has read what it wrote (exact byte counts), so when a scan
+        arrives does not depend on how quickly the kernel moves pty bytes. The driver's read
+        batching is turned off (it would only make the pacer wait).
+        """
+        speed = getattr(self.clock, "speed", 1.0)
+        if not isinstance(self.clock, SimClock) or (speed is not None and speed <= 2.0):
+            return
+        self.pacer.peer_received = lambda: int(driver.bytes_received)
+        self.pacer.active = lambda: bool(driver.connected)
+        driver.pacer.peer_received = lambda: self.device.bytes_read
+        driver.pacer.active = lambda: self.device.plugged
+        driver.read_interval_s = 0.0
 
     # --- fault knobs / hooks ------------------------------------------------------------------
     def set_motor(self, on: bool) -> None:
