@@ -243,6 +243,7 @@ class _GlobalSearch:
     """State of a global search spread over several scans."""
 
     poses: F64  # (M, 3) candidates in map
+    recheck: bool = False  # started by a long middling fit, not by being lost
     next_index: int = 0
     top: F64 | None = None  # (K, 4): x, y, yaw, score — in map at ``top_odom``
     top_odom: Pose2D | None = None
@@ -280,6 +281,7 @@ class Localizer:
         self.state: State = "uncertain"
         self.updates = 0
         self.search: _GlobalSearch | None = None
+        self.searches = 0  # global searches started (diagnostics)
         self.initialized = False
 
     # --- initialisation --------------------------------------------------------------------
@@ -496,7 +498,7 @@ class Localizer:
             # the current pose stays a candidate, so a right pose amid clutter is kept.
             if (self.cfg.auto_relocalize and self.search is None
                     and self.mediocre_scans >= self.cfg.recheck_after_scans):
-                self._start_search()
+                self._start_search(recheck=True)
         else:
             self.state = "ok"
 
@@ -536,7 +538,7 @@ class Localizer:
         self.weights = np.full(n_new, 1.0 / n_new)
 
     # --- global search -----------------------------------------------------------------------
-    def _start_search(self) -> None:
+    def _start_search(self, recheck: bool = False) -> None:
         step = max(1, round(self.cfg.global_step_m / self.grid.resolution_m))
         free = self.grid.free_mask() & (self.field.dist_m >= 0.2)
         sub = np.zeros_like(free)
@@ -553,7 +555,8 @@ class Localizer:
         poses[:, 1] = np.repeat(xy[:, 1], n_yaw)
         poses[:, 2] = np.tile(yaws, len(xy))
         poses = poses[self.rng.permutation(len(poses))]
-        self.search = _GlobalSearch(poses)
+        self.search = _GlobalSearch(poses, recheck=recheck)
+        self.searches += 1
         log.info("global localisation: searching %d poses", len(poses))
 
     def _propagate_top(self, delta: Pose2D) -> None:
@@ -601,6 +604,16 @@ class Localizer:
         current = scan_match(self.field, pts, self.pose, iterations=6,
                              max_residual_m=self.cfg.scan_match_max_residual_m,
                              inlier_m=self.cfg.inlier_distance_m)
+        results.sort(key=lambda item: -item[0])
+        elsewhere = [r for r in results if r[1].distance_to(current.pose) > 0.3
+                     or abs(wrap_angle(r[1].yaw - current.pose.yaw)) > 0.3]
+        if s.recheck and (not elsewhere
+                          or elsewhere[0][0] < current.inlier_fraction + 0.15):
+            # Nothing fits clearly better than where we are: keep the particle set.
+            self.mediocre_scans = 0
+            log.info("re-check: no place fits better than the current pose (%.2f)",
+                     current.inlier_fraction)
+            return
         results.append((current.inlier_fraction, current.pose))
         results.sort(key=lambda item: -item[0])
         good = [r for r in results if r[0] >= max(self.cfg.lost_inlier_fraction,
