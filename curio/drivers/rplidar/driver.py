@@ -221,9 +221,16 @@ class RplidarDriver:
         self._mode = "reply"
         loop = asyncio.get_running_loop()
         try:
-            transport, _ = await serial_asyncio_fast.create_serial_connection(
+            opening = asyncio.ensure_future(serial_asyncio_fast.create_serial_connection(
                 loop, lambda: _Proto(self), self.port, baudrate=self.cfg.baud
-            )
+            ))
+            if self.pacer.peer_received is not None:
+                # Paced (emulated) mode: the port opens in a worker thread; keep this task
+                # runnable meanwhile so simulated time does not move on by a load-dependent
+                # amount.
+                while not opening.done():
+                    await self.clock.sleep(0.0)
+            transport, _ = await opening
         except (OSError, serial.SerialException) as exc:
             raise LidarFault(
                 f"cannot open the lidar at {self.port} ({exc}): check that it is plugged in, "
