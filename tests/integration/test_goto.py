@@ -76,3 +76,22 @@ async def test_goto_with_a_heading_and_deterministic(tmp_path: Path) -> None:
     for key in ("sim_time_s", "path_length_m", "collisions", "goals_reached"):
         assert a[key] == b[key]
     assert a["metrics"] == b["metrics"]
+
+
+@pytest.mark.slow
+async def test_goto_around_obstacles_that_are_not_on_the_map(tmp_path: Path) -> None:
+    res = 0.05
+    data = np.zeros((160, 240), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    world = save_map(OccupancyGrid(data, res, Pose2D(-6.0, -4.0, 0.0)), tmp_path / "um.yaml")
+    # A row of boxes across the room that only the lidar sees (0.8 m gaps between them).
+    boxes = [f"[[boxes]]\nx = 0.0\ny = {y}\nw = 0.4\nh = 0.8\n" for y in (-2.6, -1.0, 0.6, 2.2)]
+    (tmp_path / "um.world.toml").write_text("\n".join(boxes))
+    cfg = make_cfg(tmp_path, world)
+    args = ScenarioArgs(start=(-4.0, 0.2, 0.0), goal=(4.0, -0.2, None), seed=1,
+                        duration_s=120.0)
+    report = await run_scenario(get_scenario("goto"), cfg, args)
+    assert report["success"], report["failure"]
+    assert report["collisions"] == 0
+    kinds = [e["kind"] for e in report["events"]]
+    assert "nav.path_blocked" in kinds  # it saw the boxes on its first plan and replanned
