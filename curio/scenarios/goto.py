@@ -9,12 +9,13 @@
 
 Success: the navigator reports SUCCEEDED, the rover's *true* position (simulator ground truth)
 is within ``nav.controller.xy_goal_tolerance_m`` + 0.1 m (localisation error allowance) of the
-goal, and no collision happened. ``goals_total`` = 1.
+goal — and, when the goal has a heading, its true heading within ``yaw_goal_tolerance_rad`` +
+0.1 rad — and no collision happened. ``goals_total`` = 1.
 
 Metrics: ``goal`` / ``start``, ``nav_time_s`` (goal accepted → done), ``plan_length_m`` (the
 first global plan), ``ideal_time_s`` = plan length / ``nav.controller.max_speed_mps``,
 ``time_ratio`` = nav time / ideal time, ``final_error_m``, ``final_state``, ``error_code``,
-``recoveries``, ``replans``.
+``recoveries``, ``replans``, ``final_yaw_error_rad`` (goals with a heading).
 """
 
 from __future__ import annotations
@@ -160,6 +161,11 @@ class GotoScenario(Scenario):
             raise ScenarioFailed(f"the goal was not reached within {budget:.0f} s")
         tol = ctx.cfg.nav.controller.xy_goal_tolerance_m + 0.1
         reached = handle.state is GoalState.SUCCEEDED and final_err <= tol
+        if math.isfinite(goal.yaw) and truth is not None:
+            yaw_err = abs(math.remainder(truth.yaw - goal.yaw, 2 * math.pi))
+            ctx.metrics["final_yaw_error_rad"] = round(yaw_err, 4)
+            yaw_tol = ctx.cfg.nav.controller.yaw_goal_tolerance_rad + 0.1
+            reached = reached and yaw_err <= yaw_tol
         if reached:
             ctx.goals_reached = 1
         ctx.check("goal_reached", reached,

@@ -73,6 +73,7 @@ async def test_goto_with_a_heading_and_deterministic(tmp_path: Path) -> None:
     a = await run_scenario(get_scenario("goto"), cfg, args)
     b = await run_scenario(get_scenario("goto"), cfg, args)
     assert a["success"], a["failure"]
+    assert a["metrics"]["final_yaw_error_rad"] <= cfg.nav.controller.yaw_goal_tolerance_rad + 0.1
     for key in ("sim_time_s", "path_length_m", "collisions", "goals_reached"):
         assert a[key] == b[key]
     assert a["metrics"] == b["metrics"]
