@@ -197,8 +197,11 @@ class RplidarEmulator:
 
     # --- request handling ---------------------------------------------------------------------
     def _on_bytes(self, data: bytes) -> None:
+        written = self.device.bytes_written
         for req in self._parser.feed(data):
             self._handle(req)
+        if self.device.bytes_written != written and self.pacer.peer_received is not None:
+            self._spawn(self.pacer.settle())  # hold simulated time until the reply is read
 
     def _handle(self, req: p.Request) -> None:
         self.requests.append(req.cmd)
