@@ -155,6 +155,7 @@ async def _phase(which: set[str], cfg: Config, links: dict[str, Path], duration_
         close = getattr(drv, "close", None)
         if close is not None:
             await close()
+    await asyncio.sleep(0.5)  # let the transports finish closing (their ports are locked)
     emulators = fake_cpu + sum(child[k] for k in child if k in _devices(which))
     driver_cpu = cpu - fake_cpu
     return {
