@@ -123,7 +123,7 @@ class LidarConfig(Section):
     )
     min_nodes_per_scan: int = Field(20, ge=1, description="shorter revolutions are dropped")
     read_interval_s: float = Field(
-        0.025, ge=0.0, le=0.05, description="batch serial reads (CPU); 0 = every chunk"
+        0.04, ge=0.0, le=0.05, description="batch serial reads (CPU); 0 = every chunk"
     )
 
 
