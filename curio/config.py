@@ -145,7 +145,7 @@ class ImuConfig(Section):
     max_consecutive_errors: int = Field(10, ge=1, description="failed reads before re-init")
     error_rate_warn: float = Field(0.01, ge=0.0, le=1.0, description="health degraded above")
     samples_per_wakeup: int = Field(
-        2, ge=1, le=10, description="readings per I/O-thread trip (paced in the thread)"
+        4, ge=1, le=10, description="readings per I/O-thread trip (paced in the thread)"
     )
 
     @field_validator("address")
