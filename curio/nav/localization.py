@@ -615,9 +615,18 @@ class Localizer:
                      current.inlier_fraction)
             return
         results.append((current.inlier_fraction, current.pose))
-        results.sort(key=lambda item: -item[0])
-        good = [r for r in results if r[0] >= max(self.cfg.lost_inlier_fraction,
-                                                 0.8 * results[0][0])]
+        # Rank by a fine fit on every beam (within 5 cm of a wall face): the right place fits
+        # to the sensor noise, a look-alike (repeated benches, symmetric rooms) only roughly.
+        all_pts = scan_to_points(scan, self.laser_pose, None, scan.range_max_m - 0.05)
+        half = 0.5 * self.grid.resolution_m
+        ranked: list[tuple[float, Pose2D]] = []
+        for coarse, pose in results:
+            if coarse < self.cfg.lost_inlier_fraction:
+                continue
+            d = self.field.lookup(*self._world(all_pts, pose)) - half
+            ranked.append((float(np.mean(np.abs(d) <= 0.05)), pose))
+        ranked.sort(key=lambda item: -item[0])
+        good = [r for r in ranked if r[0] >= ranked[0][0] - 0.05] if ranked else []
         # Distinct hypotheses only.
         hyps: list[tuple[float, Pose2D]] = []
         for frac, pose in good:
