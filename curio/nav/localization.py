@@ -733,6 +733,10 @@ class LocalizerNode:
                 self.localizer.initialize(self.start)
             self._set_correction(self.start, odom.pose, odom.stamp)
             self._publish_status(odom.stamp)
+        self._publish_pose(odom)
+
+    def _publish_pose(self, odom: Odometry) -> None:
+        """``POSE`` = map→odom ∘ ``odom``, stamped with the odometry's time."""
         assert self.map_to_odom is not None
         cov = self.localizer.covariance
         self.bus.publish(POSE, PoseWithCovariance(
@@ -754,6 +758,7 @@ class LocalizerNode:
                 del self.update_times_s[:500]
             if self.localizer.state != "lost" or self.localizer.search is None:
                 self._set_correction(self.localizer.pose, odom_pose, scan.stamp)
+                self._publish_pose(self._odom[-1])  # the correction at once, not next odom
             self._publish_status(scan.stamp)
 
     def on_initial_pose(self, msg: PoseWithCovariance) -> None:
