@@ -17,6 +17,7 @@ SCENARIOS: dict[str, str] = {
     "kidnap": "curio.scenarios.kidnap:KidnapScenario",
     "operator-demo": "curio.scenarios.operator_demo:OperatorDemoScenario",
     "blocked-door": "curio.scenarios.blocked_door:BlockedDoorScenario",
+    "guided-tour": "curio.scenarios.guided_tour:GuidedTourScenario",
 }
 
 
