@@ -102,7 +102,7 @@ def build_device_drivers(app: App) -> None:
         # Hold the simulated clock while pty bytes are in flight (exact byte accounting).
         arduino_emu.pair(base)
         lidar_emu.pair(lidar)
-    app.add(Part("arduino", run=base.run))
+    app.add(Part("arduino", run=base.run, close=base.close))
     app.add_halt_hook(base.halt)
     app.add(Part("lidar", run=lidar.run, close=lidar.close))
     app.add(Part("imu", run=imu.run, close=imu.close))

@@ -35,6 +35,7 @@ class Rig:
     base: ArduinoBase
     speed_mps: float = 0.2
     publishing: bool = True
+    base_task: asyncio.Future[None] | None = None  # base.run()
 
     async def until(self, pred: Callable[[], bool], timeout_s: float = 3.0) -> None:
         ok = await self.clock.wait_until(pred, timeout_s, poll_s=0.01)
@@ -66,6 +67,7 @@ async def make_rig(cfg: ArduinoConfig = FAST, boot_delay_s: float = 0.1) -> Asyn
     rig = Rig(clock, bus, world, emu, base)
     tasks = [asyncio.ensure_future(emu.run()), asyncio.ensure_future(base.run()),
              asyncio.ensure_future(_commander(rig))]
+    rig.base_task = tasks[1]
     try:
         await rig.until(rig.driving)
         yield rig
@@ -73,6 +75,7 @@ async def make_rig(cfg: ArduinoConfig = FAST, boot_delay_s: float = 0.1) -> Asyn
         for t in tasks:
             t.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
+        await base.close()
         emu.close()
 
 

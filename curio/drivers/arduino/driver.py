@@ -43,13 +43,20 @@ released with ARM.
 Construction (``curio/drivers/hw_wiring.py``)::
 
     base = ArduinoBase(cfg.drivers.arduino, cfg.robot, app.bus, app.clock, port=port)
-    app.add(Part("arduino", run=base.run))
+    app.add(Part("arduino", run=base.run, close=base.close))
     app.add_halt_hook(base.halt)
 
 ``port`` defaults to ``cfg.port``; in emulated mode pass ``ArduinoEmulator.port_path`` and call
-``emulator.pair(base)`` (keeps a fast simulated clock from racing ahead of pty delivery). All
-timing uses the injected clock; nothing blocks the loop. The latest RC channels (raw receiver
-order) are kept in ``base.rc``; the latest per-servo status in ``base.servo_status``.
+``emulator.pair(base)`` (keeps a fast simulated clock from racing ahead of pty delivery; the
+port is opened and closed in a worker thread, and while paired the driver holds the clock
+during that work too, so emulated runs are deterministic). All timing uses the injected clock;
+nothing blocks the loop. The latest RC channels (raw receiver order) are kept in ``base.rc``;
+the latest per-servo status in ``base.servo_status``.
+
+The port is opened exclusively, so a port still closing blocks the next open. :meth:`close`
+(the app's last shutdown step, also right after an abrupt cancel of :meth:`run`) sends a stop,
+closes the port and returns once the OS has released it (a port whose open was still under way
+in its thread is closed too); a new session likewise waits for the previous port's release.
 """
 
 from __future__ import annotations
@@ -84,6 +91,8 @@ RECOVERED_NOTE_S = 60.0  # how long an "ok" health still mentions the last probl
 ACK_TIMEOUT_S = 0.3
 ACK_RETRIES = 3
 TX_HOLD_S = 0.15  # the board sends STATE at 10 Hz and SERVO_POS at 30 Hz: longer silence is odd
+CLOSE_TIMEOUT_S = 1.0  # clock time to wait for the OS to release the port (then give up)
+HOLD_MAX_SPINS = 100_000  # loop turns the paced clock is held for port work in a thread
 PORT_HINT = ("is the Mega plugged in? Run `curio check`; on the Pi the udev rule in deploy/ "
              "names it /dev/curio-arduino, and the user needs the dialout group; no other "
              "program (arduino-cli upload, a serial monitor) may hold the port")
@@ -152,6 +161,10 @@ class ArduinoBase:
         # ahead of pty delivery. Without a peer it does nothing.
         self.pacer = Pacer(clock, lambda: self.bytes_sent)
         self._writer: asyncio.StreamWriter | None = None
+        self._opening: asyncio.Future[tuple[asyncio.StreamReader, asyncio.StreamWriter]] | None \
+            = None
+        self._closing: list[asyncio.StreamWriter] = []  # closed, not yet released by the OS
+        self._closed = False
         self._rx_event = asyncio.Event()
         self._tx_seq = 0
         self._acks: dict[tuple[int, int], int] = {}
@@ -196,19 +209,26 @@ class ArduinoBase:
     # --- public -------------------------------------------------------------------------------
 
     async def run(self) -> None:
-        """Connect, configure, arm and drive until cancelled; reconnect after any failure."""
+        """Connect, configure, arm and drive until cancelled (or :meth:`close`); reconnect after
+        any failure."""
         backoff_s = 0.1
-        while True:
+        while not self._closed:
             try:
                 await self._session()
                 backoff_s = 0.1
             except _LinkLost as exc:
+                if self._closed:
+                    break  # close() closed the port under the session
                 self._error(str(exc))
                 self.counters["link_losses"] += 1
                 if self._configured:
                     backoff_s = 0.1
             except OSError as exc:
+                if self._closed:
+                    break
                 self._error(f"cannot use {self.port}: {exc}; {PORT_HINT}")
+            if self._closed:
+                break
             self._phase = "disconnected"
             self.publish_health(force=True)
             await self.clock.sleep(backoff_s)
@@ -219,9 +239,7 @@ class ArduinoBase:
         self._halted = True
         if self._writer is None:
             return
-        steer = (p.STEER_UNCHANGED,) * 4
-        self._send(p.ServoCmd((0,) * 6, steer, 0))
-        self._send(p.Arm(False))
+        self._send_stop()
         drained = asyncio.ensure_future(self._writer.drain())
         timer = asyncio.ensure_future(self.clock.sleep(0.2))
         try:
@@ -229,6 +247,29 @@ class ArduinoBase:
         finally:
             drained.cancel()
             timer.cancel()
+
+    async def close(self) -> None:
+        """Stop the wheels, close the port and wait until the OS has released it.
+
+        The app's last shutdown step (``Part.close``); safe after an abrupt cancel of
+        :meth:`run` (whose session already closed the port: this waits for the release) and
+        while :meth:`run` is still going (it then returns instead of reconnecting). A port
+        whose open was still in its worker thread is closed as soon as it opens. Afterwards
+        the same port can be opened again at once. Gives up after ``CLOSE_TIMEOUT_S`` of
+        clock time per port (logged), dropping bytes the port would not take.
+        """
+        self._closed = True
+        self._halted = True
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            self._send_stop(writer)
+            self._retire(writer)
+        opening = self._opening
+        if opening is not None:
+            await self._hold(opening, CLOSE_TIMEOUT_S)
+            if opening.done() and not opening.cancelled() and opening.exception() is None:
+                self._retire(opening.result()[1])
+        await self._release_all()
 
     async def servo_raw(self, packet: bytes, timeout_s: float = 0.5) -> bytes | None:
         """Forward one LX-16A packet to the servo bus and return the servo's reply packet
@@ -326,8 +367,11 @@ class ArduinoBase:
     async def _session(self) -> None:
         self._phase = "starting"
         self.publish_health()
-        reader, writer = await serial_asyncio_fast.open_serial_connection(
-            url=self.port, baudrate=self.cfg.baud, exclusive=True)
+        await self._release_all()  # the previous session's port must be free (exclusive open)
+        reader, writer = await self._open()
+        if self._closed:  # close() ran while the port was opening
+            self._retire(writer)
+            return
         self._writer = writer
         if self._opened_before:
             self.counters["reconnects"] += 1
@@ -388,14 +432,93 @@ class ArduinoBase:
                 self._command(now)
                 self.publish_health()
                 await self.pacer.settle()
+        except asyncio.CancelledError:
+            if self._writer is writer:  # stopped abruptly (no halt first): stop the wheels
+                self._send_stop(writer)
+            raise
         finally:
             reader_task.cancel()
             with contextlib.suppress(BaseException):
                 await reader_task
-            writer.close()
-            self._writer = None
+            self._retire(writer)  # close() or the next session waits for the release
+            if self._writer is writer:
+                self._writer = None
             self.connected = False
             self.mcu_state = None  # unknown until the board speaks again
+
+    async def _open(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+        """Open the port (in pyserial-asyncio-fast's worker thread), holding a paced clock."""
+        opening = asyncio.ensure_future(serial_asyncio_fast.open_serial_connection(
+            url=self.port, baudrate=self.cfg.baud, exclusive=True))
+        self._opening = opening
+        try:
+            await self._hold(opening, None)
+        except asyncio.CancelledError:
+            # The open goes on in its thread: close the port once it is open (close() waits).
+            opening.add_done_callback(self._retire_opened)
+            raise
+        if self._opening is opening:
+            self._opening = None
+        return opening.result()
+
+    def _retire_opened(
+            self, opening: asyncio.Future[tuple[asyncio.StreamReader, asyncio.StreamWriter]]
+    ) -> None:
+        if not opening.cancelled() and opening.exception() is None:
+            self._retire(opening.result()[1])
+
+    def _retire(self, writer: asyncio.StreamWriter) -> None:
+        """Start closing ``writer``'s port (buffered bytes are still sent) and remember it
+        until the OS has released it (:meth:`_release_all`)."""
+        writer.close()
+        if writer not in self._closing:
+            self._closing.append(writer)
+
+    async def _release_all(self) -> None:
+        """Wait until every retired port is released (``CLOSE_TIMEOUT_S`` each, then give up;
+        bytes the port would not take are dropped first)."""
+        while self._closing:
+            writer = self._closing[0]
+            closed = asyncio.ensure_future(writer.wait_closed())
+            try:
+                await self._hold(closed, CLOSE_TIMEOUT_S)
+                if not closed.done() and writer.transport.get_write_buffer_size() > 0:
+                    writer.transport.abort()  # the device takes no more bytes: drop them
+                    await self._hold(closed, CLOSE_TIMEOUT_S)
+            finally:
+                if not closed.done():
+                    closed.cancel()
+                elif not closed.cancelled() and closed.exception() is not None:
+                    log.debug("arduino: port closed with %r", closed.exception())
+            if not closed.done() or closed.cancelled():
+                self._error(f"{self.port} did not close within {CLOSE_TIMEOUT_S:g} s; the next "
+                            "open may find it busy")
+            if writer in self._closing:
+                self._closing.remove(writer)
+
+    async def _hold(self, fut: asyncio.Future[Any], timeout_s: float | None) -> None:
+        """Wait until ``fut`` (port work in a worker thread) is done, at most ``timeout_s`` of
+        clock time (``None``: no limit); ``fut`` is not cancelled.
+
+        Paired with an emulator (emulated mode) it first keeps this task runnable for up to
+        ``HOLD_MAX_SPINS`` loop turns, so the ``SimClock`` does not move on by however long
+        the thread happens to take (as the RPLidar driver's open does).
+        """
+        if self.pacer.peer_received is not None:
+            for _ in range(HOLD_MAX_SPINS):
+                if fut.done():
+                    return
+                await self.clock.sleep(0.0)
+        if fut.done():
+            return
+        if timeout_s is None:
+            await asyncio.wait({fut})
+            return
+        timer = asyncio.ensure_future(self.clock.sleep(timeout_s))
+        try:
+            await asyncio.wait({fut, timer}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            timer.cancel()
 
     def _check_reader(self, task: asyncio.Future[None]) -> None:
         if not task.done():
@@ -521,13 +644,20 @@ class ArduinoBase:
     def _host_ms(self) -> int:
         return int(self.clock.now() * 1000.0) & 0xFFFFFFFF
 
-    def _send(self, msg: p.Message) -> int:
+    def _send_stop(self, writer: asyncio.StreamWriter | None = None) -> None:
+        """Zero wheel duties (steering unchanged) and disarm, on ``writer`` or the session's."""
+        steer = (p.STEER_UNCHANGED,) * 4
+        for msg in (p.ServoCmd((0,) * 6, steer, 0), p.Arm(False)):
+            self._send(msg, writer)
+
+    def _send(self, msg: p.Message, writer: asyncio.StreamWriter | None = None) -> int:
         seq = self._tx_seq
         self._tx_seq = (seq + 1) & 0xFF
-        if self._writer is None or self.tx_suspended:
+        writer = writer or self._writer
+        if writer is None or self.tx_suspended or writer.is_closing():
             return seq
         data = p.encode(msg, seq)
-        self._writer.write(data)
+        writer.write(data)
         self.bytes_sent += len(data)
         self.counters["tx_frames"] += 1
         return seq

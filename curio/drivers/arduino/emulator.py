@@ -24,7 +24,7 @@ The servo side is the simulator's world (helper H1's ``curio/sim``), through thr
     base = ArduinoBase(cfg.drivers.arduino, cfg.robot, app.bus, app.clock, port=emu.port_path)
     emu.pair(base)                   # SimClock: hold virtual time until pty bytes are read
     app.add(Part("arduino-emulator", run=emu.run, close=emu.aclose))
-    app.add(Part("arduino", run=base.run))
+    app.add(Part("arduino", run=base.run, close=base.close))
     app.add_halt_hook(base.halt)
 
 ``port_path`` is a symlink in a private temporary directory that always points at the current
