@@ -393,6 +393,12 @@ class RecoveryConfig(Section):
     rate_hz: float = Field(10.0, gt=0.0, le=50.0, description="command rate of the actions")
     max_rounds: int = Field(
         2, ge=1, description="how often the whole ladder may be climbed for one goal")
+    goal_progress_timeout_s: float = Field(
+        20.0, gt=0.0, description="no 0.3 m closer to the goal along the plan for this long: "
+        "stuck (catches a rover dithering at a gap it cannot pass)")
+    keep_out_radius_m: float = Field(
+        0.3, ge=0.0, description="where the rover got stuck, replans avoid this radius")
+    keep_out_s: float = Field(90.0, ge=0.0, description="how long a keep-out spot lasts")
 
 
 class BlockedConfig(Section):

@@ -154,6 +154,10 @@ class NavigatorNode:
         self._goal_started_s = 0.0
         self._sent_zero = True
         self.plan_count = 0
+        self._best_remaining = math.inf
+        self._best_t = 0.0
+        self._baseline_t = -math.inf
+        self.keep_out: list[tuple[float, float, float]] = []  # (x, y, expiry clock s)
         self.on_done: list[Callable[[GoalHandle], None]] = []
 
     # --- the action interface -------------------------------------------------------------
@@ -288,7 +292,7 @@ class NavigatorNode:
         if not math.isfinite(goal.yaw):
             # No heading wanted: the planner still needs a number for the last pose.
             goal = Pose2D(goal.x, goal.y, math.atan2(goal.y - start.y, goal.x - start.x))
-        costs = self.costmap.costs()
+        costs = self._with_keep_out(self.costmap.costs(), start, goal)
         res = self.costmap.resolution_m
         origin = self.costmap.origin
         planner = self.planner
@@ -305,6 +309,41 @@ class NavigatorNode:
         self.plan_count += 1
         self._plan_job = _PlanJob(task, handle.goal_id, handle.current_index, reason)
         self._last_plan_t = self.clock.now()
+
+    def _with_keep_out(self, costs: U8, start: Pose2D, goal: Pose2D) -> U8:
+        """The costs with the live keep-out spots (where the rover got stuck) made lethal, so a
+        replan looks for another way; spots near the start or the goal are left out."""
+        now = self.clock.now()
+        self.keep_out = [k for k in self.keep_out if k[2] > now]
+        radius = self.cfg.nav.recovery.keep_out_radius_m
+        spots = [(x, y) for x, y, _ in self.keep_out
+                 if math.hypot(x - start.x, y - start.y) > radius + 0.4
+                 and math.hypot(x - goal.x, y - goal.y) > radius + 0.2]
+        if not spots or radius <= 0.0:
+            return costs
+        out = costs.copy()
+        res = self.costmap.resolution_m
+        n = math.ceil(radius / res)
+        h, w = out.shape
+        for x, y in spots:
+            r, c = self.costmap.world_to_cell(x, y)
+            rr, cc = np.mgrid[max(0, r - n):min(h, r + n + 1), max(0, c - n):min(w, c + n + 1)]
+            inside = (rr - r) ** 2 + (cc - c) ** 2 <= n * n
+            out[rr[inside], cc[inside]] = LETHAL
+        return out
+
+    def _add_keep_out(self, pose: Pose2D, ahead_m: float = 0.5) -> None:
+        """Remember the spot about ``ahead_m`` along the plan as one to route around."""
+        plan = self.controller.plan
+        if len(plan) == 0 or self.cfg.nav.recovery.keep_out_radius_m <= 0.0:
+            return
+        i = self.controller.plan_index
+        d = np.hypot(plan[i:, 0] - pose.x, plan[i:, 1] - pose.y)
+        beyond = np.nonzero(d >= ahead_m)[0]
+        j = i + int(beyond[0]) if len(beyond) else len(plan) - 1
+        x, y = float(plan[j, 0]), float(plan[j, 1])
+        self.keep_out.append((x, y, self.clock.now() + self.cfg.nav.recovery.keep_out_s))
+        self._event("nav.keep_out", self._active, x=round(x, 3), y=round(y, 3))
 
     def _plan_blocked(self, pose: Pose2D) -> bool:
         """Whether the plan ahead (about 3 m) crosses a lethal or inscribed cell."""
@@ -345,6 +384,16 @@ class NavigatorNode:
             # The planner moved a goal too close to an obstacle to the nearest free cell
             # (nav.planner.goal_nearest_free): drive there, with the requested heading.
             goal = Pose2D(poses[-1].x, poses[-1].y, goal.yaw)
+        length = float(sum(a.distance_to(b) for a, b in itertools.pairwise(poses)))
+        now = self.clock.now()
+        timeout = self.cfg.nav.recovery.goal_progress_timeout_s
+        if not math.isfinite(self._best_remaining) or (
+                length > self._best_remaining + 1.0 and now - self._baseline_t > timeout):
+            # The first plan, or a genuine detour (at most once per timeout, so plans that
+            # flicker between two routes cannot keep postponing the verdict).
+            self._best_remaining = length
+            self._best_t = now
+            self._baseline_t = now
         self._plan = poses
         self._plan_goal_index = handle.current_index
         self.controller.set_plan(poses, goal, check_yaw=math.isfinite(goal.yaw))
@@ -367,6 +416,8 @@ class NavigatorNode:
         self._plan = []
         self._plan_goal_index = -1
         self._progress_anchor = pose
+        self._best_remaining = math.inf
+        self.keep_out = []
         self.controller.clear_plan()
         self.controller.reset()
         self._cancel_jobs()
@@ -393,6 +444,7 @@ class NavigatorNode:
             self._plan_job = None
             # Motion made by the recovery itself is not progress towards the goal.
             self._progress_anchor = pose
+            self._best_t = self.clock.now()
             if pose is not None:
                 self._start_plan(pose, handle, "after recovery")
             return
@@ -447,7 +499,19 @@ class NavigatorNode:
         if out.status is ControlStatus.GOAL_REACHED:
             self._waypoint_reached(handle)
             return
+        if out.distance_remaining_m < self._best_remaining - 0.3:
+            self._best_remaining = out.distance_remaining_m
+            self._best_t = now
+        elif now - self._best_t > self.cfg.nav.recovery.goal_progress_timeout_s:
+            self._best_t = now
+            self._add_keep_out(pose)
+            self._stuck(handle, NoProgressError(
+                f"no progress towards the goal for "
+                f"{self.cfg.nav.recovery.goal_progress_timeout_s:g} s"), pose)
+            return
         if out.status in (ControlStatus.BLOCKED, ControlStatus.NO_PROGRESS):
+            if out.status is ControlStatus.BLOCKED:
+                self._add_keep_out(pose)
             err2: NavError = (ControllerFailedError(
                 "the way ahead is blocked and the local controller finds no admissible motion")
                 if out.status is ControlStatus.BLOCKED else NoProgressError(
@@ -463,6 +527,7 @@ class NavigatorNode:
         if idx + 1 < len(handle.poses):
             self._event("nav.waypoint_reached", handle, index=idx)
             handle.current_index += 1
+            self._best_remaining = math.inf
             self._plan = []
             self._plan_goal_index = -1
             self.controller.clear_plan()
