@@ -287,3 +287,24 @@ async def test_no_progress_triggers_recovery(fast_cfg: Config) -> None:
         assert handle.recoveries == 1
 
 
+
+
+async def test_no_progress_towards_the_goal_makes_a_keep_out_spot(fast_cfg: Config) -> None:
+    cfg = fast_cfg.model_copy(deep=True)
+    cfg.nav.controller.progress_timeout_s = 1000.0  # only the goal-progress check can fire
+    cfg.nav.recovery.goal_progress_timeout_s = 5.0
+    cfg.nav.recovery.ladder = ["wait"]
+    async with Harness(cfg, room(), Pose2D(-2.0, 0.0, 0.0)) as h:
+        h.rover.frozen = True  # the wheels turn, the rover gets no closer
+        handle = h.nav.send_goal(Pose2D(2.0, 0.0, math.nan))
+        assert await h.until(lambda: handle.done, 60.0)
+        assert handle.state is GoalState.ABORTED
+        assert handle.error is not None and handle.error.code == "no_progress"
+        kinds = h.kinds()
+        assert "nav.keep_out" in kinds
+        # The spot ahead of the rover is lethal for the next plans (start and goal exempt).
+        x, y, _ = h.nav.keep_out[0]
+        assert -1.8 < x < -1.2 and abs(y) < 0.1
+        costs = h.nav._with_keep_out(h.costmap.costs(), Pose2D(-3.0, 1.5), Pose2D(3.0, 0.0))
+        r, c = h.costmap.world_to_cell(x, y)
+        assert costs[r, c] == 254 and h.costmap.costs()[r, c] < 253
