@@ -70,7 +70,7 @@ class MapperParams:
     window_m: float = 14.0
     min_inlier_fraction: float = 0.35
     l_occ: float = 0.9
-    l_free: float = -0.7
+    l_free: float = -0.4
     l_max: float = 6.0
     loop_radius_m: float = 4.0
     loop_min_travel_m: float = 10.0
