@@ -252,13 +252,16 @@ def _delegate(command: str, rest: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``curio`` command; returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    verbose = bool(argv) and argv[0] in ("-v", "--verbose")
+    rest = argv[1:] if verbose else argv
+    if rest and rest[0] in _DELEGATED:
+        # check / emulate / map parse their own arguments (--help included).
+        _setup_logging(verbose)
+        return _delegate(rest[0], rest[1:])
     parser = _build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
-        datefmt="%H:%M:%S",
-    )
+    _setup_logging(args.verbose)
     try:
         if args.command == "run":
             return _cmd_run(args)
@@ -277,3 +280,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+
+
+_DELEGATED = ("check", "emulate", "map")
+
+
+def _setup_logging(verbose: bool) -> None:
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
+        datefmt="%H:%M:%S",
+    )
