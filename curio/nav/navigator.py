@@ -156,6 +156,7 @@ class NavigatorNode:
         self.plan_count = 0
         self._best_remaining = math.inf
         self._best_t = 0.0
+        self._rung_remaining = math.inf
         self._baseline_t = -math.inf
         self.keep_out: list[tuple[float, float, float]] = []  # (x, y, expiry clock s)
         self.on_done: list[Callable[[GoalHandle], None]] = []
@@ -412,6 +413,7 @@ class NavigatorNode:
         self._goal_started_s = self.clock.now()
         self._recovery_rung = 0
         self._recovery_rounds = 0
+        self._rung_remaining = math.inf
         self._last_error = None
         self._plan = []
         self._plan_goal_index = -1
@@ -465,10 +467,6 @@ class NavigatorNode:
                     "localisation lost for 10 s: set the pose on the dashboard"), "lost")
             return
         self._lost_since = None
-        # Progress resets the recovery ladder.
-        if self._progress_anchor is None or pose.distance_to(self._progress_anchor) > 0.5:
-            self._progress_anchor = pose
-            self._recovery_rung = 0
         # Planning.
         err = self._take_plan_result(handle)
         if err is not None:
@@ -502,6 +500,11 @@ class NavigatorNode:
         if out.distance_remaining_m < self._best_remaining - 0.3:
             self._best_remaining = out.distance_remaining_m
             self._best_t = now
+            if out.distance_remaining_m < self._rung_remaining - 1.0:
+                # Real progress towards the goal (not just driving back to where it got
+                # stuck after a step back) starts the recovery ladder afresh.
+                self._recovery_rung = 0
+                self._rung_remaining = out.distance_remaining_m
         elif now - self._best_t > self.cfg.nav.recovery.goal_progress_timeout_s:
             self._best_t = now
             self._add_keep_out(pose)
@@ -567,6 +570,7 @@ class NavigatorNode:
                 return
         step = ladder[self._recovery_rung]
         self._recovery_rung += 1
+        self._rung_remaining = self._best_remaining
         handle.recoveries += 1
         handle.history.append(f"recovery {step}: {err.code}")
         recovery = self.recovery
