@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
+from curio.bus import Bus
 from curio.clock import SimClock
 from curio.config import REPO_ROOT, Config, load_config
 from curio.topics import make_bus
-from curio.bus import Bus
 
 SHARED = REPO_ROOT.parent / "shared"
 
