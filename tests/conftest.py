@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 from curio.bus import Bus
 from curio.clock import SimClock
@@ -12,6 +14,11 @@ from curio.config import REPO_ROOT, Config, load_config
 from curio.topics import make_bus
 
 SHARED = REPO_ROOT.parent / "shared"
+
+# CI explores the same hypothesis examples every run (reproducible); locally they vary.
+settings.register_profile("ci", derandomize=True, print_blob=True)
+if os.environ.get("CI"):
+    settings.load_profile("ci")
 
 
 @pytest.fixture
