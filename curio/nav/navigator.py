@@ -594,6 +594,14 @@ class NavigatorNode:
         op = self.bus.subscribe(OPERATOR)
         estop = self.bus.subscribe(ESTOP)
         period = 1.0 / self.cfg.nav.controller.rate_hz
+        warm_up = getattr(self.planner, "warm_up", None)
+        if callable(warm_up):
+            # Compile the planner's kernels before the first goal, off the loop on the real
+            # clock (inline on a simulated clock, where wall time does not pass for the rover).
+            if self.plan_in_thread:
+                await asyncio.to_thread(warm_up)
+            else:
+                warm_up()
         next_t = self.clock.now()
         try:
             while True:

@@ -9,6 +9,8 @@ on ``app`` (``app.costmap``, ``app.planner``, ``app.controller``, ``app.navigato
   keeps it up to date from ``/scan`` and ``/pose`` and follows ``/map``;
 * the navigator (``curio.nav.navigator``) plans in a worker thread on the real clock and
   inline on a simulated clock (so simulated runs are deterministic);
+* the navigator compiles the planner's kernels (``GlobalPlanner.warm_up``) when it starts, off
+  the loop on the real clock, and the controller gets the costmap's cost scaling;
 * the safety stage is always built: it is the only publisher of ``/cmd_vel``.
 
 The rover's pose comes from ``/pose`` (``map``), published by the estimation wiring.
