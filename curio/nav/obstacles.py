@@ -81,9 +81,14 @@ def _split(points: F64, tol_m: float, out: list[F64], min_points: int) -> None:
 def _fit_segment(pts: F64) -> Segment:
     """Least-squares line through the points, clipped to their extent."""
     c = pts.mean(axis=0)
-    _, _, vt = np.linalg.svd(pts - c, full_matrices=False)
-    direction = vt[0]
-    t = (pts - c) @ direction
+    d = pts - c
+    # Principal axis of the 2x2 scatter matrix in closed form (what an SVD would give).
+    sxx = float(d[:, 0] @ d[:, 0])
+    syy = float(d[:, 1] @ d[:, 1])
+    sxy = float(d[:, 0] @ d[:, 1])
+    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    direction = np.array([math.cos(theta), math.sin(theta)])
+    t = d @ direction
     p1 = c + direction * t.min()
     p2 = c + direction * t.max()
     # Keep the scan's order (first point near the first beam).
