@@ -54,6 +54,9 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
     scenario_name = str(opts.extra.get("scenario", "guided-tour"))
     duration_s = float(opts.extra.get("duration", 1800))
+    # Untimed warm-up: imports and compiled-kernel loading are paid once per process, not by
+    # whichever subject happens to run first.
+    _one("warm-up", scenario_name, [], True, opts.seed, 5.0)
     rows = [
         _one("curio (full stack, web hub)", scenario_name, [], True, opts.seed, duration_s),
         _one("curio without web hub", scenario_name, [], False, opts.seed, duration_s),
