@@ -8,10 +8,17 @@ Process: constant velocity and yaw rate with white acceleration noise
 (``process_accel_sigma_mps2``, ``process_yaw_accel_sigma_radps2``), a slow random walk of the
 bias. Measurements, each gated by its Mahalanobis distance (``gate_mahalanobis``):
 
-* wheel odometry (``WHEEL_ODOM``): the average forward speed and yaw rate over the interval since
-  the previous message, from the pose increment (``odom_speed_sigma_mps``,
-  ``odom_yaw_rate_sigma_radps``). A slipping wheel set that claims a turn the gyro does not see is
-  rejected by the gate.
+* wheel odometry (``WHEEL_ODOM``): the average forward speed over the interval since the previous
+  message, from the pose increment (``odom_speed_sigma_mps``); the yaw rate too
+  (``odom_yaw_rate_sigma_radps``) only while no gyro is heard (``IMU`` silent for
+  ``GYRO_TIMEOUT_S``) — with a gyro, the wheels' per-message yaw rate is too jumpy (encoder dead
+  zone, skid) to fuse every 20 ms: its errors bias the gyro-bias estimate and turn the rover.
+* the gyro bias from a window comparison: every ``BIAS_WINDOW_S`` of wheel odometry, the gyro's
+  integrated raw rate minus the wheels' yaw increment over the same interval, divided by its
+  length, measures ``b_gyro`` (standard deviation ``BIAS_WINDOW_YAW_SIGMA_RAD`` / T plus
+  ``BIAS_SKID_FRACTION`` of the turn / T), in windows where the gyro saw less than
+  ``BIAS_MAX_TURN_RAD`` of turn (in turns the wheels' yaw lags, jumps and skids). A slipping
+  wheel set that claims a turn the gyro does not see is rejected by the gate.
 * the BNO055 (``IMU``): z angular rate = ``omega + b_gyro`` (``imu_yaw_rate_sigma_radps``); with
   ``use_imu_heading`` and a calibrated magnetometer, the absolute heading too
   (``imu_heading_sigma_rad``), offset so that the first accepted heading matches the filter's yaw.
@@ -46,6 +53,11 @@ F64 = npt.NDArray[np.float64]
 
 X, Y, YAW, V, W, B = range(6)
 MAX_EXTRAPOLATION_S = 0.25
+GYRO_TIMEOUT_S = 0.25  # no IMU for this long: the wheels' yaw rate is fused again
+BIAS_WINDOW_S = 1.0  # wheel-vs-gyro comparison window for the bias, seconds
+BIAS_WINDOW_YAW_SIGMA_RAD = 0.01  # wheel + gyro yaw-increment error over one window
+BIAS_SKID_FRACTION = 0.05  # extra yaw-increment error per radian turned (skid steering)
+BIAS_MAX_TURN_RAD = 0.2  # windows in which the gyro saw a larger turn are not compared
 
 
 class OdomEkf:
@@ -66,8 +78,13 @@ class OdomEkf:
         self.imu_yaw_in_base_rad = imu_yaw_in_base_rad
         self._heading_offset: float | None = None
         self._last_wheel: Odometry | None = None
-        self.rejected: dict[str, int] = {"wheel": 0, "gyro": 0, "heading": 0}
-        self.accepted: dict[str, int] = {"wheel": 0, "gyro": 0, "heading": 0}
+        self.rejected: dict[str, int] = {"wheel": 0, "gyro": 0, "heading": 0, "bias": 0}
+        self.accepted: dict[str, int] = {"wheel": 0, "gyro": 0, "heading": 0, "bias": 0}
+        self._last_imu_t: float | None = None
+        self._last_imu_rate = 0.0
+        # Bias window: gyro integral (rad) since wheel message ``_win_start`` (stamp, yaw).
+        self._win_start: tuple[float, float] | None = None
+        self._win_gyro_rad = 0.0
 
     # --- state access ------------------------------------------------------------------------
     @property
@@ -199,21 +216,62 @@ class OdomEkf:
         h[0, V] = 1.0
         h[1, W] = 1.0
         r = np.diag([self.cfg.odom_speed_sigma_mps**2, self.cfg.odom_yaw_rate_sigma_radps**2])
-        ok = self._update("wheel", np.array([v, w]), h, r)
-        if not ok:
-            # The yaw rate is the usual culprit (slip); keep the speed if it alone is sane.
+        if self._gyro_alive(odom.stamp):
             ok = self._update("wheel", np.array([v]), h[:1], r[:1, :1])
+        else:
+            ok = self._update("wheel", np.array([v, w]), h, r)
+            if not ok:
+                # The yaw rate is the usual culprit (slip); keep the speed if it alone is sane.
+                ok = self._update("wheel", np.array([v]), h[:1], r[:1, :1])
         self.predict_to(odom.stamp)
+        self._bias_window(odom)
         return ok
+
+    def _gyro_alive(self, t_s: float) -> bool:
+        return self._last_imu_t is not None and t_s - self._last_imu_t <= GYRO_TIMEOUT_S
+
+    def _bias_window(self, odom: Odometry) -> None:
+        """Close the wheel-vs-gyro window at ``odom`` when it is long enough (see module doc)."""
+        yaw = odom.pose.yaw
+        if self._win_start is None or not self._gyro_alive(odom.stamp):
+            self._win_start = (odom.stamp, yaw)
+            self._win_gyro_rad = 0.0
+            return
+        t0, yaw0 = self._win_start
+        span = odom.stamp - t0
+        if span < BIAS_WINDOW_S:
+            return
+        # The gyro integral runs to the last IMU sample: extend it to the wheel stamp.
+        assert self._last_imu_t is not None
+        gyro = self._win_gyro_rad + self._last_imu_rate * (odom.stamp - self._last_imu_t)
+        turn = wrap_angle(yaw - yaw0)
+        if abs(gyro - float(self.x[B]) * span) <= BIAS_MAX_TURN_RAD:
+            # In turns the wheels' yaw lags and jumps (encoder dead zone) and skids: only
+            # windows of (nearly) straight driving or standing still calibrate the gyro.
+            z = (gyro - turn) / span
+            sigma = math.hypot(BIAS_WINDOW_YAW_SIGMA_RAD, BIAS_SKID_FRACTION * abs(turn)) / span
+            h = np.zeros((1, 6))
+            h[0, B] = 1.0
+            self._update("bias", np.array([z]), h, np.array([[sigma**2]]))
+        self._win_start = (odom.stamp, yaw)
+        self._win_gyro_rad = -self._last_imu_rate * (odom.stamp - self._last_imu_t)
 
     def add_imu(self, imu: Imu) -> bool:
         """Fuse the gyro's z rate (and the heading, when enabled and calibrated)."""
         self.predict_to(imu.stamp)
+        rate = float(imu.angular_velocity_radps[2])
+        if self._last_imu_t is not None and self._win_start is not None:
+            gap = imu.stamp - self._last_imu_t
+            if 0.0 < gap <= GYRO_TIMEOUT_S:
+                self._win_gyro_rad += 0.5 * (rate + self._last_imu_rate) * gap  # trapezoid
+        if self._last_imu_t is None or imu.stamp >= self._last_imu_t:
+            self._last_imu_t = imu.stamp
+            self._last_imu_rate = rate
         h = np.zeros((1, 6))
         h[0, W] = 1.0
         h[0, B] = 1.0
         r = np.array([[self.cfg.imu_yaw_rate_sigma_radps**2]])
-        ok = self._update("gyro", np.array([imu.angular_velocity_radps[2]]), h, r)
+        ok = self._update("gyro", np.array([rate]), h, r)
         if self.cfg.use_imu_heading and imu.orientation_valid and self._calibrated(imu):
             yaw_base = wrap_angle(quat_to_yaw(imu.orientation_xyzw) - self.imu_yaw_in_base_rad)
             if self._heading_offset is None:
