@@ -171,19 +171,28 @@ class MatchResult:
 
 def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: int = 8,
                max_residual_m: float = 0.15, inlier_m: float = 0.1,
-               sigma_m: float = 0.03, surface_offset_m: float | None = None) -> MatchResult:
+               sigma_m: float = 0.03, surface_offset_m: float | None = None,
+               prior_cov: F64 | None = None) -> MatchResult:
     """Refine ``guess`` so that ``points`` (``base_link``) fall on wall faces (Gauss–Newton).
 
     The residual of a point is its interpolated distance to the nearest occupied cell centre
     minus ``surface_offset_m`` (default half a cell: the face of a wall drawn as cells; 0 for
     maps built from scan end points); points further than ``max_residual_m`` from a face are
     ignored (unmapped obstacles, glass, people), the rest are Huber-weighted.
+
+    ``prior_cov`` (3×3, x m, y m, yaw rad, in ``map``) makes ``guess`` a Gaussian prior: the
+    result is the maximum a posteriori pose, so directions the scan does not constrain (one wall,
+    one distant shape in an open area) stay where the prior puts them instead of sliding, and
+    the returned covariance is the posterior one.
     """
     half = 0.5 * field.resolution_m if surface_offset_m is None else surface_offset_m
     x, y, th = guess.x, guess.y, guess.yaw
     px, py = points[:, 0], points[:, 1]
     converged = False
-    h = np.eye(3) * 1e-6
+    prior_info: F64 | None = None
+    if prior_cov is not None:  # in units of the point residuals (m²)
+        prior_info = np.asarray(np.linalg.inv(prior_cov) * sigma_m**2, dtype=np.float64)
+    h = np.eye(3) * 1e-6 if prior_info is None else prior_info.copy()
     for _ in range(iterations):
         c, s = math.cos(th), math.sin(th)
         wx = x + c * px - s * py
@@ -203,6 +212,10 @@ def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: 
         jw = j * w[:, None]
         h = jw.T @ j + np.diag([1e-4, 1e-4, 1e-3])
         g = jw.T @ r
+        if prior_info is not None:
+            dev = np.array([x - guess.x, y - guess.y, wrap_angle(th - guess.yaw)])
+            h = h + prior_info
+            g = g + prior_info @ dev
         try:
             step = -np.linalg.solve(h, g)
         except np.linalg.LinAlgError:
@@ -283,6 +296,9 @@ class Localizer:
         self.search: _GlobalSearch | None = None
         self.searches = 0  # global searches started (diagnostics)
         self.initialized = False
+        # Tracking prior: the last estimate moved by odometry, with its covariance (map frame).
+        self._delta = Pose2D()
+        self.track_cov: F64 | None = None
 
     # --- initialisation --------------------------------------------------------------------
     def initialize(self, pose: Pose2D, std_xy_m: float | None = None,
@@ -306,6 +322,7 @@ class Localizer:
         self.state = "uncertain"
         self._force_update = True
         self._last_odom = None  # the motion before this call is already in ``pose``
+        self.track_cov = None
         self.initialized = True
 
     def global_localization(self) -> None:
@@ -316,6 +333,7 @@ class Localizer:
         self.state = "lost"
         self.poor_scans = self.cfg.lost_after_scans
         self.covariance = np.diag([100.0, 100.0, math.pi**2])
+        self.track_cov = None
         self._start_search()
         self._force_update = True
         self.initialized = True
@@ -345,6 +363,7 @@ class Localizer:
             return False
         self._force_update = False
         self._last_odom = odom_pose
+        self._delta = delta
         self._motion_update(delta)
         if self.search is not None:
             self.search.top_odom = (self.search.top_odom @ delta
@@ -353,6 +372,11 @@ class Localizer:
         pts_pf = scan_to_points(scan, self.laser_pose, self.cfg.laser_beams,
                                 scan.range_max_m - 0.05)
         if len(pts_pf) < 8:
+            # Nothing to weigh the particles with: the estimate follows the odometry.
+            track = self._predict_track()
+            if track is not None:
+                self.pose, self.track_cov = track
+                self._delta = Pose2D()
             return False
         self._sensor_update(pts_pf)
         self._estimate(scan)
@@ -447,25 +471,32 @@ class Localizer:
         mean = Pose2D(mx, my, myaw)
         pts = scan_to_points(scan, self.laser_pose, self.cfg.scan_match_beams,
                              scan.range_max_m - 0.05)
-        if self.cfg.scan_match and len(pts) >= 10:
-            m = scan_match(self.field, pts, mean, max_residual_m=self.cfg.scan_match_max_residual_m,
-                           inlier_m=self.cfg.inlier_distance_m)
+        # The prior only while the particles agree on one place (not while hypotheses compete
+        # after a global search: the particle filter decides between them).
+        unimodal = float(w[sel].sum()) >= 0.8 * float(w.sum())
+        guess, prior_cov = self._tracking_prior(mean, pts) if unimodal else (mean, None)
+        if self.cfg.scan_match and len(pts) >= (3 if prior_cov is not None else 10):
+            m = scan_match(self.field, pts, guess,
+                           max_residual_m=self.cfg.scan_match_max_residual_m,
+                           inlier_m=self.cfg.inlier_distance_m, prior_cov=prior_cov)
             self.inlier_fraction = m.inlier_fraction
+            self.track_cov = None
             jump = m.pose.distance_to(mean)
             if m.inlier_fraction >= self.cfg.lost_inlier_fraction and jump < 0.3:
-                corr = m.pose @ mean.inverse()
-                c, s = math.cos(corr.yaw), math.sin(corr.yaw)
-                q = p[sel]
-                nx = corr.x + c * q[:, 0] - s * q[:, 1]
-                ny = corr.y + s * q[:, 0] + c * q[:, 1]
-                q[:, 0], q[:, 1] = nx, ny
-                q[:, 2] = wrap_angles(q[:, 2] + corr.yaw)
-                p[sel] = q
+                # Floor: 1 cm, 0.3° (map resolution, unmodelled errors), never overconfident.
+                self.track_cov = m.covariance + np.diag([1e-4, 1e-4, 3e-5])
+                self._shift(sel, mean, m.pose)
                 mean = m.pose
         else:
             d = self.field.lookup(*self._world(pts, mean)) - 0.5 * self.grid.resolution_m
             self.inlier_fraction = float(np.mean(np.abs(d) <= self.cfg.inlier_distance_m)) \
                 if len(pts) else 0.0
+            self.track_cov = None
+            if self.cfg.scan_match and prior_cov is not None:
+                # Too few beams hit anything to match: trust the odometry (dead reckoning).
+                self.track_cov = prior_cov
+                self._shift(sel, mean, guess)
+                mean = guess
         q = p[sel]
         dx = q[:, 0] - mean.x
         dy = q[:, 1] - mean.y
@@ -475,6 +506,72 @@ class Localizer:
         self.covariance = cov + np.diag([1e-4, 1e-4, 3e-5])
         self.pose = mean
         self._update_state()
+
+    def _shift(self, sel: npt.NDArray[np.bool_], mean: Pose2D, target: Pose2D) -> None:
+        """Move the particles ``sel`` rigidly so that their mean ``mean`` lands on ``target``."""
+        p = self.particles
+        corr = target @ mean.inverse()
+        c, s = math.cos(corr.yaw), math.sin(corr.yaw)
+        q = p[sel]
+        nx = corr.x + c * q[:, 0] - s * q[:, 1]
+        ny = corr.y + s * q[:, 0] + c * q[:, 1]
+        q[:, 0], q[:, 1] = nx, ny
+        q[:, 2] = wrap_angles(q[:, 2] + corr.yaw)
+        p[sel] = q
+
+    def _predict_track(self) -> tuple[Pose2D, F64] | None:
+        """The last estimate moved by the odometry increment and its grown covariance."""
+        cov0 = self.track_cov
+        if cov0 is None or self.search is not None or self.state == "lost":
+            return None
+        d = self._delta
+        pred = self.pose @ d
+        trans = math.hypot(d.x, d.y)
+        rot = abs(d.yaw)
+        a1, a2, a3, a4 = (self.cfg.odom_alpha1, self.cfg.odom_alpha2, self.cfg.odom_alpha3,
+                          self.cfg.odom_alpha4)
+        var_t = a3 * trans**2 + a4 * rot**2 + 1e-6
+        var_r = a1 * rot**2 + a2 * trans**2 + 1e-6
+        c, s = math.cos(self.pose.yaw), math.sin(self.pose.yaw)
+        jac = np.array([[1.0, 0.0, -s * d.x - c * d.y],
+                        [0.0, 1.0, c * d.x - s * d.y],
+                        [0.0, 0.0, 1.0]])
+        cov = jac @ cov0 @ jac.T + np.diag([var_t, var_t, var_r])
+        return pred, np.asarray(cov, dtype=np.float64)
+
+    def _fit(self, pts: F64, pose: Pose2D) -> float:
+        """Share of ``pts`` (``base_link``) within the inlier distance of a face at ``pose``."""
+        if len(pts) == 0:
+            return 0.0
+        d = self.field.lookup(*self._world(pts, pose)) - 0.5 * self.grid.resolution_m
+        return float(np.mean(np.abs(d) <= self.cfg.inlier_distance_m))
+
+    def _tracking_prior(self, mean: Pose2D, pts: F64) -> tuple[Pose2D, F64 | None]:
+        """Where to start the scan match, and the prior covariance (None: no prior).
+
+        While tracking, the prior is the last estimate moved by the odometry increment, its
+        covariance grown by the odometry noise model (``odom_alpha1..4``). In a sparse world a
+        scan that hits one distant shape leaves some directions unconstrained; there the
+        particle cluster's mean random-walks with the resampling noise, while the odometry
+        (fused wheels + gyro) is good to a few mm per metre. If the particle cluster disagrees
+        with the prediction beyond 4 σ, the particles win and the prior is dropped for this scan
+        only if the scan clearly fits better there (at least 20 beams, 0.2 more of them on a
+        wall face): with a handful of beams a few random particles fit as well by chance
+        somewhere else. A kidnapping still shows as a poor fit, hence ``lost`` and a search.
+        """
+        track = self._predict_track()
+        if track is None:
+            return mean, None
+        pred, cov = track
+        dev = np.array([mean.x - pred.x, mean.y - pred.y, wrap_angle(mean.yaw - pred.yaw)])
+        gate = cov + self.covariance
+        try:
+            m2 = float(dev @ np.linalg.solve(gate, dev))
+        except np.linalg.LinAlgError:
+            return mean, None
+        if m2 > 16.0 and len(pts) >= 20 and self._fit(pts, mean) >= self._fit(pts, pred) + 0.2:
+            return mean, None
+        return pred, np.asarray(cov, dtype=np.float64)
 
     @staticmethod
     def _world(pts: F64, pose: Pose2D) -> tuple[F64, F64]:
@@ -581,7 +678,9 @@ class Localizer:
         top = np.argpartition(-score, k - 1)[:k]
         new = np.column_stack([chunk[top], score[top]])
         s.top = new if s.top is None else np.vstack([s.top, new])
-        order = np.argsort(-s.top[:, 3])[:60]
+        # Scores from different scans are not comparable (a scan seeing a long corridor scores
+        # everything higher): keep a generous list, re-scored against one scan at the end.
+        order = np.argsort(-s.top[:, 3])[:240]
         s.top = s.top[order]
         if s.next_index < len(s.poses):
             return
@@ -592,6 +691,17 @@ class Localizer:
         assert s is not None and s.top is not None
         self.search = None
         pts = scan_to_points(scan, self.laser_pose, 90, scan.range_max_m - 0.05)
+        if len(pts):
+            # Re-score against this scan, each candidate at its best of five headings across
+            # its lattice cell (at 5 m a heading off by half a step misses a wall by 0.4 m).
+            n_yaw = max(4, round(2 * math.pi / self.cfg.global_yaw_step_rad))
+            offsets = np.linspace(-0.5, 0.5, 5) * (2 * math.pi / n_yaw)
+            cand = np.repeat(s.top[:, :3], len(offsets), axis=0)
+            cand[:, 2] = wrap_angles(cand[:, 2] + np.tile(offsets, len(s.top)))
+            score = self._loglik(cand, pts, 0.2).reshape(len(s.top), len(offsets))
+            best = np.argmax(score, axis=1)
+            s.top[:, 2] = cand.reshape(len(s.top), len(offsets), 3)[np.arange(len(s.top)), best, 2]
+            s.top = s.top[np.argsort(-score.max(axis=1))]
         results: list[tuple[float, Pose2D]] = []
         for row in s.top[:40]:
             guess = Pose2D(float(row[0]), float(row[1]), float(row[2]))
@@ -654,6 +764,7 @@ class Localizer:
         self.mediocre_scans = 0
         self.w_slow = self.w_fast = 0.0
         self.pose = hyps[0][1]
+        self.track_cov = None
         self.state = "uncertain"
         self._force_update = True
         log.info("global localisation: %d hypotheses, best at %s (fit %.2f)", len(hyps),
