@@ -31,6 +31,7 @@ from __future__ import annotations
 import bisect
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
@@ -789,11 +790,18 @@ class LocalizerNode:
     stamp; the correction changes only after a filter update.
     """
 
-    def __init__(self, bus: Bus, clock: Clock, localizer: Localizer, start: Pose2D) -> None:
+    def __init__(self, bus: Bus, clock: Clock, localizer: Localizer, start: Pose2D, *,
+                 in_thread: bool = False) -> None:
+        """``in_thread``: run filter updates in a worker thread (``asyncio.to_thread``) so that
+        a global-search step or a slow update never blocks the event loop — for a real clock;
+        on a simulated clock updates run inline, keeping runs deterministic."""
         self.bus = bus
         self.clock = clock
         self.localizer = localizer
         self.start = start
+        self.in_thread = in_thread
+        self._working = False  # a worker thread owns the localiser
+        self._pending: list[Callable[[], None]] = []  # requests made meanwhile, in order
         self.map_to_odom: Pose2D | None = None
         self._odom: list[Odometry] = []
         self._stamps: list[float] = []
@@ -801,11 +809,17 @@ class LocalizerNode:
 
     def global_localization(self) -> None:
         """Forget the pose and search the whole map (API for the dashboard and CLI)."""
+        if self._working:
+            self._pending.append(self.global_localization)
+            return
         self.localizer.global_localization()
         self._publish_status(self.clock.now())
 
     def set_pose(self, pose: Pose2D, std_xy_m: float, std_yaw_rad: float) -> None:
         """Re-initialise around ``pose`` in ``map``."""
+        if self._working:
+            self._pending.append(lambda: self.set_pose(pose, std_xy_m, std_yaw_rad))
+            return
         self.localizer.initialize(pose, std_xy_m, std_yaw_rad)
         if self._odom:
             self._set_correction(pose, self._odom[-1].pose, self._odom[-1].stamp)
@@ -859,18 +873,29 @@ class LocalizerNode:
         odom_pose = self._odom_at(scan.stamp)
         if odom_pose is None:
             return
+        self._after_update(scan, odom_pose, self._timed_update(scan, odom_pose))
+
+    def _timed_update(self, scan: LaserScan, odom_pose: Pose2D) -> float | None:
+        """The filter update (thread-safe to run off the loop: touches the localiser only);
+        its wall time in seconds, or None if the filter did not update."""
         from curio.clock import wall_perf_counter
 
         t0 = wall_perf_counter()
-        updated = self.localizer.update(scan, odom_pose)
-        if updated:
-            self.update_times_s.append(wall_perf_counter() - t0)
-            if len(self.update_times_s) > 1000:
-                del self.update_times_s[:500]
-            if self.localizer.state != "lost" or self.localizer.search is None:
-                self._set_correction(self.localizer.pose, odom_pose, scan.stamp)
-                self._publish_pose(self._odom[-1])  # the correction at once, not next odom
-            self._publish_status(scan.stamp)
+        if not self.localizer.update(scan, odom_pose):
+            return None
+        return wall_perf_counter() - t0
+
+    def _after_update(self, scan: LaserScan, odom_pose: Pose2D, took_s: float | None) -> None:
+        """Publish what an update changed (on the loop)."""
+        if took_s is None:
+            return
+        self.update_times_s.append(took_s)
+        if len(self.update_times_s) > 1000:
+            del self.update_times_s[:500]
+        if self.localizer.state != "lost" or self.localizer.search is None:
+            self._set_correction(self.localizer.pose, odom_pose, scan.stamp)
+            self._publish_pose(self._odom[-1])  # the correction at once, not next odom
+        self._publish_status(scan.stamp)
 
     def on_initial_pose(self, msg: PoseWithCovariance) -> None:
         """``INITIAL_POSE``: a huge covariance asks for global localisation."""
@@ -904,7 +929,20 @@ class LocalizerNode:
             async for s in scan_sub:
                 for o in odom_sub.drain():  # the odometry up to the scan's time first
                     self.on_odom(o)
-                self.on_scan(s)
+                if not self.in_thread:
+                    self.on_scan(s)
+                    continue
+                odom_pose = self._odom_at(s.stamp)
+                if odom_pose is None:
+                    continue
+                self._working = True
+                try:
+                    took = await asyncio.to_thread(self._timed_update, s, odom_pose)
+                finally:
+                    self._working = False
+                self._after_update(s, odom_pose, took)
+                while self._pending:  # requests that came in during the update
+                    self._pending.pop(0)()
 
         async def initial_poses() -> None:
             async for m in init_sub:
@@ -924,7 +962,10 @@ def build_localizer_part(app: App, grid: OccupancyGrid, start: Pose2D) -> Locali
 
     cfg = app.cfg
     laser = Pose2D(*cfg.robot.laser_pose)
+    from curio.clock import SimClock
+
     loc = Localizer(grid, cfg.localization, laser, seed=cfg.sim.seed * 7919 + 4)
-    node = LocalizerNode(app.bus, app.clock, loc, start)
+    node = LocalizerNode(app.bus, app.clock, loc, start,
+                         in_thread=not isinstance(app.clock, SimClock))
     app.add(Part("localization", run=node.run))
     return node

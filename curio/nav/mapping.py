@@ -27,6 +27,7 @@ odometry is ``base_link`` in ``odom``; scan points are in ``base_link``. Metres 
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 from collections.abc import Callable, Iterable
@@ -532,7 +533,13 @@ class MappingNode:
 
     def __init__(self, bus: Bus, clock: Clock, laser: Pose2D, start: Pose2D,
                  on_map: Callable[[OccupancyGrid], None], params: MapperParams | None = None,
-                 publish_period_s: float = 2.0) -> None:
+                 publish_period_s: float = 2.0, *, in_thread: bool = False) -> None:
+        """``in_thread``: map each scan in a worker thread (``asyncio.to_thread``) — a loop
+        closure re-optimises the graph and rebuilds the grid, hundreds of milliseconds that must
+        not block the event loop on a real clock; on a simulated clock scans are mapped inline,
+        keeping runs deterministic."""
+        self.in_thread = in_thread
+        self._inflight: asyncio.Future[tuple[Pose2D, OccupancyGrid | None]] | None = None
         self.bus = bus
         self.clock = clock
         self.laser = laser
@@ -560,28 +567,60 @@ class MappingNode:
 
     def on_scan(self, scan: LaserScan) -> None:
         """Map one scan with the latest odometry."""
-        from curio.messages import Transform
-        from curio.topics import MAP_TO_ODOM
+        odom = self._odom_for(scan)
+        if odom is not None:
+            self._after_scan(scan, odom, *self._map_scan(scan, odom))
 
+    def _odom_for(self, scan: LaserScan) -> Odometry | None:
         if not self._odom:
-            return
-        odom = min(self._odom[-20:], key=lambda o: abs(o.stamp - scan.stamp))
+            return None
+        return min(self._odom[-20:], key=lambda o: abs(o.stamp - scan.stamp))
+
+    def _map_scan(self, scan: LaserScan, odom: Odometry) -> tuple[Pose2D, OccupancyGrid | None]:
+        """The heavy part (thread-safe off the loop: touches the mapper only): the scan's pose
+        and, when a publication is due, the map."""
         r = np.asarray(scan.ranges_m, dtype=np.float64)
         s = LogScan(scan.stamp, odom.pose, self.laser, scan.angle_min_rad,
                     scan.angle_increment_rad, np.where(scan.valid_mask(), r, np.inf),
                     scan.range_max_m)
         pts, dirs = _scan_inputs(s, min(scan.range_max_m, self.mapper.p.max_range_m))
         pose = self.mapper.add_scan(scan.stamp, odom.pose, pts, self.laser, dirs)
+        grid = None
+        if scan.stamp - self._last_publish >= self.publish_period_s:
+            grid = self.mapper.occupancy()
+        return pose, grid
+
+    def _after_scan(self, scan: LaserScan, odom: Odometry, pose: Pose2D,
+                    grid: OccupancyGrid | None) -> None:
+        """Publish the correction and the map (on the loop)."""
+        from curio.messages import Transform
+        from curio.topics import MAP_TO_ODOM
+
         self.map_to_odom = pose @ odom.pose.inverse()
         self.bus.publish(MAP_TO_ODOM, Transform(scan.stamp, self.map_to_odom))
-        if scan.stamp - self._last_publish >= self.publish_period_s:
+        if grid is not None:
             self._last_publish = scan.stamp
-            self.on_map(self.mapper.occupancy())
+            self.on_map(grid)
+
+    async def finish(self) -> OccupancyGrid | None:
+        """After ``run`` ends: wait for a scan still being mapped, close the pending loops and
+        return the final map (None if nothing was mapped); heavy work off the loop if
+        ``in_thread``."""
+        if self._inflight is not None:
+            await asyncio.wait([self._inflight])
+        mapper = self.mapper
+        if not mapper.keyframes:
+            return None
+
+        def final() -> OccupancyGrid:
+            if mapper.loop_edges:
+                mapper._optimize()
+            return mapper.occupancy()
+
+        return await asyncio.to_thread(final) if self.in_thread else final()
 
     async def run(self) -> None:
         """Consume odometry and scans until cancelled."""
-        import asyncio
-
         from curio.topics import ODOM, SCAN
 
         odom_sub = self.bus.subscribe(ODOM, maxsize=64)
@@ -595,7 +634,16 @@ class MappingNode:
             async for s in scan_sub:
                 for o in odom_sub.drain():
                     self.on_odom(o)
-                self.on_scan(s)
+                if not self.in_thread:
+                    self.on_scan(s)
+                    continue
+                odom = self._odom_for(s)
+                if odom is not None:
+                    self._inflight = asyncio.ensure_future(
+                        asyncio.to_thread(self._map_scan, s, odom))
+                    # Shielded: a cancelled run leaves the thread to finish (see ``finish``).
+                    pose, grid = await asyncio.shield(self._inflight)
+                    self._after_scan(s, odom, pose, grid)
 
         try:
             await asyncio.gather(odometry(), scans())
@@ -614,14 +662,15 @@ def build_mapping_part(app: App, start: Pose2D, out_yaml: Path) -> MappingNode:
     def publish(grid: OccupancyGrid) -> None:
         app.map_server.set_grid(grid)
 
+    from curio.clock import SimClock
+
     node = MappingNode(app.bus, app.clock, Pose2D(*cfg.robot.laser_pose), start, publish,
-                       params)
+                       params, in_thread=not isinstance(app.clock, SimClock))
 
     async def close() -> None:
-        if node.mapper.keyframes:
-            if node.mapper.loop_edges:
-                node.mapper._optimize()
-            save_map(node.mapper.occupancy(), out_yaml)
+        grid = await node.finish()
+        if grid is not None:
+            save_map(grid, out_yaml)
             log.info("map saved to %s", out_yaml)
 
     app.add(Part("mapping", run=node.run, close=close))

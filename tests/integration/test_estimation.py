@@ -9,14 +9,17 @@ from typing import Any
 
 import numpy as np
 
-from curio.clock import SimClock
-from curio.config import Config
+from curio.clock import RealClock, SimClock, wall_sleep
+from curio.config import Config, LocalizationConfig
 from curio.geometry import Pose2D
-from curio.messages import Odometry
+from curio.messages import LaserScan, Odometry
 from curio.nav.estimation import build_estimation
+from curio.nav.localization import Localizer, LocalizerNode
+from curio.nav.mapping import MappingNode
+from curio.nav.maps import OccupancyGrid
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, run_scenario
-from curio.topics import LOCALIZATION, MAP, ODOM, POSE, WHEEL_ODOM, make_bus
+from curio.topics import LOCALIZATION, MAP, ODOM, POSE, SCAN, WHEEL_ODOM, make_bus
 
 
 class FakeApp:
@@ -232,3 +235,71 @@ async def test_localisation_holds_in_a_sparse_world(cfg: Config, shared_maps: Pa
     assert m["final_state"] == "succeeded"
     assert m["localization_max_error_m"] < 0.15
     assert report["localization_rmse_m"] < 0.05
+
+
+async def _loop_gaps_while(clock: RealClock, bus: Any, part: Any, slow: Any,
+                           done: Any) -> float:
+    """Run ``part`` on a real clock with its per-scan work replaced by ``slow`` (0.3 s of
+    blocking compute, like a loop closure); feed odometry and one scan; return the longest gap
+    between 10 ms ticks of another task until ``done()``."""
+    gaps: list[float] = []
+
+    async def tick() -> None:
+        last = clock.now()
+        while True:
+            await clock.sleep(0.01)
+            now = clock.now()
+            gaps.append(now - last)
+            last = now
+
+    task = asyncio.create_task(part.run())
+    ticker = asyncio.create_task(tick())
+    await clock.sleep(0.02)
+    for k in range(3):
+        bus.publish(ODOM, Odometry(clock.now(), Pose2D(0.01 * k, 0.0, 0.0)))
+        await clock.sleep(0.01)
+    ranges = np.full(360, 2.0)
+    bus.publish(SCAN, LaserScan(clock.now(), -math.pi, 2 * math.pi / 360, 0.1, 12.0, ranges))
+    assert await clock.wait_until(done, 3.0)
+    await clock.sleep(0.05)
+    task.cancel()
+    ticker.cancel()
+    await asyncio.gather(task, ticker, return_exceptions=True)
+    return max(gaps)
+
+
+async def test_a_slow_localiser_update_does_not_block_the_loop_on_a_real_clock() -> None:
+    clock = RealClock()
+    bus = make_bus()
+    grid = OccupancyGrid(np.zeros((40, 40), dtype=np.int8), 0.1, Pose2D(-2.0, -2.0, 0.0))
+    loc = Localizer(grid, LocalizationConfig())
+    node = LocalizerNode(bus, clock, loc, Pose2D(), in_thread=True)
+    calls: list[float] = []
+
+    def slow(scan: LaserScan, odom_pose: Pose2D) -> bool:
+        wall_sleep(0.3)
+        calls.append(scan.stamp)
+        return True
+
+    loc.update = slow  # type: ignore[method-assign]
+    gap = await _loop_gaps_while(clock, bus, node, slow, lambda: bool(node.update_times_s))
+    assert calls and node.update_times_s[0] >= 0.3
+    assert gap < 0.15, f"the loop stalled for {gap:.3f} s"
+
+
+async def test_a_loop_closure_does_not_block_the_loop_on_a_real_clock() -> None:
+    clock = RealClock()
+    bus = make_bus()
+    maps: list[OccupancyGrid] = []
+    node = MappingNode(bus, clock, Pose2D(), Pose2D(), maps.append, in_thread=True)
+    real_add = node.mapper.add_scan
+
+    def slow(*args: Any, **kwargs: Any) -> Pose2D:
+        wall_sleep(0.3)  # an optimisation + grid rebuild
+        return real_add(*args, **kwargs)
+
+    node.mapper.add_scan = slow  # type: ignore[method-assign]
+    gap = await _loop_gaps_while(clock, bus, node, slow, lambda: bool(maps))
+    assert maps and node.mapper.scans == 1
+    assert gap < 0.15, f"the loop stalled for {gap:.3f} s"
+    assert await node.finish() is not None
