@@ -133,3 +133,21 @@ def test_odometry_extrapolates_without_changing_the_state() -> None:
     assert stale.pose.x == pytest.approx(x_before[0] + 0.075, abs=0.005)
     assert np.array_equal(ekf.x, x_before)
     assert ahead.frame_id == "odom" and ahead.child_frame_id == "base_link"
+
+
+
+def test_bias_updates_do_not_make_the_odom_position_jump() -> None:
+    """REP-105: ``odom`` is continuous. After driving with a gyro bias, the position is
+    correlated with the bias; the wheel-vs-gyro bias correction must change the bias (and the
+    heading) but not the position (a full Kalman update moved it 0.29 m at the end of a run)."""
+    ekf = OdomEkf(EkfConfig())
+    _run(ekf, 3.0, 0.3, 0.2, gyro_bias=0.0)
+    p = ekf.P
+    assert abs(p[0, 5]) + abs(p[1, 5]) > 0.0  # the pose is correlated with the bias
+    before = ekf.x
+    h = np.zeros((1, 6))
+    h[0, 5] = 1.0
+    assert ekf._update_bias_only(np.array([0.01]), h, np.array([[0.005**2]]))
+    after = ekf.x
+    assert after[0] == before[0] and after[1] == before[1] and after[3] == before[3]
+    assert after[5] > before[5] + 0.002
