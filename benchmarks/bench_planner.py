@@ -51,7 +51,7 @@ from curio.geometry import Pose2D
 from curio.nav.api import NavError
 from curio.nav.costmap import Costmap
 from curio.nav.maps import OccupancyGrid, load_map
-from curio.nav.planner import GlobalPlanner, traversal_lut
+from curio.nav.planner import GlobalPlanner, narrow_cost, traversal_lut
 
 DEFAULT_SIZE = 2000
 DEFAULT_RES_M = 0.05
@@ -203,8 +203,13 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
     costs = costmap.costs()
     res = grid.resolution_m
     origin = grid.origin
-    planner = GlobalPlanner(cfg.nav.planner)
-    lut = traversal_lut(cfg.nav.planner.cost_penalty, cfg.nav.planner.allow_unknown)
+    # The planner as the navigation stack builds it (with the narrow-passage term); the peers
+    # search the same per-cell weights.
+    nc = narrow_cost(costmap.inscribed_radius_m, costmap.circumscribed_radius_m,
+                     cfg.nav.costmap.cost_scaling_factor)
+    planner = GlobalPlanner(cfg.nav.planner, narrow_cost=nc)
+    lut = traversal_lut(cfg.nav.planner.cost_penalty, cfg.nav.planner.allow_unknown, nc,
+                        cfg.nav.planner.narrow_penalty)
     cell_w = lut[costs]  # per-cell traversal cost, < 0 impassable
     traversable = cell_w >= 0.0
     pairs = sample_pairs(traversable, res, n_pairs, opts.seed)

@@ -297,6 +297,10 @@ class PlannerConfig(Section):
     cost_penalty: float = Field(
         3.0, ge=0.0, le=50.0,
         description="traversal cost per metre = 1 + cost_penalty * cost / 252 (keeps off walls)")
+    narrow_penalty: float = Field(
+        3.0, ge=0.0, le=50.0, description="extra traversal cost per metre (rising to this at "
+        "the inscribed radius) where the centre is nearer an obstacle than the footprint's "
+        "circumscribed radius: narrow passages are crossed straight and centred")
     allow_unknown: bool = Field(False, description="plan through unknown (255) cells")
     path_step_m: float = Field(0.05, gt=0.0, le=1.0, description="spacing of the output poses")
     smooth: bool = Field(True, description="shortcut and smooth the grid path")
@@ -337,6 +341,18 @@ class ControllerConfig(Section):
     collision_horizon_s: float = Field(1.2, gt=0.0)
     blocked_timeout_s: float = Field(
         3.0, gt=0.0, description="no admissible command for this long: the path is blocked")
+    lost_timeout_s: float = Field(
+        10.0, gt=0.0, description="while localisation is lost (or no pose comes) the rover "
+        "holds still with the goal kept active; still lost after this long, the goal aborts")
+    narrow_ahead_m: float = Field(
+        1.0, ge=0.0, description="look this far along the plan for a narrow passage (where the "
+        "centre is nearer an obstacle than the footprint's circumscribed radius); 0 = off")
+    narrow_lookahead_m: float = Field(
+        0.3, gt=0.0, description="pure-pursuit lookahead in and before a narrow passage (track "
+        "the centred plan tightly so the rover enters aligned with it)")
+    narrow_rotate_enter_rad: float = Field(
+        0.45, gt=0.0, le=math.pi, description="heading error above which Curio turns in place "
+        "in and before a narrow passage")
 
 
 class SafetyConfig(Section):

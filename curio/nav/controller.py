@@ -6,6 +6,10 @@ body twist (forward m/s, yaw rate rad/s in ``base_link``) at ``nav.controller.ra
 * **Turn in place** when the heading error to the lookahead point exceeds ``rotate_enter_rad``
   (Curio can; hysteresis down to ``rotate_exit_rad``), and at the goal to meet the yaw
   tolerance.
+* **Narrow passages**: where the plan within ``narrow_ahead_m`` passes nearer an obstacle than
+  the footprint's circumscribed radius (Curio is nearly square: a misaligned rover may not fit
+  where its inscribed circle does), the lookahead drops to ``narrow_lookahead_m`` and the rover
+  turns in place above ``narrow_rotate_enter_rad``, so it enters lined up with the centred plan.
 * **Pure pursuit** otherwise: curvature ``κ = 2·y / L²`` to the lookahead point at ``L``
   metres along the plan; arcs tighter than ``min_turning_radius_m`` are not driven (Curio's
   corner servos would swing 180° when the radius crosses 0.235 m, hardware.md §2.2); the
@@ -284,9 +288,50 @@ class LocalController:
 
     _cost_scaling = 10.0
 
+    def _narrow_threshold(self) -> int:
+        """Centre cost at the circumscribed radius from an obstacle (256 = never narrow)."""
+        if self._narrow_cost is None:
+            poly = np.asarray(getattr(self.costmap, "footprint", self.robot.footprint),
+                              dtype=np.float64).reshape(-1, 2)
+            d = np.hypot(poly[:, 0], poly[:, 1])
+            r_circ = float(d.max())
+            a, b = poly, np.roll(poly, -1, axis=0)
+            ab = b - a
+            t = np.clip(((-a) * ab).sum(axis=1) / np.maximum((ab * ab).sum(axis=1), 1e-12),
+                        0.0, 1.0)
+            near = a + t[:, None] * ab
+            r_in = float(np.hypot(near[:, 0], near[:, 1]).min())
+            self._narrow_cost = int(253.0 * math.exp(-self._cost_scaling * (r_circ - r_in)))
+        return self._narrow_cost
+
+    _narrow_cost: int | None = None
+
+    def _narrow_ahead(self, i: int) -> bool:
+        """Whether the plan within ``narrow_ahead_m`` of index ``i`` passes nearer an obstacle
+        than the footprint's circumscribed radius (a misaligned rover may not fit there)."""
+        cm = self.costmap
+        costs_fn = getattr(cm, "costs", None)
+        if cm is None or costs_fn is None or self.cfg.narrow_ahead_m <= 0.0:
+            return False
+        cum = self._cum
+        j = int(np.searchsorted(cum, cum[i] + self.cfg.narrow_ahead_m, side="right"))
+        ahead = self.plan[i:max(j, i + 1)]
+        grid = costs_fn()
+        res = float(cm.resolution_m)  # type: ignore[attr-defined]
+        origin: Pose2D = cm.origin  # type: ignore[attr-defined]
+        gxy = origin.inverse().transform_points(ahead[:, :2])
+        cols = np.floor(gxy[:, 0] / res).astype(np.int64)
+        rows = np.floor(gxy[:, 1] / res).astype(np.int64)
+        h, w = grid.shape
+        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+        vals = grid[rows[inside], cols[inside]]
+        vals = vals[vals != 255]
+        return bool(len(vals) and int(vals.max()) >= self._narrow_threshold())
+
     def set_cost_scaling(self, cost_scaling_factor: float) -> None:
         """The costmap's exponential decay rate (to turn costs back into distances)."""
         self._cost_scaling = cost_scaling_factor
+        self._narrow_cost = None
 
     def _perimeter(self) -> F64:
         """Points every half cell along the (padded) footprint's edges, ``base_link``."""
@@ -385,8 +430,13 @@ class LocalController:
             v, w = self._turn(yaw_err)
             return self._finish(pose, v, w, ControlStatus.ROTATING, dist_goal, 0.0, now_s,
                                 "final heading")
-        # --- the lookahead point.
+        # --- the lookahead point (short in and before a narrow passage: track the centred
+        # plan tightly and turn in place sooner, so the square footprint enters aligned).
         lookahead = max(cfg.min_lookahead_m, min(cfg.lookahead_m, dist_goal))
+        rotate_enter = cfg.rotate_enter_rad
+        if self._narrow_ahead(i):
+            lookahead = min(lookahead, cfg.narrow_lookahead_m)
+            rotate_enter = min(rotate_enter, cfg.narrow_rotate_enter_rad)
         lx, ly = self._lookahead_point(pose, i, lookahead)
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
         dx, dy = lx - pose.x, ly - pose.y
@@ -397,7 +447,7 @@ class LocalController:
             if abs(heading_err) < cfg.rotate_exit_rad:
                 self._rotating = False
                 self._settle_until = now_s + cfg.steer_settle_s
-        elif abs(heading_err) > cfg.rotate_enter_rad:
+        elif abs(heading_err) > max(rotate_enter, cfg.rotate_exit_rad):
             self._rotating = True
         lx_ly = (lx, ly)
         if now_s < self._reverse_until:

@@ -47,6 +47,7 @@ from curio.nav.api import (
     GoalState,
     LocalizationLostError,
     NavError,
+    NoPathError,
     NoProgressError,
     StartBlockedError,
     StartOutsideMapError,
@@ -283,6 +284,13 @@ class NavigatorNode:
             self._recovery_task.cancel()
             self._recovery_task = None
 
+    def _hold(self, now: float) -> None:
+        """Stand still with the goal kept active (no pose, or localisation lost): the time
+        held counts neither against the progress checkers nor as a stuck rover."""
+        self._stop_motion()
+        self._best_t = now
+        self.controller.reset()
+
     def _stop_motion(self) -> None:
         self.bus.publish(CMD_VEL_NAV, Twist(self.clock.now(), 0.0, 0.0, source="navigator"))
         self._sent_zero = True
@@ -293,18 +301,29 @@ class NavigatorNode:
         if not math.isfinite(goal.yaw):
             # No heading wanted: the planner still needs a number for the last pose.
             goal = Pose2D(goal.x, goal.y, math.atan2(goal.y - start.y, goal.x - start.x))
-        costs = self._with_keep_out(self.costmap.costs(), start, goal)
+        plain = self.costmap.costs()
+        costs = self._with_keep_out(plain, start, goal)
         res = self.costmap.resolution_m
         origin = self.costmap.origin
         planner = self.planner
+
+        def plan() -> list[Pose2D]:
+            try:
+                return planner.plan(start, goal, costs, res, origin)
+            except NoPathError:
+                if costs is plain:
+                    raise
+                # Keep-out spots are a hint to look for another way, never a reason to give
+                # up: where they cut the goal off (the only door out), plan without them.
+                return planner.plan(start, goal, plain, res, origin)
+
         task: asyncio.Future[list[Pose2D]]
         if self.plan_in_thread:
-            task = asyncio.ensure_future(
-                asyncio.to_thread(planner.plan, start, goal, costs, res, origin))
+            task = asyncio.ensure_future(asyncio.to_thread(plan))
         else:
             task = asyncio.get_running_loop().create_future()
             try:
-                task.set_result(planner.plan(start, goal, costs, res, origin))
+                task.set_result(plan())
             except NavError as exc:
                 task.set_exception(exc)
         self.plan_count += 1
@@ -419,6 +438,8 @@ class NavigatorNode:
         self._plan_goal_index = -1
         self._progress_anchor = pose
         self._best_remaining = math.inf
+        self._lost_since = None
+        self._no_pose_since = None
         self.keep_out = []
         self.controller.clear_plan()
         self.controller.reset()
@@ -451,20 +472,29 @@ class NavigatorNode:
                 self._start_plan(pose, handle, "after recovery")
             return
         if pose is None or now - pose_msg.stamp > 1.0:  # type: ignore[union-attr]
-            self._no_pose_since = self._no_pose_since or now
-            self._stop_motion()
-            if now - self._no_pose_since > 10.0:
+            if self._no_pose_since is None:
+                self._no_pose_since = now
+            self._hold(now)
+            lost_timeout = self.cfg.nav.controller.lost_timeout_s
+            if now - self._no_pose_since > lost_timeout:
                 self._finish(handle, GoalState.ABORTED, LocalizationLostError(
-                    "no pose in map for 10 s: localisation is not running"), "no pose")
+                    f"no pose in map for {lost_timeout:g} s "
+                    f"(nav.controller.lost_timeout_s): localisation is not running"),
+                    "no pose")
             return
         self._no_pose_since = None
         loc = self.bus.latest(LOCALIZATION)
         if loc is not None and loc.state == "lost":
-            self._lost_since = self._lost_since or now
-            self._stop_motion()
-            if now - self._lost_since > 10.0:
+            if self._lost_since is None:
+                self._lost_since = now
+                self._event("nav.holding", handle, reason="localisation lost")
+            self._hold(now)
+            lost_timeout = self.cfg.nav.controller.lost_timeout_s
+            if now - self._lost_since > lost_timeout:
                 self._finish(handle, GoalState.ABORTED, LocalizationLostError(
-                    "localisation lost for 10 s: set the pose on the dashboard"), "lost")
+                    f"localisation lost for {lost_timeout:g} s "
+                    f"(nav.controller.lost_timeout_s): set the pose on the dashboard"),
+                    "lost")
             return
         self._lost_since = None
         # Planning.

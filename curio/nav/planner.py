@@ -38,7 +38,7 @@ from curio.nav.api import (
     StartOutsideMapError,
 )
 
-__all__ = ["GlobalPlanner", "PlanResult", "path_length_m", "traversal_lut"]
+__all__ = ["GlobalPlanner", "PlanResult", "narrow_cost", "path_length_m", "traversal_lut"]
 
 U8Array = npt.NDArray[np.uint8]
 FloatArray = npt.NDArray[np.float64]
@@ -48,13 +48,30 @@ _LETHAL = 254
 _UNKNOWN = 255
 
 
-def traversal_lut(cost_penalty: float, allow_unknown: bool) -> FloatArray:
-    """Traversal cost per cell length for each costmap value (−1 = not traversable)."""
+def traversal_lut(cost_penalty: float, allow_unknown: bool, narrow_cost: int | None = None,
+                  narrow_penalty: float = 0.0) -> FloatArray:
+    """Traversal cost per cell length for each costmap value (−1 = not traversable).
+
+    With ``narrow_cost`` (the cost at the footprint's circumscribed radius from an obstacle),
+    values from it up to 252 cost up to ``narrow_penalty`` more, rising linearly: the path
+    crosses a narrow passage straight and centred (where a misaligned square footprint may
+    not fit) instead of cutting into it at an angle.
+    """
     lut = 1.0 + cost_penalty * np.arange(256, dtype=np.float64) / 252.0
+    if narrow_cost is not None and 0 < narrow_cost < _INSCRIBED and narrow_penalty > 0.0:
+        v = np.arange(narrow_cost, _INSCRIBED, dtype=np.float64)
+        lut[narrow_cost:_INSCRIBED] += narrow_penalty * (v - narrow_cost + 1.0) / (
+            _INSCRIBED - narrow_cost)
     lut[_INSCRIBED] = -1.0
     lut[_LETHAL] = -1.0
     lut[_UNKNOWN] = 1.0 + cost_penalty * 0.5 if allow_unknown else -1.0
     return lut
+
+
+def narrow_cost(inscribed_m: float, circumscribed_m: float, cost_scaling_factor: float) -> int:
+    """Costmap value at ``circumscribed_m`` from an obstacle (inflation ``253·e^(−k(d−r_in))``):
+    nearer than that, a footprint that is not round may not fit when misaligned."""
+    return int(253.0 * math.exp(-cost_scaling_factor * max(0.0, circumscribed_m - inscribed_m)))
 
 
 def path_length_m(poses: list[Pose2D]) -> float:
@@ -95,15 +112,20 @@ class PlanResult:
 class GlobalPlanner:
     """Plans collision-free, smoothed paths on a costmap grid (thread-safe, stateless)."""
 
-    def __init__(self, cfg: PlannerConfig, *, escape_radius_m: float = 0.35) -> None:
+    def __init__(self, cfg: PlannerConfig, *, escape_radius_m: float = 0.35,
+                 narrow_cost: int | None = None) -> None:
         """Args:
         cfg: planner settings.
         escape_radius_m: around the start, cells of cost 253 (inscribed) are traversable
             within this radius so a rover too close to an obstacle can leave (254 never is).
+        narrow_cost: the costmap value at the footprint's circumscribed radius from an
+            obstacle (see :func:`narrow_cost`); cells at or above it cost up to
+            ``cfg.narrow_penalty`` more. None: no such term (a round rover).
         """
         self.cfg = cfg
         self.escape_radius_m = escape_radius_m
-        self._lut = traversal_lut(cfg.cost_penalty, cfg.allow_unknown)
+        self._lut = traversal_lut(cfg.cost_penalty, cfg.allow_unknown, narrow_cost,
+                                  cfg.narrow_penalty)
         self._lut.setflags(write=False)
 
     def warm_up(self) -> None:

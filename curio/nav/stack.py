@@ -37,7 +37,7 @@ def build_navigation(app: App) -> None:
     from curio.nav.maps import load_map
     from curio.nav.navigator import NavigatorNode
     from curio.nav.obstacles import register_obstacles
-    from curio.nav.planner import GlobalPlanner
+    from curio.nav.planner import GlobalPlanner, narrow_cost
     from curio.nav.recovery import Recovery
 
     cfg = app.cfg
@@ -49,7 +49,9 @@ def build_navigation(app: App) -> None:
     node = CostmapNode(costmap, app.bus, app.clock, cfg.nav.costmap)
     app.costmap = costmap
     app.add(Part("costmap", run=node.run))
-    planner = GlobalPlanner(cfg.nav.planner)
+    planner = GlobalPlanner(cfg.nav.planner, narrow_cost=narrow_cost(
+        costmap.inscribed_radius_m, costmap.circumscribed_radius_m,
+        cfg.nav.costmap.cost_scaling_factor))
     app.planner = planner
     controller = LocalController(cfg.nav.controller, cfg.robot, costmap)
     controller.set_cost_scaling(cfg.nav.costmap.cost_scaling_factor)

@@ -194,3 +194,47 @@ def test_backs_out_where_it_cannot_turn_in_place(cfg: Config) -> None:
     assert (cm.footprint_costs(poses) < 254).all()  # never touched the alcove
     assert any(o.linear_mps < 0 for _, _, o in log)  # it backed out ...
     assert log[-1][2].status is ControlStatus.GOAL_REACHED  # ... and got there
+
+
+def door_grid(gap_m: float, size_m: float = 8.0, res: float = 0.05) -> OccupancyGrid:
+    """An open room with a wall across x = 1 m and a door of ``gap_m`` centred on y = 0."""
+    grid = open_grid(size_m, res)
+    data = grid.data.copy()
+    n = data.shape[0]
+    col = int((1.0 + size_m / 2) / res)
+    ys = (np.arange(n) + 0.5) * res - size_m / 2
+    data[np.abs(ys) > gap_m / 2, col:col + 2] = 100
+    return OccupancyGrid(data, res, grid.origin)
+
+
+@pytest.mark.parametrize(("gap_m", "narrow"), [(0.8, True), (3.0, False)])
+def test_turns_in_place_sooner_before_a_narrow_passage(cfg: Config, gap_m: float,
+                                                       narrow: bool) -> None:
+    """A heading error of 0.6 rad (between narrow_rotate_enter_rad and rotate_enter_rad):
+    before a door narrower than twice the circumscribed radius the rover turns in place to
+    line up with the plan; before a wide one it drives an arc."""
+    c = cfg.nav.controller
+    assert c.narrow_rotate_enter_rad < 0.6 < c.rotate_enter_rad
+    cm = Costmap(door_grid(gap_m), cfg.robot, cfg.nav.costmap)
+    ctrl = LocalController(c, cfg.robot, cm)
+    ctrl.set_cost_scaling(cfg.nav.costmap.cost_scaling_factor)
+    ctrl.set_plan(straight_plan(0.4, 2.5), Pose2D(2.5, 0.0, 0.0))
+    out = ctrl.compute(Pose2D(0.4, 0.0, 0.6), 0.0)
+    if narrow:
+        assert out.status is ControlStatus.ROTATING
+        assert out.linear_mps == 0.0 and out.angular_radps < 0.0
+    else:
+        assert out.status is ControlStatus.FOLLOWING
+
+
+def test_enters_a_narrow_door_aligned(cfg: Config) -> None:
+    """Started at an angle to a door only 0.8 m wide, the rover lines up and drives through."""
+    cm = Costmap(door_grid(0.8), cfg.robot, cfg.nav.costmap)
+    ctrl = LocalController(cfg.nav.controller, cfg.robot, cm)
+    ctrl.set_cost_scaling(cfg.nav.costmap.cost_scaling_factor)
+    ctrl.set_plan(straight_plan(-0.5, 2.5), Pose2D(2.5, 0.0, 0.0))
+    _pose, log = drive(ctrl, Pose2D(-0.5, 0.0, 0.7), 60.0)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    at_door = [p for _, p, _ in log if 0.7 <= p.x <= 1.3]
+    assert at_door and max(abs(wrap_angle(p.yaw)) for p in at_door) < 0.3
+    assert max(abs(p.y) for p in at_door) < 0.1

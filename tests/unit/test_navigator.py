@@ -308,3 +308,71 @@ async def test_no_progress_towards_the_goal_makes_a_keep_out_spot(fast_cfg: Conf
         costs = h.nav._with_keep_out(h.costmap.costs(), Pose2D(-3.0, 1.5), Pose2D(3.0, 0.0))
         r, c = h.costmap.world_to_cell(x, y)
         assert costs[r, c] == 254 and h.costmap.costs()[r, c] < 253
+
+
+async def test_holds_while_localisation_is_lost_then_goes_on(fast_cfg: Config) -> None:
+    from curio.messages import LocalizationStatus
+    from curio.topics import LOCALIZATION
+
+    cfg = fast_cfg.model_copy(deep=True)
+    cfg.nav.controller.lost_timeout_s = 20.0
+    async with Harness(cfg, room(), Pose2D(-2.0, 0.0, 0.0)) as h:
+        handle = h.nav.send_goal(Pose2D(2.5, 0.0, math.nan))
+        await h.clock.advance(3.0)
+        assert handle.state is GoalState.ACTIVE
+        h.bus.publish(LOCALIZATION, LocalizationStatus(h.clock.now(), "lost"))
+        await h.clock.advance(1.0)  # brake
+        held_at = h.rover.pose
+        n_cmds = len(h.rover.commands)
+        await h.clock.advance(15.0)  # less than the timeout: held, goal still active
+        assert handle.state is GoalState.ACTIVE
+        assert h.rover.pose.distance_to(held_at) < 0.02
+        assert all(c.linear_mps == 0.0 and c.angular_radps == 0.0
+                   for c in h.rover.commands[n_cmds:])
+        assert "nav.holding" in h.kinds()
+        h.bus.publish(LOCALIZATION, LocalizationStatus(h.clock.now(), "ok"))
+        assert await h.until(lambda: handle.done, 60.0)
+        assert handle.state is GoalState.SUCCEEDED, handle.history
+        assert handle.recoveries == 0  # holding is not being stuck
+
+
+async def test_aborts_when_still_lost_after_the_timeout(fast_cfg: Config) -> None:
+    from curio.messages import LocalizationStatus
+    from curio.nav.api import LocalizationLostError
+    from curio.topics import LOCALIZATION
+
+    cfg = fast_cfg.model_copy(deep=True)
+    cfg.nav.controller.lost_timeout_s = 4.0
+    async with Harness(cfg, room(), Pose2D(-2.0, 0.0, 0.0)) as h:
+        handle = h.nav.send_goal(Pose2D(2.5, 0.0, math.nan))
+        await h.clock.advance(2.0)
+        h.bus.publish(LOCALIZATION, LocalizationStatus(h.clock.now(), "lost"))
+        t_lost = h.clock.now()
+        assert await h.until(lambda: handle.done, 20.0)
+        assert handle.state is GoalState.ABORTED
+        assert isinstance(handle.error, LocalizationLostError)
+        assert "lost_timeout_s" in str(handle.error)
+        assert 4.0 <= h.clock.now() - t_lost <= 5.0
+
+
+async def test_keep_out_spots_never_cut_the_goal_off(fast_cfg: Config) -> None:
+    """A keep-out spot in the only door: the plan goes through the door anyway."""
+    grid = room()
+    _, c = cell(grid, 0.0, 0.0)
+    grid.data[:, c:c + 2] = 100  # a wall across x = 0 ...
+    rd, _ = cell(grid, 0.0, 1.0)
+    grid.data[rd - 10:rd + 10, c:c + 2] = 0  # ... with a 1 m door at y = 1
+    async with Harness(fast_cfg, grid, Pose2D(-2.0, 1.0, 0.0)) as h:
+        h.nav.keep_out.append((0.0, 1.0, 1e9))
+        costs = h.nav._with_keep_out(h.costmap.costs(), Pose2D(-2.0, 1.0), Pose2D(2.0, 1.0))
+        with pytest.raises(NoPathError):
+            h.planner.plan(Pose2D(-2.0, 1.0), Pose2D(2.0, 1.0, 0.0), costs,
+                           h.costmap.resolution_m, h.costmap.origin)
+        handle = h.nav.send_goal(Pose2D(2.0, 1.0, math.nan))
+        await h.clock.advance(0.3)
+        assert handle.state is GoalState.ACTIVE
+        h.nav.keep_out.append((0.0, 1.0, 1e9))  # activation forgot the old ones
+        assert await h.until(lambda: handle.done, 90.0)
+        assert handle.state is GoalState.SUCCEEDED, handle.history
+        assert h.nav.plan_count > 2  # replanned with the spot in place ...
+        assert handle.recoveries == 0  # ... and never found itself cut off

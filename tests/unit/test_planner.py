@@ -391,3 +391,39 @@ def test_any_grid_gives_a_traversable_path_or_a_true_no_path(
     assert np.all(costs[cells[:, 0], cells[:, 1]] < 253)
     assert res.poses[0].distance_to(centre(*s)) < 1e-9
     assert res.poses[-1].distance_to(centre(*g)) < 1e-9
+
+
+def _door_costmap(gap_m: float) -> Costmap:
+    """A 6 × 6 m room with a wall across x = 0 (0.3 m thick) and a door of ``gap_m`` at y = 0."""
+    res = 0.05
+    n = 120
+    data = np.zeros((n, n), dtype=np.int8)
+    data[0, :] = data[-1, :] = data[:, 0] = data[:, -1] = 100
+    ys = (np.arange(n) + 0.5) * res - 3.0
+    data[np.abs(ys) > gap_m / 2, 57:63] = 100
+    return Costmap(OccupancyGrid(data, res, Pose2D(-3.0, -3.0, 0.0)), RobotConfig(),
+                   CostmapConfig())
+
+
+def test_narrow_doors_are_crossed_straight_and_centred() -> None:
+    """The narrow-passage term costs more only nearer an obstacle than the circumscribed
+    radius; through a door narrower than twice that radius, approached at an angle, the plan
+    crosses the wall square to it and centred, and the footprint fits at every pose."""
+    from curio.nav.planner import narrow_cost
+
+    cm = _door_costmap(0.85)
+    nc = narrow_cost(cm.inscribed_radius_m, cm.circumscribed_radius_m,
+                     CostmapConfig().cost_scaling_factor)
+    assert 0 < nc < 253
+    lut = traversal_lut(3.0, False, nc, 6.0)
+    assert lut[nc - 1] == traversal_lut(3.0, False)[nc - 1]  # unchanged below it
+    assert lut[252] == pytest.approx(traversal_lut(3.0, False)[252] + 6.0)
+    start, goal = Pose2D(-2.0, -2.0, 0.0), Pose2D(2.0, 1.8, 0.0)
+    planner = GlobalPlanner(PlannerConfig(), narrow_cost=nc)
+    poses = planner.plan(start, goal, cm.costs(), cm.resolution_m, cm.origin)
+    in_door = [p for p in poses if abs(p.x) <= 0.3]
+    assert in_door
+    assert max(abs(p.yaw) for p in in_door) < 0.35
+    assert max(abs(p.y) for p in in_door) < 0.1
+    arr = np.array([[p.x, p.y, p.yaw] for p in poses])
+    assert (cm.footprint_costs(arr) < 254).all()
