@@ -173,7 +173,7 @@ class MatchResult:
 def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: int = 8,
                max_residual_m: float = 0.15, inlier_m: float = 0.1,
                sigma_m: float = 0.03, surface_offset_m: float | None = None,
-               prior_cov: F64 | None = None) -> MatchResult:
+               prior_cov: F64 | None = None, prior_mean: Pose2D | None = None) -> MatchResult:
     """Refine ``guess`` so that ``points`` (``base_link``) fall on wall faces (Gauss–Newton).
 
     The residual of a point is its interpolated distance to the nearest occupied cell centre
@@ -184,8 +184,10 @@ def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: 
     ``prior_cov`` (3×3, x m, y m, yaw rad, in ``map``) makes ``guess`` a Gaussian prior: the
     result is the maximum a posteriori pose, so directions the scan does not constrain (one wall,
     one distant shape in an open area) stay where the prior puts them instead of sliding, and
-    the returned covariance is the posterior one.
+    the returned covariance is the posterior one. The prior is centred on ``prior_mean``
+    (default ``guess``, where the iterations start).
     """
+    centre = guess if prior_mean is None else prior_mean
     half = 0.5 * field.resolution_m if surface_offset_m is None else surface_offset_m
     x, y, th = guess.x, guess.y, guess.yaw
     px, py = points[:, 0], points[:, 1]
@@ -214,7 +216,7 @@ def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: 
         h = jw.T @ j + np.diag([1e-4, 1e-4, 1e-3])
         g = jw.T @ r
         if prior_info is not None:
-            dev = np.array([x - guess.x, y - guess.y, wrap_angle(th - guess.yaw)])
+            dev = np.array([x - centre.x, y - centre.y, wrap_angle(th - centre.yaw)])
             h = h + prior_info
             g = g + prior_info @ dev
         try:

@@ -9,7 +9,14 @@ Per scan:
 1. **Prediction** from odometry: the last corrected pose composed with the odometry increment.
 2. **Scan matching** (Gauss–Newton on the bilinear distance field of a window of the map around
    the rover, first with a wide then with a tight outlier cut); the match is kept when enough
-   beams fit, else the odometry guess is used.
+   beams fit, else the odometry guess is used. With ``odom_prior_fraction`` > 0 the match is a
+   maximum a posteriori estimate with the prediction as a Gaussian prior (σ = 1 cm +
+   fraction × travel, 0.3° + fraction × (turn + travel / 2)), so directions a scan leaves
+   open (a corridor, the rotation while turning on the spot in front of one wall) follow the
+   odometry instead of drifting. On the mapping benchmark, seeds 1–5, 0.2 against 0 (off):
+   occupied agreement after alignment mean 98.3 % / min 96.7 % against 98.2 % / 95.7 %,
+   unaligned mean 95.9 % against 93.2 % — a modest gain; single seeds still vary by ±2 %
+   with small changes of the input.
 3. **Keyframes** every ``keyframe_d_m`` / ``keyframe_a_rad`` of motion: the scan is added to the
    log-odds occupancy grid (free cells along each beam, an occupied cell at its end) and the
    distance-field window is rebuilt.
@@ -87,6 +94,7 @@ class MapperParams:
     odom_sigma_yaw_rad: float = 0.02
     loop_sigma_xy_m: float = 0.05
     loop_sigma_yaw_rad: float = 0.02
+    odom_prior_fraction: float = 0.2  # > 0: scan matches are MAP around the odometry guess
 
 
 @dataclass
@@ -323,6 +331,7 @@ class ScanMapper:
                  no_return_dirs: F64 | None = None) -> Pose2D:
         """Process one scan (``points`` in base_link) with its odometry; return the pose."""
         self.scans += 1
+        delta = Pose2D()
         if self._last_odom is None:
             guess = self.pose
         else:
@@ -331,14 +340,22 @@ class ScanMapper:
             guess = self.pose @ delta
         self._last_odom = odom
         pose = guess
+        prior: F64 | None = None
+        f = self.p.odom_prior_fraction
+        if f > 0.0 and self.scans > 1:
+            trans, rot = math.hypot(delta.x, delta.y), abs(delta.yaw)
+            sxy = 0.01 + f * trans
+            syaw = 0.005 + f * rot + 0.5 * f * trans
+            prior = np.diag([sxy**2, sxy**2, syaw**2])
         if self._field is not None and len(points) >= 20:
             pts = points
             if len(pts) > self.p.match_beams:
                 pts = pts[np.linspace(0, len(pts) - 1, self.p.match_beams).astype(np.int64)]
             m = scan_match(self._field, pts, guess, iterations=20, max_residual_m=0.4,
-                           inlier_m=0.1, surface_offset_m=0.0)
+                           inlier_m=0.1, surface_offset_m=0.0, prior_cov=prior)
             m = scan_match(self._field, pts, m.pose, iterations=15, max_residual_m=0.12,
-                           inlier_m=0.08, surface_offset_m=0.0)
+                           inlier_m=0.08, surface_offset_m=0.0, prior_cov=prior,
+                           prior_mean=guess)
             if m.inlier_fraction >= self.p.min_inlier_fraction and m.pose.distance_to(guess) < 0.6:
                 pose = m.pose
                 self.matched += 1
