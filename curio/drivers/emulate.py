@@ -26,7 +26,6 @@ from typing import Any
 
 from curio.clock import RealClock
 from curio.config import ConfigError, load_config
-from curio.drivers.health import every
 
 __all__ = ["main"]
 
@@ -87,7 +86,7 @@ async def _serve(args: argparse.Namespace, cfg: Any) -> int:
 
     async def physics() -> None:
         dt = 1.0 / cfg.sim.physics_rate_hz
-        async for _ in every(clock, dt):
+        async for _ in clock.every(dt):
             world.step(dt)
 
     tasks = [asyncio.create_task(emulator.run()), asyncio.create_task(physics())]

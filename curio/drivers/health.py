@@ -9,30 +9,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 import socket
-from collections.abc import AsyncIterator, Callable, Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from curio.clock import Clock
 
-__all__ = ["BytePacer", "SystemdNotifier", "every", "wait_event"]
-
-
-async def every(clock: Clock, period_s: float) -> AsyncIterator[float]:
-    """Yield the clock time every ``period_s`` seconds without drift (missed ticks are skipped,
-    the phase is kept)."""
-    if period_s <= 0:
-        raise ValueError(f"period_s must be > 0, got {period_s}")
-    due = clock.now()
-    while True:
-        await clock.sleep_until(due)
-        now = clock.now()
-        yield now
-        due += period_s
-        late = clock.now() - due
-        if late > 0:  # skip the missed ticks, keep the phase
-            due += math.ceil(late / period_s) * period_s
+__all__ = ["BytePacer", "SystemdNotifier", "wait_event"]
 
 
 async def wait_event(clock: Clock, event: asyncio.Event, timeout_s: float) -> bool:
@@ -98,7 +81,7 @@ class SystemdNotifier:
         sub = self.bus.subscribe(HEALTH, maxsize=256)
         try:
             self._send("READY=1\nSTATUS=starting")
-            async for _ in every(self.clock, self.period_s):
+            async for _ in self.clock.every(self.period_s):
                 for health in sub.drain():
                     states[health.name] = health.state
                 status = ", ".join(f"{k} {v}" for k, v in sorted(states.items())) or "running"

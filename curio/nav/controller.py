@@ -43,6 +43,7 @@ import numpy.typing as npt
 
 from curio.config import ControllerConfig, RobotConfig
 from curio.geometry import Pose2D, wrap_angle
+from curio.nav.safety import arc_poses
 
 __all__ = [
     "ControlOutput",
@@ -149,20 +150,12 @@ def rollout(pose: Pose2D, linear_mps: float, angular_radps: float, horizon_s: fl
             dt_s: float) -> F64:
     """Poses ``(K, 3)`` in ``map`` reached by holding a twist, starting with ``pose`` itself."""
     n = max(1, math.ceil(horizon_s / dt_s))
-    t = np.arange(n + 1, dtype=np.float64) * dt_s
-    th = angular_radps * t
-    if abs(angular_radps) < 1e-6:
-        lx = linear_mps * t
-        ly = np.zeros_like(t)
-    else:
-        r = linear_mps / angular_radps
-        lx = r * np.sin(th)
-        ly = r * (1.0 - np.cos(th))
+    local = arc_poses(linear_mps, angular_radps, np.arange(n + 1, dtype=np.float64) * dt_s)
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
     out = np.empty((n + 1, 3))
-    out[:, 0] = pose.x + c * lx - s * ly
-    out[:, 1] = pose.y + s * lx + c * ly
-    out[:, 2] = pose.yaw + th
+    out[:, 0] = pose.x + c * local[:, 0] - s * local[:, 1]
+    out[:, 1] = pose.y + s * local[:, 0] + c * local[:, 1]
+    out[:, 2] = pose.yaw + local[:, 2]
     return out
 
 

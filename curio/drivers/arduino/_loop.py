@@ -3,25 +3,11 @@
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 
 from curio.clock import Clock
 
-__all__ = ["every", "wait_until"]
-
-
-async def every(clock: Clock, period_s: float) -> AsyncIterator[float]:
-    """Yield the clock time every ``period_s`` seconds without drift (late ticks skip ahead)."""
-    if period_s <= 0:
-        raise ValueError(f"period_s must be > 0, got {period_s}")
-    due = clock.now()
-    while True:
-        await clock.sleep_until(due)
-        now = clock.now()
-        yield now
-        due += period_s
-        if due < now:
-            due = now + period_s
+__all__ = ["wait_until"]
 
 
 async def wait_until(clock: Clock, predicate: Callable[[], bool], timeout_s: float,

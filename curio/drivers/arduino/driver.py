@@ -74,7 +74,7 @@ from curio.bus import Bus
 from curio.clock import Clock
 from curio.config import ArduinoConfig, RobotConfig
 from curio.drivers.arduino import protocol as p
-from curio.drivers.arduino._loop import Pacer, every, wait_until
+from curio.drivers.arduino._loop import Pacer, wait_until
 from curio.drivers.kinematics import twist_to_servo_command
 from curio.messages import BatteryState, DriverHealth, EStop, ServoCommand, Twist, WheelEncoders
 from curio.topics import BATTERY, CMD_VEL, CMD_VEL_TELEOP, ESTOP, HEALTH, SERVO_CMD, WHEELS
@@ -404,7 +404,7 @@ class ArduinoBase:
             await self._configure(reader_task)
             self._phase = "running"
             next_heartbeat_s = 0.0
-            async for now in every(self.clock, 1.0 / self.cfg.cmd_rate_hz):
+            async for now in self.clock.every(1.0 / self.cfg.cmd_rate_hz):
                 self._check_reader(reader_task)
                 last = self._last_rx_s if self._last_rx_s is not None else opened_s
                 if now - last > self.cfg.link_timeout_s:

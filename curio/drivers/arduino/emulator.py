@@ -67,7 +67,7 @@ import numpy as np
 
 from curio.clock import Clock, SimClock
 from curio.drivers.arduino import protocol as p
-from curio.drivers.arduino._loop import Pacer, every
+from curio.drivers.arduino._loop import Pacer
 from curio.messages import ServoCommand
 
 __all__ = ["ArduinoEmulator", "EmulatorWorld", "FirmwareModel", "ServoSide"]
@@ -646,7 +646,7 @@ class ArduinoEmulator:
         if self._master is None and not self._plugged:
             self.open()
         try:
-            async for now in every(self.clock, self.tick_s):
+            async for now in self.clock.every(self.tick_s):
                 self._poll_host_open()
                 if not self._booted and self._booting_until is not None and \
                         now >= self._booting_until:

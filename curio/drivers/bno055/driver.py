@@ -42,7 +42,6 @@ from curio.bus import Bus
 from curio.clock import Clock, wall_sleep
 from curio.config import ImuConfig
 from curio.drivers.bno055 import registers as r
-from curio.drivers.health import every
 from curio.fileio import atomic_write_json
 from curio.messages import DriverHealth, Event, Imu
 from curio.topics import EVENTS, HEALTH, IMU
@@ -431,7 +430,7 @@ class Bno055Driver:
         next_check = self.clock.now() + 0.1  # first check (and CALIB_STAT) soon
         consecutive = 0
         due = self.clock.now()
-        ticks = None if self.offload else every(self.clock, period)
+        ticks = None if self.offload else self.clock.every(period)
         while True:
             if ticks is None:
                 # Real bus: several readings per trip to the I/O thread.

@@ -34,7 +34,7 @@ import numpy as np
 from curio.bus import Bus
 from curio.clock import Clock
 from curio.config import LidarConfig
-from curio.drivers.health import BytePacer, every, wait_event
+from curio.drivers.health import BytePacer, wait_event
 from curio.drivers.rplidar import protocol as p
 from curio.messages import DriverHealth, Event, LaserScan
 from curio.topics import EVENTS, HEALTH, SCAN
@@ -448,5 +448,5 @@ class RplidarDriver:
         )
 
     async def _health_loop(self) -> None:
-        async for _ in every(self.clock, 1.0):
+        async for _ in self.clock.every(1.0):
             self._publish_health()

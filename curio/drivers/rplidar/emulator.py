@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from curio.clock import Clock, SimClock
-from curio.drivers.health import BytePacer, every
+from curio.drivers.health import BytePacer
 from curio.drivers.rplidar import protocol as p
 from curio.drivers.rplidar.ptydevice import PtyDevice
 from curio.messages import LaserScan
@@ -130,7 +130,7 @@ class RplidarEmulator:
         period = 1.0 / (self.rate_hz * self.chunks_per_rev)
         chunks: list[bytes] = []
         k = 0
-        async for now in every(self.clock, period):
+        async for now in self.clock.every(period):
             if not self._streaming(now):
                 chunks, k = [], 0
                 await self.pacer.settle()  # replies to requests
