@@ -19,6 +19,7 @@ import asyncio
 import heapq
 import itertools
 import time
+from abc import ABC, abstractmethod
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from typing import Protocol, TypeVar, runtime_checkable
@@ -113,14 +114,16 @@ async def _yield_once() -> None:
     await asyncio.sleep(0)
 
 
-class _ClockMixin:
+class _ClockMixin(ABC):
     """Helpers shared by both clocks, built on ``now``/``sleep_until``."""
 
-    def now(self) -> float:  # pragma: no cover - overridden
-        raise NotImplementedError
+    @abstractmethod
+    def now(self) -> float:
+        """Monotonic time in seconds."""
 
-    async def sleep_until(self, t_s: float) -> None:  # pragma: no cover - overridden
-        raise NotImplementedError
+    @abstractmethod
+    async def sleep_until(self, t_s: float) -> None:
+        """Sleep until ``now() >= t_s``."""
 
     async def every(
         self, period_s: float, stats: RateStats | None = None, *, phase_s: float = 0.0

@@ -19,6 +19,7 @@ import contextlib
 import json
 import logging
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -153,7 +154,7 @@ class ScenarioContext:
             task.cancel()
 
 
-class Scenario:
+class Scenario(ABC):
     """Base class of scenarios; subclasses set ``name`` and implement :meth:`run`."""
 
     name = ""
@@ -164,9 +165,9 @@ class Scenario:
         """Return the config this scenario runs with (default: unchanged)."""
         return cfg
 
+    @abstractmethod
     async def run(self, ctx: ScenarioContext) -> None:
         """The script. Raise :class:`ScenarioFailed` (or record failed checks) to fail."""
-        raise NotImplementedError
 
 
 def _apply_common_args(cfg: Config, args: ScenarioArgs) -> Config:
