@@ -43,7 +43,7 @@ import numpy.typing as npt
 
 from curio.config import ControllerConfig, RobotConfig
 from curio.geometry import Pose2D, wrap_angle
-from curio.nav.safety import arc_poses
+from curio.nav.safety import approach, arc_poses
 
 __all__ = [
     "ControlOutput",
@@ -136,14 +136,6 @@ class ProgressChecker:
             self._ref, self._ref_t = pose, now_s
             return True
         return now_s - self._ref_t <= self.timeout_s
-
-
-def _approach(current: float, target: float, max_step: float) -> float:
-    if target > current + max_step:
-        return current + max_step
-    if target < current - max_step:
-        return current - max_step
-    return target
 
 
 def rollout(pose: Pose2D, linear_mps: float, angular_radps: float, horizon_s: float,
@@ -491,8 +483,8 @@ class LocalController:
         if abs(self._v) < 1e-3 and abs(self._w) < 1e-3:
             self._kappa = kappa  # standing still: the servos swing while the speed ramps up
         else:
-            self._kappa = _approach(self._kappa, kappa, cfg.max_curvature_rate_per_s * self.dt_s)
-        v = _approach(self._v, v_target, cfg.max_accel_mps2 * self.dt_s)
+            self._kappa = approach(self._kappa, kappa, cfg.max_curvature_rate_per_s * self.dt_s)
+        v = approach(self._v, v_target, cfg.max_accel_mps2 * self.dt_s)
         w = v * self._kappa
         status = ControlStatus.FOLLOWING
         # Check the arc over a distance, not a time: creeping slowly must not make it look safe.
@@ -511,7 +503,7 @@ class LocalController:
             status = ControlStatus.AVOIDING
             detail = "avoiding an obstacle"
             self._kappa = k_alt
-            v = _approach(self._v, v_alt, cfg.max_accel_mps2 * self.dt_s)
+            v = approach(self._v, v_alt, cfg.max_accel_mps2 * self.dt_s)
             w = v * self._kappa
         self._blocked_since = None
         return self._finish(pose, v, w, status, dist_goal, remaining, now_s, detail)
@@ -564,7 +556,7 @@ class LocalController:
             self._reverse_until = -math.inf
             return None
         self._kappa = self._reverse_kappa
-        v = _approach(self._v, v_target, self.cfg.max_accel_mps2 * self.dt_s)
+        v = approach(self._v, v_target, self.cfg.max_accel_mps2 * self.dt_s)
         w = v * self._kappa
         self._blocked_since = None
         return self._finish(pose, v, w, ControlStatus.AVOIDING, dist_goal, remaining, now_s,
@@ -574,14 +566,14 @@ class LocalController:
         """In place towards ``err`` (radians): first stop driving, then turn."""
         cfg = self.cfg
         if abs(self._v) > 1e-3:  # brake along the current arc (the radius is kept)
-            v = _approach(self._v, 0.0, cfg.max_accel_mps2 * self.dt_s)
+            v = approach(self._v, 0.0, cfg.max_accel_mps2 * self.dt_s)
             return v, v * self._kappa
         w_target = math.copysign(min(cfg.max_angular_radps, max(0.25, 1.5 * abs(err))), err)
         # Decelerate in time: ω ≤ sqrt(2 α |err|).
         w_target = math.copysign(min(abs(w_target),
                                      math.sqrt(2.0 * cfg.max_angular_accel_radps2 * 0.5
                                                * abs(err)) + 0.05), err)
-        w = _approach(self._w, w_target, cfg.max_angular_accel_radps2 * self.dt_s)
+        w = approach(self._w, w_target, cfg.max_angular_accel_radps2 * self.dt_s)
         self._kappa = 0.0
         self._settle_until = -math.inf
         return 0.0, w
@@ -630,7 +622,7 @@ class LocalController:
                  now_s: float) -> ControlOutput:
         if self._blocked_since is None:
             self._blocked_since = now_s
-        v = _approach(self._v, 0.0, 2.0 * self.cfg.max_accel_mps2 * self.dt_s)
+        v = approach(self._v, 0.0, 2.0 * self.cfg.max_accel_mps2 * self.dt_s)
         w = v * self._kappa
         self._v, self._w = v, w
         status = (ControlStatus.BLOCKED

@@ -70,6 +70,7 @@ __all__ = [
     "CURIO_WHEEL_POSITIONS_M",
     "SafetyStage",
     "StopZone",
+    "approach",
     "fastest_wheel_speed_mps",
     "limit_to_wheel_speed",
     "polygon_distances",
@@ -297,7 +298,8 @@ class StopZone:
         return StopZoneResult(factor, reason, clearance, ttc)
 
 
-def _approach(current: float, target: float, max_step: float) -> float:
+def approach(current: float, target: float, max_step: float) -> float:
+    """Move ``current`` towards ``target`` by at most ``max_step`` (a per-cycle rate limit)."""
     if target > current + max_step:
         return current + max_step
     if target < current - max_step:
@@ -483,8 +485,8 @@ class SafetyStage:
             boost = max(1.0, s.max_brake_mps2 / s.max_accel_mps2)
             acc_v *= boost
             acc_w *= boost
-        self._out_v = _approach(self._out_v, v, acc_v * dt)
-        self._out_w = _approach(self._out_w, w, acc_w * dt)
+        self._out_v = approach(self._out_v, v, acc_v * dt)
+        self._out_w = approach(self._out_w, w, acc_w * dt)
         if abs(self._out_v) < 1e-9:
             self._out_v = 0.0
         if abs(self._out_w) < 1e-9:

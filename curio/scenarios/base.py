@@ -143,6 +143,20 @@ class ScenarioContext:
         """Events recorded so far whose kind equals or starts with ``kind``."""
         return [e for e in self.events if e["kind"] == kind or e["kind"].startswith(kind + ".")]
 
+    async def navigator_ready(self, timeout_s: float = 10.0) -> Any:
+        """The app's navigator, once a pose in ``map`` is published and has settled 0.5 s.
+
+        Raises:
+            ScenarioFailed: no navigation stack, or no ``/pose`` within ``timeout_s``.
+        """
+        nav = self.app.navigator
+        if nav is None:
+            raise ScenarioFailed("the navigation stack is not built (app.navigator is None)")
+        if not await self.wait_until(lambda: self.bus.latest(POSE) is not None, timeout_s, 0.05):
+            raise ScenarioFailed(f"no /pose within {timeout_s:g} s: estimation is not running")
+        await self.sleep(0.5)
+        return nav
+
     def truth(self) -> Pose2D | None:
         """The rover's true pose in ``map`` (simulator ground truth)."""
         msg = self.bus.latest(GROUND_TRUTH)

@@ -113,12 +113,7 @@ class GotoScenario(Scenario):
         goal = self.goal
         if goal is None:
             raise ScenarioFailed("goto needs a goal (--goal X,Y[,YAW])")
-        nav = ctx.app.navigator
-        if nav is None:
-            raise ScenarioFailed("the navigation stack is not built (app.navigator is None)")
-        if not await ctx.wait_until(lambda: ctx.bus.latest(POSE) is not None, 10.0, 0.05):
-            raise ScenarioFailed("no /pose within 10 s: estimation is not running")
-        await ctx.sleep(0.5)
+        nav = await ctx.navigator_ready()
         start = ctx.truth() or ctx.bus.latest(POSE).pose  # type: ignore[union-attr]
         ctx.goals_total = 1
         ctx.metrics["start"] = [round(start.x, 3), round(start.y, 3), round(start.yaw, 3)]

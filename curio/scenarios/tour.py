@@ -19,7 +19,6 @@ from curio.config import Config, PathConfig
 from curio.geometry import Pose2D
 from curio.nav.api import GoalHandle, GoalState
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, ScenarioFailed
-from curio.topics import POSE
 
 __all__ = ["TourScenario", "path_poses"]
 
@@ -53,12 +52,7 @@ class TourScenario(Scenario):
 
     async def run(self, ctx: ScenarioContext) -> None:
         """Drive every waypoint in order."""
-        nav = ctx.app.navigator
-        if nav is None:
-            raise ScenarioFailed("the navigation stack is not built (app.navigator is None)")
-        if not await ctx.wait_until(lambda: ctx.bus.latest(POSE) is not None, 10.0, 0.05):
-            raise ScenarioFailed("no /pose within 10 s: estimation is not running")
-        await ctx.sleep(0.5)
+        nav = await ctx.navigator_ready()
         plan = [(pid, k, pose) for pid in self.order
                 for k, pose in enumerate(path_poses(ctx.cfg.bt.paths[pid]))]
         ctx.goals_total = len(plan)
