@@ -22,7 +22,7 @@
     status: null, progress: null, help: { active: false }, estop: null, paths: [],
     grids: {}, images: {}, pose: null, truth: null, scan: null, plan: [], localPlan: [],
     obstacles: null, tree: null, health: null, robot: null, lastMsgAt: 0,
-    editPathId: null, thanksUntil: 0, teleopSeq: 0, lastCmdRequest: null,
+    editPathId: null, thanksUntil: 0, teleopSeq: 0, lastCmdRequest: null, answered: new Set(),
   };
   const view = { cx: 0, cy: 0, scale: 60, fitted: false, zoomedOnRover: false, dirty: true };
   let tool = "look";
@@ -91,7 +91,8 @@
     S.lastCmdRequest = body.request_id;
     try {
       await api("POST", "/api/command", body);
-      showMsg(el, "Sent — waiting for the rover…", "ok");
+      // The rover's answer (an event) can arrive before the POST returns; keep it.
+      if (!S.answered.has(body.request_id)) showMsg(el, "Sent — waiting for the rover…", "ok");
       return true;
     } catch (e) {
       showMsg(el, e.message, "error");
@@ -334,6 +335,10 @@
     while (ol.children.length > 100) ol.removeChild(ol.lastChild);
     if (history) return;
     const msg = ev.detail && ev.detail.message;
+    if ((ev.kind === "bt.command_rejected" || ev.kind === "bt.command_accepted") && ev.detail && ev.detail.request_id) {
+      S.answered.add(ev.detail.request_id);
+      if (S.answered.size > 200) S.answered.delete(S.answered.values().next().value);
+    }
     if (ev.kind === "bt.command_rejected") {
       showMsg($("cmdMsg"), msg || "The rover refused the command.", "error");
       if (ev.detail && ev.detail.action === "select_path") showMsg($("pathMsg"), msg || "The rover refused the path.", "error");
