@@ -40,6 +40,7 @@ from curio.clock import Clock
 from curio.config import CostmapConfig, RobotConfig
 from curio.geometry import Pose2D, wrap_angle
 from curio.messages import GridMessage, LaserScan
+from curio.nav.costmap_kernels import trace_scan
 from curio.nav.maps import OccupancyGrid
 from curio.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
 
@@ -168,6 +169,7 @@ class Costmap:
         self._unknown: BoolArray = static_map.unknown_mask() & ~self._static_lethal
         self._obstacles: BoolArray = np.zeros((h, w), dtype=bool)
         self._seen: BoolArray = np.zeros((h, w), dtype=bool)
+        self._touched = np.zeros((h, w), dtype=np.uint8)  # trace_scan's scratch
         self._margin_cells = math.ceil(self.cfg.inflation_radius_m / self.resolution_m) + 1
         self._footprint_samples = self._make_footprint_samples()
         master = self._inflate(self._static_lethal)
@@ -312,62 +314,21 @@ class Costmap:
                              min(self.cfg.raytrace_range_m, scan.range_max_m), clear_len)
         # Ray origin and directions in continuous grid coordinates (cells).
         o = self._to_grid(np.array([[laser.x, laser.y]]))[0]
-        dirs_map = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-        rot_yaw = -self.origin.yaw
-        c, s = math.cos(rot_yaw), math.sin(rot_yaw)
-        dirs = dirs_map @ np.array([[c, -s], [s, c]]).T  # rotate into the grid frame
-        h, w = self.shape
-
-        # Clearing: samples every half cell along each ray, stopping half a cell short of the
-        # end point (whose cell a return marks).
-        step_cells = 0.5
-        len_cells = clear_len / res
-        rays = len_cells > 0.5
-        old = None
-        rows_c = cols_c = np.empty(0, dtype=np.int64)
-        if rays.any():
-            k_max = math.ceil(float(len_cells[rays].max()) / step_cells)
-            t = np.arange(k_max, dtype=np.float64) * step_cells
-            lc = len_cells[rays]
-            pts_t = t[None, :]
-            keep = pts_t < (lc[:, None] - 0.5)
-            d = dirs[rays]
-            xs = o[0] + d[:, 0:1] * pts_t
-            ys = o[1] + d[:, 1:2] * pts_t
-            cols_c = np.floor(xs[keep]).astype(np.int64)
-            rows_c = np.floor(ys[keep]).astype(np.int64)
-            inside = (rows_c >= 0) & (rows_c < h) & (cols_c >= 0) & (cols_c < w)
-            rows_c, cols_c = rows_c[inside], cols_c[inside]
-
+        rot = angles - self.origin.yaw  # directions rotated into the grid frame
+        dirs = np.stack([np.cos(rot), np.sin(rot)], axis=1)
         # Marking: finite returns within the obstacle range.
         mark = finite_valid & (ranges <= self.cfg.obstacle_range_m)
-        ends = o[None, :] + dirs[mark] * (ranges[mark] / res)[:, None]
-        cols_m = np.floor(ends[:, 0]).astype(np.int64)
-        rows_m = np.floor(ends[:, 1]).astype(np.int64)
-        inside_m = (rows_m >= 0) & (rows_m < h) & (cols_m >= 0) & (cols_m < w)
-        rows_m, cols_m = rows_m[inside_m], cols_m[inside_m]
-
-        # Bounding box of the touched window.
-        all_r = np.concatenate([rows_c, rows_m])
-        all_c = np.concatenate([cols_c, cols_m])
-        if all_r.size == 0:
-            return
-        r0, r1 = int(all_r.min()), int(all_r.max()) + 1
-        c0, c1 = int(all_c.min()), int(all_c.max()) + 1
-        old = self._obstacles[r0:r1, c0:c1].copy()
-        self._obstacles[rows_c, cols_c] = False
-        self._seen[rows_c, cols_c] = True
-        self._obstacles[rows_m, cols_m] = True
-        self._seen[rows_m, cols_m] = True
-        changed = old != self._obstacles[r0:r1, c0:c1]
-        newly_seen_unknown = bool((self._unknown[rows_c, cols_c]).any()) if rows_c.size else False
-        if changed.any():
-            rr, cc = np.nonzero(changed)
+        mark_len = np.where(mark, ranges / res, -1.0)
+        box = np.empty(8, dtype=np.int64)
+        changed = trace_scan(self._obstacles, self._seen, self._static_lethal, self._unknown,
+                             self._master, float(o[0]), float(o[1]), dirs, clear_len / res,
+                             mark_len, self._touched, box)
+        r0, r1, c0, c1, vr0, vr1, vc0, vc1 = (int(v) for v in box)
+        if changed:
             m = self._margin_cells
-            self._recompute(r0 + int(rr.min()) - m, r0 + int(rr.max()) + 1 + m,
-                            c0 + int(cc.min()) - m, c0 + int(cc.max()) + 1 + m)
-        elif newly_seen_unknown and (self._master[rows_c, cols_c] == NO_INFORMATION).any():
-            self._recompute(r0, r1, c0, c1)
+            self._recompute(r0 - m, r1 + m, c0 - m, c1 + m)
+        elif vr0 < vr1:
+            self._recompute(vr0, vr1, vc0, vc1)
 
     def clear_around(self, pose_in_map: Pose2D, radius_m: float) -> None:
         """Remove obstacle-layer marks within ``radius_m`` of the pose (a recovery action).

@@ -262,6 +262,28 @@ def test_scan_update_is_vectorised_and_only_touches_its_window() -> None:
     assert cm.obstacle_mask().sum() > 50  # a ring of returns 1 m around the laser
 
 
+def test_returns_on_mapped_walls_do_not_reinflate_but_a_new_obstacle_does() -> None:
+    """Marks on cells the static map already holds change no cost: the costs snapshot (and
+    its version) stays; a return in free space re-inflates at once."""
+    grid = free_grid()
+    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    pose = Pose2D(5.0, 5.0, 0.0)
+    r, c = hit_at(cm, pose, 0.0, 1.5)
+    grid.data[r, c] = 100
+    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    ranges = np.full(360, np.nan)
+    ranges[beam_index(0.0)] = 1.5
+    before, version = cm.costs(), cm.version
+    cm.update_from_scan(make_scan(ranges), pose)
+    assert cm.obstacle_mask()[r, c]  # the layer holds the return...
+    assert cm.costs() is before and cm.version == version  # ...but nothing was recomputed
+    ranges[beam_index(math.pi / 2)] = 1.0
+    cm.update_from_scan(make_scan(ranges, 0.1), pose)
+    r2, c2 = hit_at(cm, pose, math.pi / 2, 1.0)
+    assert cm.version == version + 1
+    assert cm.costs()[r2, c2] == LETHAL
+
+
 # ---------------------------------------------------------------- rolling window, footprint
 
 
