@@ -19,7 +19,8 @@ bias. Measurements, each gated by its Mahalanobis distance (``gate_mahalanobis``
   ``BIAS_SKID_FRACTION`` of the turn / T), in windows where the gyro saw less than
   ``BIAS_MAX_TURN_RAD`` of turn (in turns the wheels' yaw lags, jumps and skids). A slipping
   wheel set that claims a turn the gyro does not see is rejected by the gate.
-* the BNO055 (``IMU``): z angular rate = ``omega + b_gyro`` (``imu_yaw_rate_sigma_radps``); with
+* the BNO055 (``IMU``): z angular rate = ``omega + b_gyro`` (``imu_yaw_rate_sigma_radps``; the
+  samples that arrive between two EKF cycles are fused as one mean at their mean stamp); with
   ``use_imu_heading`` and a calibrated magnetometer, the absolute heading too
   (``imu_heading_sigma_rad``), offset so that the first accepted heading matches the filter's yaw.
 
@@ -96,6 +97,11 @@ class OdomEkf:
     def P(self) -> F64:
         """The state covariance — a copy."""
         return np.array(self._kf.P, dtype=np.float64)
+
+    @property
+    def last_wheel_stamp(self) -> float | None:
+        """Stamp of the last wheel-odometry message, seconds (None before the first)."""
+        return None if self._last_wheel is None else self._last_wheel.stamp
 
     def pose(self) -> Pose2D:
         """``base_link`` in ``odom``."""
@@ -175,11 +181,14 @@ class OdomEkf:
         for i in angle_rows:
             y[i] = wrap_angle(float(y[i]))
         cov = h @ self._kf.P @ h.T + r
-        try:
-            d2 = float(y @ np.linalg.solve(cov, y))
-        except np.linalg.LinAlgError:
-            self.rejected[kind] += 1
-            return False
+        if len(y) == 1:  # the usual case: a scalar measurement
+            d2 = float(y[0] * y[0] / cov[0, 0]) if cov[0, 0] > 0.0 else math.inf
+        else:
+            try:
+                d2 = float(y @ np.linalg.solve(cov, y))
+            except np.linalg.LinAlgError:
+                self.rejected[kind] += 1
+                return False
         if not math.isfinite(d2) or math.sqrt(max(d2, 0.0)) > self.cfg.gate_mahalanobis:
             self.rejected[kind] += 1
             return False
@@ -291,8 +300,16 @@ class OdomEkf:
         self._win_gyro_rad = -self._last_imu_rate * (odom.stamp - self._last_imu_t)
 
     def add_imu(self, imu: Imu) -> bool:
-        """Fuse the gyro's z rate (and the heading, when enabled and calibrated)."""
-        self.predict_to(imu.stamp)
+        """Fuse one BNO055 sample: its z rate (and the heading, when enabled and calibrated)."""
+        self.note_imu(imu)
+        return self.fuse_imu([imu])
+
+    def note_imu(self, imu: Imu) -> None:
+        """Book one IMU sample (stamp order) for the bias window's gyro integral; no update.
+
+        Every sample must be noted, in stamp order with the wheel messages, before it is
+        fused with :meth:`fuse_imu`.
+        """
         rate = float(imu.angular_velocity_radps[2])
         if self._last_imu_t is not None and self._win_start is not None:
             gap = imu.stamp - self._last_imu_t
@@ -301,13 +318,29 @@ class OdomEkf:
         if self._last_imu_t is None or imu.stamp >= self._last_imu_t:
             self._last_imu_t = imu.stamp
             self._last_imu_rate = rate
+
+    def fuse_imu(self, samples: list[Imu]) -> bool:
+        """Fuse consecutive, noted IMU samples as one gyro measurement; return if fused.
+
+        The z rates of ``n`` samples a few milliseconds apart measure ``omega + b_gyro`` at their
+        mean stamp with variance ``imu_yaw_rate_sigma_radps² / n`` — the information of ``n``
+        separate updates under the constant-rate model, for one filter update. The heading
+        (when enabled) is fused from the last calibrated sample.
+        """
+        if not samples:
+            return False
+        rate_sum = sum(float(imu.angular_velocity_radps[2]) for imu in samples)
+        n = len(samples)
+        self.predict_to(sum(imu.stamp for imu in samples) / n)
         h = np.zeros((1, 6))
         h[0, W] = 1.0
         h[0, B] = 1.0
-        r = np.array([[self.cfg.imu_yaw_rate_sigma_radps**2]])
-        ok = self._update("gyro", np.array([rate]), h, r)
-        if self.cfg.use_imu_heading and imu.orientation_valid and self._calibrated(imu):
-            yaw_base = wrap_angle(quat_to_yaw(imu.orientation_xyzw) - self.imu_yaw_in_base_rad)
+        r = np.array([[self.cfg.imu_yaw_rate_sigma_radps**2 / n]])
+        ok = self._update("gyro", np.array([rate_sum / n]), h, r)
+        last = samples[-1]
+        if self.cfg.use_imu_heading and last.orientation_valid and self._calibrated(last):
+            self.predict_to(last.stamp)
+            yaw_base = wrap_angle(quat_to_yaw(last.orientation_xyzw) - self.imu_yaw_in_base_rad)
             if self._heading_offset is None:
                 self._heading_offset = wrap_angle(float(self.x[YAW]) - yaw_base)
             hh = np.zeros((1, 6))
@@ -336,11 +369,21 @@ class EkfNode:
     def _drain(self, wheel_sub: object, imu_sub: object) -> None:
         msgs: list[Odometry | Imu] = [*wheel_sub.drain(), *imu_sub.drain()]  # type: ignore[attr-defined]
         msgs.sort(key=lambda m: m.stamp)
+        # The gyro is fused once per batch of samples (at their mean stamp), not per sample: a
+        # batch goes in before a wheel message whose interval middle comes after it.
+        pending: list[Imu] = []
         for m in msgs:
             if isinstance(m, Odometry):
+                prev = self.ekf.last_wheel_stamp
+                mid = m.stamp if prev is None else 0.5 * (prev + m.stamp)
+                if pending and sum(i.stamp for i in pending) / len(pending) <= mid:
+                    self.ekf.fuse_imu(pending)
+                    pending = []
                 self.ekf.add_wheel_odometry(m)
             else:
-                self.ekf.add_imu(m)
+                self.ekf.note_imu(m)
+                pending.append(m)
+        self.ekf.fuse_imu(pending)
 
     async def run(self) -> None:
         """Fuse what arrived and publish ``ODOM`` every period."""
