@@ -15,6 +15,7 @@ driven), ``localization_rmse_m`` (null when localisation is off), ``events``
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import json
 import logging
@@ -234,7 +235,9 @@ def _score_pose(metrics: _Metrics, est: PoseWithCovariance) -> None:
     """Compare an estimate with the ground truth at the same stamp (nearest sample)."""
     if not metrics.truth_history:
         return
-    best = min(metrics.truth_history[-50:], key=lambda item: abs(item[0] - est.stamp))
+    hist = metrics.truth_history  # in stamp order
+    i = bisect.bisect_left(hist, est.stamp, key=lambda item: item[0])
+    best = min(hist[max(0, i - 1):i + 1], key=lambda item: abs(item[0] - est.stamp))
     if abs(best[0] - est.stamp) > 0.05:
         return
     err = est.pose.distance_to(best[1])
