@@ -151,3 +151,23 @@ def test_bias_updates_do_not_make_the_odom_position_jump() -> None:
     after = ekf.x
     assert after[0] == before[0] and after[1] == before[1] and after[3] == before[3]
     assert after[5] > before[5] + 0.002
+
+
+def test_a_batch_of_gyro_samples_carries_the_information_of_separate_updates() -> None:
+    """Fusing n samples as their mean with variance σ²/n gives the state and covariance of n
+    sequential updates (same stamp: the linear update is exact)."""
+    rates = [0.31, 0.29, 0.33, 0.27]
+    one_by_one, batched = OdomEkf(EkfConfig()), OdomEkf(EkfConfig())
+    samples = [Imu(1.0, angular_velocity_radps=(0.0, 0.0, r)) for r in rates]
+    for ekf in (one_by_one, batched):
+        ekf.predict_to(0.0)
+        ekf.predict_to(1.0)
+    for imu in samples:
+        one_by_one.add_imu(imu)
+    for imu in samples:
+        batched.note_imu(imu)
+    assert batched.fuse_imu(samples)
+    assert batched.accepted["gyro"] == 1 and one_by_one.accepted["gyro"] == 4
+    assert np.allclose(batched.x, one_by_one.x, atol=1e-12)
+    assert np.allclose(batched.P, one_by_one.P, atol=1e-12)
+    assert 0.25 < batched.x[4] + batched.x[5] < 0.35  # omega + bias near the mean rate
