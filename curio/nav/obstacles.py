@@ -6,7 +6,8 @@ beams of a scan, in angle order, are grouped while neighbouring points are close
 are split recursively where a point lies more than ``split_distance_m`` from the chord
 (split-and-merge); each piece becomes a least-squares segment, and pieces shorter than
 ``2 · max_circle_radius_m`` become circles (centre pushed away from the sensor,
-``radius_enlargement_m`` added). Everything is published on ``/obstacles`` in ``map``.
+``radius_enlargement_m`` added). Everything is published on ``/obstacles`` in ``map``. The
+per-point work runs compiled (:mod:`curio.nav.obstacles_kernel`).
 
 **Blocked detection** (the original's ``obstaclesdist.py``, original-system.md §4, with its
 defects 19–25 fixed): ``blocked`` is true when, **while a goal is active**, an obstacle (a
@@ -36,6 +37,7 @@ from curio.clock import Clock
 from curio.config import BlockedConfig, RobotConfig
 from curio.geometry import Pose2D
 from curio.messages import BlockedState, Event, LaserScan, Obstacles
+from curio.nav.obstacles_kernel import extract_obstacles
 from curio.topics import BLOCKED, EVENTS, OBSTACLES, ODOM, PLAN, POSE, SCAN, WHEEL_ODOM
 
 if TYPE_CHECKING:
@@ -51,50 +53,6 @@ __all__ = [
 F64 = npt.NDArray[np.float64]
 Segment = tuple[tuple[float, float], tuple[float, float]]
 Circle = tuple[float, float, float]
-
-
-def _split(points: F64, tol_m: float, out: list[F64], min_points: int) -> None:
-    """Iterative end-point fit: split ``points`` until every piece fits its chord."""
-    stack = [points]
-    while stack:
-        pts = stack.pop()
-        if len(pts) < 3:
-            if len(pts) >= 2:
-                out.append(pts)
-            continue
-        a, b = pts[0], pts[-1]
-        ab = b - a
-        n = math.hypot(float(ab[0]), float(ab[1]))
-        if n < 1e-9:
-            d = np.hypot(pts[:, 0] - a[0], pts[:, 1] - a[1])
-        else:
-            d = np.abs(ab[0] * (pts[:, 1] - a[1]) - ab[1] * (pts[:, 0] - a[0])) / n
-        k = int(np.argmax(d))
-        if d[k] > tol_m and 0 < k < len(pts) - 1:
-            # Keep pieces in order (right part pushed first so the left is processed first).
-            stack.append(pts[k:])
-            stack.append(pts[:k + 1])
-        else:
-            out.append(pts)
-
-
-def _fit_segment(pts: F64) -> Segment:
-    """Least-squares line through the points, clipped to their extent."""
-    c = pts.mean(axis=0)
-    d = pts - c
-    # Principal axis of the 2x2 scatter matrix in closed form (what an SVD would give).
-    sxx = float(d[:, 0] @ d[:, 0])
-    syy = float(d[:, 1] @ d[:, 1])
-    sxy = float(d[:, 0] @ d[:, 1])
-    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
-    direction = np.array([math.cos(theta), math.sin(theta)])
-    t = d @ direction
-    p1 = c + direction * t.min()
-    p2 = c + direction * t.max()
-    # Keep the scan's order (first point near the first beam).
-    if np.hypot(*(p1 - pts[0])) > np.hypot(*(p2 - pts[0])):
-        p1, p2 = p2, p1
-    return ((float(p1[0]), float(p1[1])), (float(p2[0]), float(p2[1])))
 
 
 class ObstacleExtractor:
@@ -122,53 +80,16 @@ class ObstacleExtractor:
         pts_l = np.stack([rr * np.cos(a[idx]), rr * np.sin(a[idx])], axis=1)
         laser_in_map = base_in_map @ self.laser_in_base
         pts = laser_in_map.transform_points(pts_l)
-        # Groups: break where neighbours are far apart (or beams are missing in between).
-        gaps = np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1]))
-        thr = cfg.group_distance_m + cfg.distance_proportion * np.maximum(rr[:-1], rr[1:])
-        breaks = np.nonzero((gaps > thr) | (np.diff(idx) > 2))[0]
-        starts = np.concatenate([[0], breaks + 1])
-        ends = np.concatenate([breaks + 1, [len(pts)]])
-        groups = [pts[s:e] for s, e in zip(starts, ends, strict=True)]
-        # A full revolution: the last group may continue into the first.
-        if len(groups) > 1 and idx[0] == 0 and idx[-1] == len(r) - 1 and \
-                math.hypot(*(pts[-1] - pts[0])) <= cfg.group_distance_m + \
-                cfg.distance_proportion * max(rr[0], rr[-1]):
-            groups[0] = np.vstack([groups[-1], groups[0]])
-            groups.pop()
-        segments: list[Segment] = []
-        circles: list[Circle] = []
-        sensor = np.array([laser_in_map.x, laser_in_map.y])
-        for g in groups:
-            if len(g) < cfg.min_group_points:
-                continue
-            chord = float(np.hypot(*(g[-1] - g[0])))
-            spread = float(np.max(np.hypot(g[:, 0] - g[:, 0].mean(), g[:, 1] - g[:, 1].mean())))
-            if max(chord, 2.0 * spread) < 2.0 * cfg.max_circle_radius_m:
-                # A small object (a post, a leg, a bin): one circle, however curved.
-                centroid = g.mean(axis=0)
-                half = 0.5 * max(chord, 2.0 * spread)
-                away = centroid - sensor
-                norm = float(np.hypot(*away)) or 1.0
-                centre = centroid + away / norm * (0.5 * half)
-                circles.append((float(centre[0]), float(centre[1]),
-                                float(half + cfg.radius_enlargement_m)))
-                continue
-            pieces: list[F64] = []
-            _split(g, cfg.split_distance_m, pieces, cfg.min_group_points)
-            for piece in pieces:
-                seg = _fit_segment(piece)
-                p1, p2 = np.array(seg[0]), np.array(seg[1])
-                length = float(np.hypot(*(p2 - p1)))
-                if length < 2.0 * cfg.max_circle_radius_m:
-                    mid = 0.5 * (p1 + p2)
-                    away = mid - sensor
-                    norm = float(np.hypot(*away)) or 1.0
-                    centre = mid + away / norm * (length / (2.0 * math.sqrt(3.0)))
-                    radius = length / math.sqrt(3.0) + cfg.radius_enlargement_m
-                    circles.append((float(centre[0]), float(centre[1]), float(radius)))
-                elif len(piece) >= 2:
-                    segments.append(seg)
-        return Obstacles(scan.stamp, tuple(segments), tuple(circles), frame_id="map")
+        seg_rows, circle_rows = extract_obstacles(
+            np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), rr,
+            idx.astype(np.int64), len(r), laser_in_map.x, laser_in_map.y,
+            cfg.group_distance_m, cfg.distance_proportion, cfg.min_group_points,
+            cfg.split_distance_m, cfg.max_circle_radius_m, cfg.radius_enlargement_m)
+        segments: tuple[Segment, ...] = tuple(
+            ((x1, y1), (x2, y2)) for x1, y1, x2, y2 in seg_rows.tolist())
+        circles: tuple[Circle, ...] = tuple(
+            (cx, cy, rad) for cx, cy, rad in circle_rows.tolist())
+        return Obstacles(scan.stamp, segments, circles, frame_id="map")
 
 
 @dataclass

@@ -48,6 +48,28 @@ def test_extracts_a_wall_as_a_segment_and_a_post_as_a_circle(cfg: Config) -> Non
     assert 0.05 < near_post[0][2] < 0.3
 
 
+def test_a_wall_across_the_scans_seam_is_one_segment(cfg: Config) -> None:
+    """The scan starts and ends behind the rover (−π/+π): a wall there is one obstacle, not
+    two halves split at the seam."""
+    wall = np.array([[-2.0, y] for y in np.arange(-1.0, 1.0, 0.005)])
+    ex = ObstacleExtractor(cfg.nav.blocked, Pose2D(0.0, 0.0, 0.0))
+    robot = Pose2D(0.0, 0.0, 0.0)
+    obs = ex.extract(scan_from(wall, robot), robot)
+    assert obs.circles == ()
+    assert len(obs.segments) == 1
+    (x1, y1), (x2, y2) = obs.segments[0]
+    assert x1 == pytest.approx(-2.0, abs=0.02) and x2 == pytest.approx(-2.0, abs=0.02)
+    assert abs(y2 - y1) > 1.9
+
+
+def test_no_valid_beam_gives_no_obstacles(cfg: Config) -> None:
+    ex = ObstacleExtractor(cfg.nav.blocked, Pose2D(0.0, 0.0, 0.0))
+    ranges = np.full(360, np.nan, dtype=np.float32)
+    ranges[::7] = np.inf
+    obs = ex.extract(LaserScan(0.0, -math.pi, 2 * math.pi / 360, 0.15, 12.0, ranges), Pose2D())
+    assert obs.segments == () and obs.circles == ()
+
+
 def test_travel_direction_from_the_plan() -> None:
     plan = [Pose2D(0.0, y * 0.05, 0.0) for y in range(40)]
     assert travel_direction(plan, Pose2D(0.0, 0.0, 0.0)) == pytest.approx(math.pi / 2)
