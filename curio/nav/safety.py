@@ -50,6 +50,7 @@ from curio.messages import (
     OperatorCommand,
     Twist,
 )
+from curio.nav.safety_kernel import polygon_distances_into, sweep_stop_zone
 from curio.topics import (
     CMD_VEL,
     CMD_VEL_NAV,
@@ -120,27 +121,12 @@ def polygon_distances(points: F64, polygon: F64) -> F64:
         points: ``(..., 2)`` points in the polygon's frame.
         polygon: ``(E, 2)`` vertices, either orientation.
     """
-    a = polygon
-    b = np.roll(polygon, -1, axis=0)
-    ab = b - a  # (E, 2)
-    p = points[..., None, :]  # (..., 1, 2)
-    ap = p - a  # (..., E, 2)
-    denom = np.maximum((ab * ab).sum(axis=-1), 1e-12)
-    t = np.clip((ap * ab).sum(axis=-1) / denom, 0.0, 1.0)
-    closest = a + t[..., None] * ab
-    d = np.sqrt(((p - closest) ** 2).sum(axis=-1)).min(axis=-1)
-    # Inside test: crossing number.
-    px = points[..., 0][..., None]
-    py = points[..., 1][..., None]
-    ay, by = a[:, 1], b[:, 1]
-    ax, bx = a[:, 0], b[:, 0]
-    cond = (ay > py) != (by > py)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xint = ax + (py - ay) * (bx - ax) / (by - ay)
-    crossings = (cond & (px < xint)).sum(axis=-1)
-    inside = (crossings % 2) == 1
-    out: F64 = np.where(inside, -d, d)
-    return out
+    pts = np.asarray(points, dtype=np.float64)
+    flat = np.ascontiguousarray(pts.reshape(-1, 2))
+    out = np.empty(flat.shape[0])
+    polygon_distances_into(flat, np.ascontiguousarray(polygon, dtype=np.float64), out)
+    shaped: F64 = out.reshape(pts.shape[:-1])
+    return shaped
 
 
 def convex_hull(points: F64) -> F64:
@@ -249,53 +235,36 @@ class StopZone:
             return StopZoneResult(1.0)
         reach = (self.radius_m + self.slow_distance_m + abs(linear_mps) * self.lookahead_s
                  + 0.05)
-        pts = self.points[np.hypot(self.points[:, 0], self.points[:, 1]) < reach]
-        if pts.size == 0:
-            return StopZoneResult(1.0)
         dt = self.lookahead_s / self.steps
         times = np.arange(self.steps + 1, dtype=np.float64) * dt
         poses = arc_poses(linear_mps, angular_radps, times)  # (K, 3)
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        dx = pts[None, :, 0] - poses[:, None, 0]
-        dy = pts[None, :, 1] - poses[:, None, 1]
-        local = np.stack([c[:, None] * dx + s[:, None] * dy,
-                          -s[:, None] * dx + c[:, None] * dy], axis=-1)  # (K, N, 2)
         pure_turn = abs(linear_mps) < 1e-3
-        d_fp0 = polygon_distances(local[0], self.footprint)
-        keep = d_fp0 > 0.0  # points inside the footprint are self-hits or already touching
-        if not keep.any():
-            return StopZoneResult(1.0)
-        local = local[:, keep]
         direction = 0.0 if pure_turn else math.copysign(1.0, linear_mps)
         stop_poly = self._extended(direction * self.stop_distance_m)
-        dist = polygon_distances(local, stop_poly)  # (K, N)
-        d0 = dist[0]
-        ahead = dist[1:]
-        approaching = ahead < d0[None, :] - 1e-4
-        if not approaching.any():
+        use_slow = self.slow_distance_m > self.stop_distance_m and not pure_turn
+        slow_poly = self._extended(direction * self.slow_distance_m) if use_slow else stop_poly
+        # Compiled sweep (safety_kernel): per point within reach and outside the footprint,
+        # its distances to the stop polygon along the arc, reduced to what is decided below.
+        approached, clearance, first_hit, slow_near = sweep_stop_zone(
+            self.points, reach, poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]),
+            self.footprint, stop_poly, slow_poly, use_slow, self.contact_margin_m)
+        if not approached:
             return StopZoneResult(1.0)
-        clearance = float(np.min(np.where(approaching, ahead, np.inf)))
-        hits = approaching & (ahead < self.contact_margin_m)
         factor = 1.0
         reason = ""
         ttc = math.inf
-        if hits.any():
-            k = int(np.argmax(hits.any(axis=1)))  # first step (0-based over times[1:])
-            ttc = float(times[k + 1])
-            factor = min(1.0, float(times[k]) / self.lookahead_s)
+        if first_hit >= 0:  # first step (0-based over times[1:]) reaching the contact margin
+            ttc = float(times[first_hit + 1])
+            factor = min(1.0, float(times[first_hit]) / self.lookahead_s)
             reason = "stop" if factor <= 0.0 else "slow"
-        if self.slow_distance_m > self.stop_distance_m and not pure_turn:
-            slow_poly = self._extended(direction * self.slow_distance_m)
-            inside_slow = polygon_distances(local[1:], slow_poly) < 0.0
-            moving_in = approaching & inside_slow
-            if moving_in.any():
-                near = max(0.0, float(np.min(np.where(moving_in, ahead, np.inf))))
-                span = self.slow_distance_m - self.stop_distance_m
-                slow = min(1.0, max(self.slow_min_fraction, near / span))
-                if slow < factor:
-                    factor = slow
-                    reason = reason or "slow"
-        return StopZoneResult(factor, reason, clearance, ttc)
+        if slow_near < math.inf:  # an approached point inside the slow polygon
+            near = max(0.0, float(slow_near))
+            span = self.slow_distance_m - self.stop_distance_m
+            slow = min(1.0, max(self.slow_min_fraction, near / span))
+            if slow < factor:
+                factor = slow
+                reason = reason or "slow"
+        return StopZoneResult(factor, reason, float(clearance), ttc)
 
 
 def approach(current: float, target: float, max_step: float) -> float:
