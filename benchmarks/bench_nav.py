@@ -4,8 +4,9 @@
 
 Each run is the ``goto`` scenario (``curio sim goto``): the whole application — simulator,
 EKF, particle-filter localisation, costmap, planner, controller, recovery, safety — on the
-simulated clock, from a start to a goal drawn from the seed: both free for the rover, 3 m or
-more apart (at most ``max_distance_m`` = 15 m), and joined by a path in the static costmap.
+simulated clock, from a start to a goal drawn from the seed: both free for the rover (its
+footprint clear of the inscribed zone, at the start's heading and at some heading at the
+goal), 3 m or more apart (at most ``max_distance_m`` = 15 m), and joined by a path in the static costmap.
 
 Worlds (default; ``--map`` runs only that map):
 
@@ -140,6 +141,12 @@ def pick_pairs(world: str, n: int, seed: int) -> list[tuple[Pose2D, Pose2D]]:
             continue
         start = Pose2D(float(a[0]), float(a[1]), float(rng.uniform(-math.pi, math.pi)))
         if cm.footprint_cost(start) >= 253:
+            continue
+        # The goal, like the start, must hold the rover: some heading keeps its footprint off
+        # obstacles and inside the map (the goal leaves the heading free).
+        headings = np.linspace(0.0, math.pi, 12, endpoint=False)
+        if cm.footprint_costs(np.column_stack([np.full(12, b[0]), np.full(12, b[1]),
+                                               headings])).min() >= 253:
             continue
         goal = Pose2D(float(b[0]), float(b[1]), math.nan)
         try:
