@@ -6,7 +6,8 @@ Each run is the ``goto`` scenario (``curio sim goto``): the whole application â€
 EKF, particle-filter localisation, costmap, planner, controller, recovery, safety â€” on the
 simulated clock, from a start to a goal drawn from the seed: both free for the rover (its
 footprint clear of the inscribed zone, at the start's heading and at some heading at the
-goal), 3 m or more apart (at most ``max_distance_m`` = 15 m), and joined by a path in the static costmap.
+goal), 3 m or more apart (at most ``max_distance_m`` = 15 m), and joined by a path in the
+static costmap.
 
 Worlds (default; ``--map`` runs only that map):
 
