@@ -276,6 +276,8 @@ class CostmapConfig(Section):
 
     obstacle_range_m: float = Field(5.5, gt=0.0)
     raytrace_range_m: float = Field(6.0, gt=0.0)
+    static_mark_tolerance_cells: int = Field(
+        1, ge=0, le=5, description="returns this close to a mapped wall are the wall (noise)")
     inflation_radius_m: float = Field(0.55, gt=0.0)
     cost_scaling_factor: float = Field(10.0, gt=0.0)
     footprint_padding_m: float = Field(0.01, ge=0.0)
@@ -289,6 +291,9 @@ class PlannerConfig(Section):
     """Global planner."""
 
     replan_rate_hz: float = Field(1.0, ge=0.0, description="0 = only when needed")
+    blocked_confirm_s: float = Field(
+        0.5, ge=0.0, description="replan at once when the plan has been blocked this long "
+        "(filters single-scan lidar noise in narrow passages)")
     goal_nearest_free: bool = True
     goal_nearest_free_max_m: float = Field(0.5, ge=0.0)
     heuristic_weight: float = Field(

@@ -15,7 +15,10 @@ bottom, as :class:`~curio.nav.maps.OccupancyGrid`):
   raises them to 253 or more (Nav2's rule with ``inflate_unknown`` false).
 
 Scans mark their returns within ``obstacle_range_m`` and clear every cell a ray passes
-through up to ``raytrace_range_m`` (``inf`` returns clear the full ray range). Marks persist
+through up to ``raytrace_range_m`` (``inf`` returns clear the full ray range). A return that
+lands within ``static_mark_tolerance_cells`` of a mapped wall is taken as that wall (lidar
+noise, a slightly offset map) and marks nothing: otherwise noise flickers marks along every
+wall, narrowing doorways from one scan to the next. Marks persist
 until a ray clears them or :meth:`Costmap.clear_around` removes them. Only the window touched
 by a scan is re-inflated (the ``updateBounds`` idea), so an update is cheap on big maps.
 
@@ -166,6 +169,7 @@ class Costmap:
         self._origin_inv = static_map.origin.inverse()
         h, w = static_map.height, static_map.width
         self._static_lethal: BoolArray = static_map.occupied_mask()
+        self._near_static = self._near_static_mask(self._static_lethal)
         self._unknown: BoolArray = static_map.unknown_mask() & ~self._static_lethal
         self._obstacles: BoolArray = np.zeros((h, w), dtype=bool)
         self._seen: BoolArray = np.zeros((h, w), dtype=bool)
@@ -199,11 +203,21 @@ class Costmap:
         if not changed.any():
             return
         self._static_lethal = lethal
+        self._near_static = self._near_static_mask(lethal)
         self._unknown = unknown
         rr = np.flatnonzero(changed.any(axis=1))
         cc = np.flatnonzero(changed.any(axis=0))
         m = self._margin_cells
         self._recompute(int(rr[0]) - m, int(rr[-1]) + 1 + m, int(cc[0]) - m, int(cc[-1]) + 1 + m)
+
+    def _near_static_mask(self, lethal: BoolArray) -> BoolArray:
+        """Free cells within ``static_mark_tolerance_cells`` of a mapped wall (8-connected)."""
+        n = self.cfg.static_mark_tolerance_cells
+        if n <= 0 or not lethal.any():
+            return np.zeros(lethal.shape, dtype=bool)
+        grown = ndimage.binary_dilation(lethal, structure=np.ones((3, 3), dtype=bool),
+                                        iterations=n)
+        return np.asarray(grown & ~lethal)
 
     @property
     def grid_info(self) -> GridInfo:
@@ -320,9 +334,10 @@ class Costmap:
         mark = finite_valid & (ranges <= self.cfg.obstacle_range_m)
         mark_len = np.where(mark, ranges / res, -1.0)
         box = np.empty(8, dtype=np.int64)
-        changed = trace_scan(self._obstacles, self._seen, self._static_lethal, self._unknown,
-                             self._master, float(o[0]), float(o[1]), dirs, clear_len / res,
-                             mark_len, self._touched, box)
+        changed = trace_scan(self._obstacles, self._seen, self._static_lethal,
+                             self._near_static, self._unknown, self._master,
+                             float(o[0]), float(o[1]), dirs, clear_len / res, mark_len,
+                             self._touched, box)
         r0, r1, c0, c1, vr0, vr1, vc0, vc1 = (int(v) for v in box)
         if changed:
             m = self._margin_cells

@@ -19,14 +19,16 @@ STEP_CELLS = 0.5  # clearing samples every half cell along a ray
 
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
-def trace_scan(obstacles, seen, static_lethal, unknown, master,  # type: ignore[no-untyped-def]
-               ox, oy, dirs, clear_len_cells, mark_len_cells, touched, out):
+def trace_scan(obstacles, seen, static_lethal, near_static, unknown,  # type: ignore[no-untyped-def]
+               master, ox, oy, dirs, clear_len_cells, mark_len_cells, touched, out):
     """Clear, then mark, the obstacle layer for one scan; report what changed.
 
     Args:
         obstacles: ``(H, W)`` bool obstacle layer (updated in place).
         seen: ``(H, W)`` bool, cells ever observed (updated in place).
         static_lethal: ``(H, W)`` bool, lethal cells of the static map.
+        near_static: ``(H, W)`` bool, free cells next to a mapped wall: a return there is
+            taken as the wall (lidar noise) and marks nothing.
         unknown: ``(H, W)`` bool, unknown cells of the static map.
         master: ``(H, W)`` uint8 current master costs (read only).
         ox, oy: the ray origin (the lidar), continuous grid coordinates (cells).
@@ -90,13 +92,15 @@ def trace_scan(obstacles, seen, static_lethal, unknown, master,  # type: ignore[
         r = math.floor(oy + dirs[i, 1] * m)
         if r < 0 or r >= h or c < 0 or c >= w:
             continue
+        seen[r, c] = True
+        if near_static[r, c]:
+            continue
         if touched[r, c] == 0:
             touched[r, c] = 1
             cells[count] = r * w + c
             old[count] = obstacles[r, c]
             count += 1
         obstacles[r, c] = True
-        seen[r, c] = True
     # What changed for the costs: the obstacle layer, outside the static walls.
     cr0, cr1, cc0, cc1 = big, -1, big, -1
     changed = 0

@@ -262,6 +262,24 @@ def test_scan_update_is_vectorised_and_only_touches_its_window() -> None:
     assert cm.obstacle_mask().sum() > 50  # a ring of returns 1 m around the laser
 
 
+def test_a_return_next_to_a_mapped_wall_is_the_wall_not_a_new_obstacle() -> None:
+    """Lidar noise puts wall returns in the free cell in front of the wall: with the default
+    tolerance (1 cell) they mark nothing; two cells out they do; tolerance 0 marks all."""
+    pose = Pose2D(5.0, 5.0, 0.0)
+    for tolerance, offsets_marked in ((1, {1: False, 2: True}), (0, {1: True, 2: True})):
+        for offset, marked in offsets_marked.items():
+            grid = free_grid()
+            probe = Costmap(grid, RobotConfig(), CostmapConfig())
+            r, c = hit_at(probe, pose, 0.0, 1.5)
+            grid.data[r, c + offset] = 100  # the mapped wall, ``offset`` cells beyond the hit
+            cm = Costmap(grid, RobotConfig(), CostmapConfig(static_mark_tolerance_cells=tolerance))
+            ranges = np.full(360, np.nan)
+            ranges[beam_index(0.0)] = 1.5
+            cm.update_from_scan(make_scan(ranges), pose)
+            assert bool(cm.obstacle_mask()[r, c]) is marked, (tolerance, offset)
+            assert bool(cm.costs()[r, c] == LETHAL) is marked, (tolerance, offset)
+
+
 def test_returns_on_mapped_walls_do_not_reinflate_but_a_new_obstacle_does() -> None:
     """Marks on cells the static map already holds change no cost: the costs snapshot (and
     its version) stays; a return in free space re-inflates at once."""
