@@ -145,6 +145,7 @@ class NavigatorNode:
         self._plan: list[Pose2D] = []
         self._plan_goal_index = -1
         self._last_plan_t = -math.inf
+        self._blocked_seen_t: float | None = None  # when the current plan was first seen blocked
         self._recovery_task: asyncio.Task[Any] | None = None
         self._recovery_rung = 0
         self._recovery_rounds = 0
@@ -365,6 +366,22 @@ class NavigatorNode:
         self.keep_out.append((x, y, self.clock.now() + self.cfg.nav.recovery.keep_out_s))
         self._event("nav.keep_out", self._active, x=round(x, 3), y=round(y, 3))
 
+    def _plan_blocked_confirmed(self, pose: Pose2D, now: float) -> bool:
+        """Whether the plan has been blocked for ``nav.planner.blocked_confirm_s`` without a
+        break.
+
+        Lidar noise next to walls marks and clears single cells from scan to scan; in a narrow
+        passage such a flicker would swap the plan for a detour and back every second. A
+        blockage counts once it has lasted ``nav.planner.blocked_confirm_s`` (the controller
+        and the safety stage guard the rover meanwhile).
+        """
+        if not self._plan_blocked(pose):
+            self._blocked_seen_t = None
+            return False
+        if self._blocked_seen_t is None:
+            self._blocked_seen_t = now
+        return now - self._blocked_seen_t >= self.cfg.nav.planner.blocked_confirm_s
+
     def _plan_blocked(self, pose: Pose2D) -> bool:
         """Whether the plan ahead (about 3 m) crosses a lethal or inscribed cell."""
         if len(self.controller.plan) == 0:
@@ -415,6 +432,7 @@ class NavigatorNode:
             self._best_t = now
             self._baseline_t = now
         self._plan = poses
+        self._blocked_seen_t = None
         self._plan_goal_index = handle.current_index
         self.controller.set_plan(poses, goal, check_yaw=math.isfinite(goal.yaw))
         self.bus.publish(PLAN, Path(self.clock.now(), tuple(poses)))
@@ -507,7 +525,7 @@ class NavigatorNode:
         if self._plan_job is None:
             if not have_plan:
                 self._start_plan(pose, handle, "new goal")
-            elif self._plan_blocked(pose):
+            elif self._plan_blocked_confirmed(pose, now):
                 self._event("nav.path_blocked", handle)
                 self._start_plan(pose, handle, "path blocked")
             elif replan_hz > 0 and now - self._last_plan_t >= 1.0 / replan_hz:

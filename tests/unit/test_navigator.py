@@ -265,11 +265,38 @@ async def test_replans_at_once_when_the_path_is_blocked(fast_cfg: Config) -> Non
         r, c = cell(grid, -1.0, -0.5)  # about 2 m ahead
         blocked[r:r + 20, c:c + 10] = 100
         h.costmap.set_static_map(OccupancyGrid(blocked, grid.resolution_m, grid.origin))
-        await h.clock.advance(0.3)
+        await h.clock.advance(0.3)  # not yet: a blockage must last blocked_confirm_s (0.5 s)
+        assert h.nav.plan_count == plans
+        await h.clock.advance(0.5)
         assert h.nav.plan_count > plans
         assert "nav.path_blocked" in h.kinds()
         new = h.bus.latest(PLAN)
         assert new is not None and max(abs(p.y) for p in new.poses) > 0.6
+        assert await h.until(lambda: handle.done, 60.0)
+        assert handle.state is GoalState.SUCCEEDED
+
+
+async def test_a_blockage_shorter_than_the_confirm_time_keeps_the_plan(
+        fast_cfg: Config) -> None:
+    """A cell that flickers onto the path for one scan (lidar noise) does not swap the plan."""
+    cfg = fast_cfg.model_copy(deep=True)
+    cfg.nav.planner.replan_rate_hz = 0.0  # only when needed
+    grid = room()
+    async with Harness(cfg, grid, Pose2D(-3.0, 0.0, 0.0)) as h:
+        handle = h.nav.send_goal(Pose2D(3.0, 0.0, math.nan))
+        await h.clock.advance(1.0)
+        plans = h.nav.plan_count
+        blocked = grid.data.copy()
+        r, c = cell(grid, -1.0, 0.0)  # about 1.8 m ahead
+        blocked[r, c] = 100
+        for _ in range(3):  # on for 0.2 s, off for 0.2 s
+            h.costmap.set_static_map(OccupancyGrid(blocked, grid.resolution_m, grid.origin))
+            await h.clock.advance(0.2)
+            h.costmap.set_static_map(OccupancyGrid(grid.data.copy(), grid.resolution_m,
+                                                   grid.origin))
+            await h.clock.advance(0.2)
+        assert h.nav.plan_count == plans
+        assert "nav.path_blocked" not in h.kinds()
         assert await h.until(lambda: handle.done, 60.0)
         assert handle.state is GoalState.SUCCEEDED
 
