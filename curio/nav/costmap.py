@@ -19,8 +19,9 @@ through up to ``raytrace_range_m`` (``inf`` returns clear the full ray range). A
 lands within ``static_mark_tolerance_cells`` of a mapped wall is taken as that wall (lidar
 noise, a slightly offset map) and marks nothing: otherwise noise flickers marks along every
 wall, narrowing doorways from one scan to the next. Marks persist
-until a ray clears them or :meth:`Costmap.clear_around` removes them. Only the window touched
-by a scan is re-inflated (the ``updateBounds`` idea), so an update is cheap on big maps.
+until a ray clears them or :meth:`Costmap.clear_around` removes them. Only the window around
+cells whose lethal state a scan changed is re-inflated (the ``updateBounds`` idea), so an update
+is cheap on big maps.
 
 The master grid returned by :meth:`Costmap.costs` is an immutable snapshot (read-only array,
 replaced, never modified in place) so a planner may use it from another thread while the

@@ -325,7 +325,7 @@ class OdomEkf:
         The z rates of ``n`` samples a few milliseconds apart measure ``omega + b_gyro`` at their
         mean stamp with variance ``imu_yaw_rate_sigma_radps² / n`` — the information of ``n``
         separate updates under the constant-rate model, for one filter update. The heading
-        (when enabled) is fused from the last calibrated sample.
+        (when enabled) is fused from the last sample, when it is calibrated.
         """
         if not samples:
             return False

@@ -292,6 +292,17 @@ class NavigatorNode:
         self._best_t = now
         self.controller.reset()
 
+    def _hold_or_abort(self, handle: GoalHandle, since_s: float, now: float, what: str,
+                       advice: str, reason: str) -> None:
+        """Hold still without a usable pose; abort the goal once that has lasted
+        ``nav.controller.lost_timeout_s`` since ``since_s``."""
+        self._hold(now)
+        lost_timeout = self.cfg.nav.controller.lost_timeout_s
+        if now - since_s > lost_timeout:
+            self._finish(handle, GoalState.ABORTED, LocalizationLostError(
+                f"{what} for {lost_timeout:g} s (nav.controller.lost_timeout_s): {advice}"),
+                reason)
+
     def _stop_motion(self) -> None:
         self.bus.publish(CMD_VEL_NAV, Twist(self.clock.now(), 0.0, 0.0, source="navigator"))
         self._sent_zero = True
@@ -492,13 +503,8 @@ class NavigatorNode:
         if pose is None or now - pose_msg.stamp > 1.0:  # type: ignore[union-attr]
             if self._no_pose_since is None:
                 self._no_pose_since = now
-            self._hold(now)
-            lost_timeout = self.cfg.nav.controller.lost_timeout_s
-            if now - self._no_pose_since > lost_timeout:
-                self._finish(handle, GoalState.ABORTED, LocalizationLostError(
-                    f"no pose in map for {lost_timeout:g} s "
-                    f"(nav.controller.lost_timeout_s): localisation is not running"),
-                    "no pose")
+            self._hold_or_abort(handle, self._no_pose_since, now, "no pose in map",
+                                "localisation is not running", "no pose")
             return
         self._no_pose_since = None
         loc = self.bus.latest(LOCALIZATION)
@@ -506,13 +512,8 @@ class NavigatorNode:
             if self._lost_since is None:
                 self._lost_since = now
                 self._event("nav.holding", handle, reason="localisation lost")
-            self._hold(now)
-            lost_timeout = self.cfg.nav.controller.lost_timeout_s
-            if now - self._lost_since > lost_timeout:
-                self._finish(handle, GoalState.ABORTED, LocalizationLostError(
-                    f"localisation lost for {lost_timeout:g} s "
-                    f"(nav.controller.lost_timeout_s): set the pose on the dashboard"),
-                    "lost")
+            self._hold_or_abort(handle, self._lost_since, now, "localisation lost",
+                                "set the pose on the dashboard", "lost")
             return
         self._lost_since = None
         # Planning.
