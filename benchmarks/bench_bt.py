@@ -23,14 +23,14 @@ import statistics
 import time
 from typing import Any
 
-from curio.bench import BenchOptions
 from curio.bt.paths import PathManager, Waypoint
 from curio.bt.runner import build_tree_runner
-from curio.config import BtConfig, TourStopConfig
-from curio.geometry import Pose2D
-from curio.messages import BatteryState, BlockedState, OperatorCommand
+from curio.commands.bench import BenchOptions
+from curio.core.config import BtConfig, TourStopConfig
+from curio.core.geometry import Pose2D
+from curio.core.messages import BatteryState, BlockedState, OperatorCommand
+from curio.core.topics import BATTERY, BLOCKED, EVENTS, OPERATOR, PROGRESS, STATUS, TREE, make_bus
 from curio.nav.api import GoalHandle, GoalState
-from curio.topics import BATTERY, BLOCKED, EVENTS, OPERATOR, PROGRESS, STATUS, TREE, make_bus
 
 
 class _Clock:

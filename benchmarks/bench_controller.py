@@ -30,13 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from curio.bench import BenchOptions
-from curio.config import REPO_ROOT, Config, load_config
-from curio.geometry import Pose2D, wrap_angle
+from curio.commands.bench import BenchOptions
+from curio.core.config import REPO_ROOT, Config, load_config
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.estimation.maps import OccupancyGrid, load_map
 from curio.nav.api import NavError
 from curio.nav.controller import ControlStatus, LocalController
 from curio.nav.costmap import Costmap
-from curio.nav.maps import OccupancyGrid, load_map
 from curio.nav.planner import GlobalPlanner
 
 
@@ -114,7 +114,7 @@ async def _stack_cpu(cfg: Config, seed: int) -> dict[str, Any]:
     from curio.nav.costmap import CostmapNode
     from curio.nav.navigator import NavigatorNode
     from curio.nav.obstacles import ObstacleNode
-    from curio.nav.safety import SafetyStage
+    from curio.safety.stage import SafetyStage
     from curio.scenarios import get_scenario
     from curio.scenarios.base import ScenarioArgs, run_scenario
 

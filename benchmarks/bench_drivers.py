@@ -32,16 +32,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from curio.bench import BenchOptions
-from curio.clock import RealClock
-from curio.config import REPO_ROOT, Config, load_config
+from curio.commands.bench import BenchOptions
+from curio.core.clock import RealClock
+from curio.core.config import REPO_ROOT, Config, load_config
+from curio.core.messages import Twist
+from curio.core.topics import CMD_VEL, IMU, SCAN, WHEELS, make_bus
 from curio.drivers.arduino.driver import ArduinoBase
 from curio.drivers.bno055.driver import Bno055Driver
 from curio.drivers.bno055.fake_bus import FakeBno055Bus
 from curio.drivers.rplidar.driver import RplidarDriver
-from curio.messages import Twist
 from curio.sim.world import World
-from curio.topics import CMD_VEL, IMU, SCAN, WHEELS, make_bus
 
 WARMUP_S = 3.0
 

@@ -26,17 +26,17 @@ from typing import Any
 
 import numpy as np
 
-from curio.bench import BenchOptions
-from curio.clock import SimClock, process_cpu_time, wall_perf_counter
-from curio.config import Config, load_config
+from curio.commands.bench import BenchOptions
+from curio.core.clock import SimClock, process_cpu_time, wall_perf_counter
+from curio.core.config import Config, load_config
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.messages import WheelEncoders
+from curio.core.topics import LOCALIZATION, POSE, SERVO_CMD, make_bus
 from curio.drivers.kinematics import twist_to_servo_command
 from curio.drivers.odometry import WheelOdometry
-from curio.geometry import Pose2D, wrap_angle
-from curio.messages import WheelEncoders
-from curio.nav.ekf import OdomEkf
-from curio.nav.localization import Localizer, LocalizerNode
+from curio.estimation.ekf import OdomEkf
+from curio.estimation.localization import Localizer, LocalizerNode
 from curio.sim.world import World
-from curio.topics import LOCALIZATION, POSE, SERVO_CMD, make_bus
 
 # A tour of the default building (map metres): lobby → gallery → lab → meeting room → library
 # → back to the lobby, through the doors and the corridor.
@@ -177,7 +177,7 @@ def tracking(opts: BenchOptions) -> dict[str, Any]:
 
 def _random_free_pose(world: World, rng: np.random.Generator, away_from: Pose2D) -> Pose2D:
     grid = world.grid
-    from curio.nav.localization import DistanceField
+    from curio.estimation.localization import DistanceField
 
     field = DistanceField(grid, 2.0)
     ok = grid.free_mask() & (field.dist_m >= 0.6)

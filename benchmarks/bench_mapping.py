@@ -3,7 +3,7 @@
 1. **Record** one loop of the tour of the default building (``sim.world``) in the simulator with
    the ``cfg.sim.noise`` defaults: wheel odometry through the EKF (with the gyro) and the lidar,
    the rover steered along the tour on its true pose (a person driving it by teleop).
-2. **Build** the map from the recording with :func:`curio.nav.mapping.build_map_from_log`
+2. **Build** the map from the recording with :func:`curio.estimation.mapping.build_map_from_log`
    (scan matching, loop closure), timed on the wall clock: ``rtf`` = recorded seconds / build
    seconds (target ≥ 5).
 3. **Compare** with the world's occupancy grid, cell by cell in ``map``:
@@ -30,19 +30,19 @@ import numpy as np
 from scipy import ndimage
 
 from benchmarks.bench_localization import TOUR
-from curio.bench import BenchOptions
-from curio.clock import SimClock, wall_perf_counter
-from curio.config import REPO_ROOT, load_config
+from curio.commands.bench import BenchOptions
+from curio.core.clock import SimClock, wall_perf_counter
+from curio.core.config import REPO_ROOT, load_config
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.messages import WheelEncoders
+from curio.core.topics import SERVO_CMD, make_bus
 from curio.drivers.kinematics import twist_to_servo_command
 from curio.drivers.odometry import WheelOdometry
-from curio.geometry import Pose2D, wrap_angle
-from curio.messages import WheelEncoders
-from curio.nav.carmen import LogScan, read_carmen
-from curio.nav.ekf import OdomEkf
-from curio.nav.mapping import MapperParams, build_map_from_log
-from curio.nav.maps import OccupancyGrid
+from curio.estimation.carmen import LogScan, read_carmen
+from curio.estimation.ekf import OdomEkf
+from curio.estimation.mapping import MapperParams, build_map_from_log
+from curio.estimation.maps import OccupancyGrid
 from curio.sim.world import World
-from curio.topics import SERVO_CMD, make_bus
 
 MIT_LOG = REPO_ROOT.parent / "shared" / "datasets" / "mit-csail.clf"
 

@@ -46,10 +46,10 @@ from typing import Any
 
 import numpy as np
 
-from curio.bench import BenchOptions
-from curio.config import REPO_ROOT, Config, load_config
-from curio.geometry import Pose2D
-from curio.nav.maps import OccupancyGrid, save_map
+from curio.commands.bench import BenchOptions
+from curio.core.config import REPO_ROOT, Config, load_config
+from curio.core.geometry import Pose2D
+from curio.estimation.maps import OccupancyGrid, save_map
 
 SHARED_MAPS = REPO_ROOT.parent / "shared" / "maps"
 MAX_DISTANCE_M = 15.0

@@ -44,13 +44,13 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
-from curio.bench import BenchOptions
-from curio.clock import wall_perf_counter
-from curio.config import REPO_ROOT, load_config
-from curio.geometry import Pose2D
+from curio.commands.bench import BenchOptions
+from curio.core.clock import wall_perf_counter
+from curio.core.config import REPO_ROOT, load_config
+from curio.core.geometry import Pose2D
+from curio.estimation.maps import OccupancyGrid, load_map
 from curio.nav.api import NavError
 from curio.nav.costmap import Costmap
-from curio.nav.maps import OccupancyGrid, load_map
 from curio.nav.planner import GlobalPlanner, narrow_cost, traversal_lut
 
 DEFAULT_SIZE = 2000

@@ -4,7 +4,7 @@ What runs: the default world (``maps/curio_building.yaml`` or ``--map``), the si
 physics loop (``physics_rate_hz`` 50, with ``/ground_truth``), the lidar at 10 Hz with 360
 beams, the IMU at 100 Hz, wheel feedback at 30 Hz, the battery, and the simulated base
 receiving ``/cmd_vel`` at 10 Hz that drives the rover round a 1.5 m-radius circle in the lobby —
-all on one :class:`~curio.clock.SimClock` in one thread (one core).
+all on one :class:`~curio.core.clock.SimClock` in one thread (one core).
 
 Rows:
 
@@ -28,15 +28,15 @@ from typing import Any
 
 import numpy as np
 
-from curio.bench import BenchOptions
-from curio.bus import Bus
-from curio.clock import SimClock, process_cpu_time, wall_perf_counter
-from curio.config import REPO_ROOT, Config, load_config
-from curio.messages import Twist
+from curio.commands.bench import BenchOptions
+from curio.core.bus import Bus
+from curio.core.clock import SimClock, process_cpu_time, wall_perf_counter
+from curio.core.config import REPO_ROOT, Config, load_config
+from curio.core.messages import Twist
+from curio.core.topics import CMD_VEL, make_bus
 from curio.sim.raycast import naive_cast
 from curio.sim.wiring import SimBase, Simulator
 from curio.sim.world import World
-from curio.topics import CMD_VEL, make_bus
 
 
 def _config(opts: BenchOptions) -> Config:

@@ -18,9 +18,9 @@ import os
 import tempfile
 from typing import Any
 
-from curio.bench import BenchOptions
-from curio.clock import process_cpu_time, wall_perf_counter
-from curio.config import REPO_ROOT, load_config
+from curio.commands.bench import BenchOptions
+from curio.core.clock import process_cpu_time, wall_perf_counter
+from curio.core.config import REPO_ROOT, load_config
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, run_scenario
 

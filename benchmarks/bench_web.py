@@ -1,7 +1,7 @@
 """Dashboard cost: 10 WebSocket clients at 10 Hz against the whole app on the real clock.
 
 The subject is the complete application (simulator, estimation, navigation, behaviour tree,
-dashboard) on :class:`~curio.clock.RealClock`, driving path 2, with the dashboard on a loopback
+dashboard) on :class:`~curio.core.clock.RealClock`, driving path 2, with the dashboard on a loopback
 port. It runs twice for the same time: without clients, then with ``clients`` browsers'
 worth of WebSocket connections (each asks for ``rate_hz`` streams and reads every frame; they
 run in a separate process pinned to another core, so only the server's work is counted).
@@ -31,11 +31,11 @@ import aiohttp
 import numpy as np
 
 from curio.app import App
-from curio.bench import BenchOptions
-from curio.clock import RealClock, process_cpu_time, wall_perf_counter
-from curio.config import REPO_ROOT, load_config
-from curio.messages import OperatorCommand
-from curio.topics import OPERATOR
+from curio.commands.bench import BenchOptions
+from curio.core.clock import RealClock, process_cpu_time, wall_perf_counter
+from curio.core.config import REPO_ROOT, load_config
+from curio.core.messages import OperatorCommand
+from curio.core.topics import OPERATOR
 
 TICK_HZ = 20.0
 

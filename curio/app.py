@@ -2,7 +2,7 @@
 
 Each subsystem has one wiring function that constructs its parts by constructor injection and
 registers them here (``curio/sim/wiring.py``, ``curio/drivers/wiring.py``,
-``curio/nav/estimation.py``, ``curio/nav/stack.py``, ``curio/bt/wiring.py``,
+``curio/estimation/wiring.py``, ``curio/nav/wiring.py``, ``curio/bt/wiring.py``,
 ``curio/web/wiring.py``). The order of the calls below is the order of dependencies. Nothing
 is a module-level singleton: two ``App`` objects can run side by side (tests do).
 
@@ -19,11 +19,11 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import Config
-from curio.messages import Twist
-from curio.topics import CMD_VEL, make_bus
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import Config
+from curio.core.messages import Twist
+from curio.core.topics import CMD_VEL, make_bus
 
 __all__ = ["App", "Part"]
 
@@ -66,11 +66,11 @@ class App:
         self.lidar: Any = None
         self.imu: Any = None
         self.emulators: list[Any] = []
-        # Estimation (curio/nav/estimation.py)
+        # Estimation (curio/estimation/wiring.py)
         self.map_server: Any = None
         self.ekf: Any = None
         self.localizer: Any = None
-        # Navigation (curio/nav/stack.py)
+        # Navigation (curio/nav/wiring.py)
         self.costmap: Any = None
         self.planner: Any = None
         self.controller: Any = None
@@ -90,8 +90,8 @@ class App:
     def _build(self, web: bool | None) -> None:
         from curio.bt.wiring import build_behaviour
         from curio.drivers.wiring import build_drivers
-        from curio.nav.estimation import build_estimation
-        from curio.nav.stack import build_navigation
+        from curio.estimation.wiring import build_estimation
+        from curio.nav.wiring import build_navigation
         from curio.sim.wiring import build_sim
 
         build_sim(self)

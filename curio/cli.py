@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from curio.config import Config, ConfigError, dump_config, load_config
+from curio.core.config import Config, ConfigError, dump_config, load_config
 
 __all__ = ["main"]
 
@@ -162,7 +162,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from curio.app import App
-    from curio.clock import Clock, RealClock, SimClock
+    from curio.core.clock import Clock, RealClock, SimClock
 
     cfg = _load(args)
     clock: Clock
@@ -203,7 +203,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from curio.bench import BenchOptions, dumps, format_table, run_benchmark
+    from curio.commands.bench import BenchOptions, dumps, format_table, run_benchmark
 
     extra: dict[str, Any] = {}
     for item in args.extra:
@@ -235,9 +235,9 @@ def _delegate(command: str, rest: list[str]) -> int:
     import importlib
 
     module_name = {
-        "check": "curio.drivers.check",
-        "emulate": "curio.drivers.emulate",
-        "map": "curio.nav.mapcli",
+        "check": "curio.commands.check",
+        "emulate": "curio.commands.emulate",
+        "map": "curio.commands.map",
     }[command]
     try:
         module = importlib.import_module(module_name)

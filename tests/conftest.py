@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 from hypothesis import settings
 
-from curio.bus import Bus
-from curio.clock import SimClock
-from curio.config import REPO_ROOT, Config, load_config
-from curio.topics import make_bus
+from curio.core.bus import Bus
+from curio.core.clock import SimClock
+from curio.core.config import REPO_ROOT, Config, load_config
+from curio.core.topics import make_bus
 
 SHARED = REPO_ROOT.parent / "shared"
 

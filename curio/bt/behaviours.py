@@ -22,13 +22,13 @@ from typing import Any
 import py_trees
 from py_trees.common import Access, Status
 
-from curio.bus import Bus, Subscription
-from curio.clock import Clock
-from curio.config import BtConfig
-from curio.geometry import Pose2D
-from curio.messages import OperatorCommand
+from curio.core.bus import Bus, Subscription
+from curio.core.clock import Clock
+from curio.core.config import BtConfig
+from curio.core.geometry import Pose2D
+from curio.core.messages import OperatorCommand
+from curio.core.topics import BATTERY, BLOCKED, ESTOP, OPERATOR
 from curio.nav.api import GoalHandle, GoalState
-from curio.topics import BATTERY, BLOCKED, ESTOP, OPERATOR
 
 from .follower import TOUR_ROUTE_ID, PathFollower, Route, StatusSink
 from .paths import HOME_PATH_ID, PathError, PathManager, format_xy

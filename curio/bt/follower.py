@@ -29,12 +29,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.geometry import Pose2D
-from curio.messages import Event, Progress, StatusText
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.geometry import Pose2D
+from curio.core.messages import Event, Progress, StatusText
+from curio.core.topics import EVENTS, PROGRESS, STATUS
 from curio.nav.api import GoalHandle, GoalState
-from curio.topics import EVENTS, PROGRESS, STATUS
 
 from .paths import HOME_PATH_ID, NamedPath, format_xy
 

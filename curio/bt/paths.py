@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from curio.config import PathConfig
-from curio.fileio import atomic_write_json
+from curio.core.config import PathConfig
+from curio.core.fileio import atomic_write_json
 
 __all__ = [
     "HOME_PATH_ID",

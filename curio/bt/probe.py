@@ -18,10 +18,10 @@ import logging
 from dataclasses import dataclass
 from typing import Any
 
-from curio.bus import Bus
-from curio.geometry import Pose2D
+from curio.core.bus import Bus
+from curio.core.geometry import Pose2D
+from curio.core.topics import POSE
 from curio.nav.api import NavError
-from curio.topics import POSE
 
 __all__ = ["ProbeResult", "WayProbe"]
 

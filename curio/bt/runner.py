@@ -2,7 +2,7 @@
 
 ``TreeRunner.run`` is the Part's coroutine: ``async for _ in clock.every(1 / tick_hz)`` it
 ticks the tree once (a tick never awaits), mirrors the follower on the blackboard and, when a
-node's status or a blackboard value changed, publishes a :class:`~curio.messages.TreeSnapshot`
+node's status or a blackboard value changed, publishes a :class:`~curio.core.messages.TreeSnapshot`
 on TREE. ``close()`` interrupts the tree (every running behaviour gets ``terminate(INVALID)``,
 which cancels its goal) and unregisters the blackboard clients.
 
@@ -20,11 +20,11 @@ import py_trees
 from py_trees.behaviour import Behaviour
 from py_trees.common import Status
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import BtConfig
-from curio.messages import Event, OperatorCommand, TreeSnapshot
-from curio.topics import EVENTS, TREE
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import BtConfig
+from curio.core.messages import Event, OperatorCommand, TreeSnapshot
+from curio.core.topics import EVENTS, TREE
 
 from .behaviours import BB_DEFAULTS, Follower2BB, Operator2BB, TreeContext
 from .follower import PathFollower, StatusSink

@@ -25,7 +25,7 @@ import py_trees
 from py_trees.behaviour import Behaviour
 from py_trees.common import ComparisonExpression, ParallelPolicy
 
-from curio.geometry import Pose2D
+from curio.core.geometry import Pose2D
 
 from .behaviours import (
     Ask4Help,
@@ -60,7 +60,7 @@ def _check(ctx: TreeContext, name: str, key: str, value: object,
 
 def tour_route_from_config(ctx_cfg: object) -> Route | None:
     """The tour (``bt.tour_stops``) as a route, or None without stops."""
-    from curio.config import BtConfig
+    from curio.core.config import BtConfig
 
     assert isinstance(ctx_cfg, BtConfig)
     if not ctx_cfg.tour_stops:

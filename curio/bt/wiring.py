@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from curio.clock import SimClock
-from curio.messages import Event
-from curio.topics import EVENTS
+from curio.core.clock import SimClock
+from curio.core.messages import Event
+from curio.core.topics import EVENTS
 
 from .paths import PathManager
 from .probe import WayProbe

@@ -1,7 +1,7 @@
 """Helpers shared by the device drivers: timed waits and fixed-rate loops on the injected clock,
 and the systemd readiness/watchdog notifier.
 
-The clock helpers use only the :class:`~curio.clock.Clock` protocol (``now``, ``sleep_until``),
+The clock helpers use only the :class:`~curio.core.clock.Clock` protocol (``now``, ``sleep_until``),
 so a driver works on the real clock on the rover and on the simulated clock in emulated mode.
 """
 
@@ -13,7 +13,7 @@ import socket
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from curio.clock import Clock
+from curio.core.clock import Clock
 
 __all__ = ["BytePacer", "SystemdNotifier", "wait_event"]
 
@@ -75,7 +75,7 @@ class SystemdNotifier:
         """Notify until cancelled (returns at once when not under systemd)."""
         if not self.enabled:
             return
-        from curio.topics import HEALTH
+        from curio.core.topics import HEALTH
 
         states: dict[str, str] = {}
         sub = self.bus.subscribe(HEALTH, maxsize=256)

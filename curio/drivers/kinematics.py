@@ -24,8 +24,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from curio.config import RobotConfig
-from curio.messages import ServoCommand
+from curio.core.config import RobotConfig
+from curio.core.messages import ServoCommand
 
 __all__ = [
     "DUTY_PER_RADPS",

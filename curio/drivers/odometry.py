@@ -27,12 +27,12 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import Config
-from curio.geometry import Pose2D, wrap_angle
-from curio.messages import DriverHealth, Odometry, WheelEncoders
-from curio.topics import HEALTH, SERVO_CMD, WHEEL_ODOM, WHEELS
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import Config
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.messages import DriverHealth, Odometry, WheelEncoders
+from curio.core.topics import HEALTH, SERVO_CMD, WHEEL_ODOM, WHEELS
 
 __all__ = ["EncoderFilter", "MidWheelOdometry", "OdomState", "WheelOdometry"]
 

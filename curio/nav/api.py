@@ -12,7 +12,7 @@ import enum
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from curio.geometry import Pose2D
+from curio.core.geometry import Pose2D
 
 __all__ = [
     "ControllerFailedError",

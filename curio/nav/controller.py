@@ -41,9 +41,9 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
-from curio.config import ControllerConfig, RobotConfig
-from curio.geometry import Pose2D, wrap_angle
-from curio.nav.safety import approach, arc_poses
+from curio.core.config import ControllerConfig, RobotConfig
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.safety.stage import approach, arc_poses
 
 __all__ = [
     "ControlOutput",

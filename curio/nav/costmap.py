@@ -2,7 +2,7 @@
 footprint inflation, and a rolling local window (Nav2 ``costmap_2d`` semantics).
 
 Costs are ``uint8`` on the static map's grid (same shape, resolution and origin; row 0 at the
-bottom, as :class:`~curio.nav.maps.OccupancyGrid`):
+bottom, as :class:`~curio.estimation.maps.OccupancyGrid`):
 
 * ``0`` free, ``1..252`` inflated (the exponential decay below), ``253`` inscribed (the rover's
   centre there means a certain collision), ``254`` lethal (an obstacle), ``255`` unknown.
@@ -39,14 +39,14 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import CostmapConfig, RobotConfig
-from curio.geometry import Pose2D, wrap_angle
-from curio.messages import GridMessage, LaserScan
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import CostmapConfig, RobotConfig
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.messages import GridMessage, LaserScan
+from curio.core.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
+from curio.estimation.maps import OccupancyGrid
 from curio.nav.costmap_kernels import trace_scan
-from curio.nav.maps import OccupancyGrid
-from curio.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
 
 __all__ = [
     "FREE_SPACE",

@@ -34,11 +34,21 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.messages import Event, Path, Twist
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import Event, Path, Twist
+from curio.core.topics import (
+    CMD_VEL_NAV,
+    ESTOP,
+    EVENTS,
+    LOCAL_PLAN,
+    LOCALIZATION,
+    OPERATOR,
+    PLAN,
+    POSE,
+)
 from curio.nav.api import (
     ControllerFailedError,
     GoalBlockedError,
@@ -54,7 +64,6 @@ from curio.nav.api import (
 )
 from curio.nav.controller import ControlStatus, LocalController
 from curio.nav.recovery import Recovery
-from curio.topics import CMD_VEL_NAV, ESTOP, EVENTS, LOCAL_PLAN, LOCALIZATION, OPERATOR, PLAN, POSE
 
 __all__ = ["InvalidGoalError", "NavigatorNode"]
 

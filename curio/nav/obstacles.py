@@ -32,13 +32,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import BlockedConfig, RobotConfig
-from curio.geometry import Pose2D
-from curio.messages import BlockedState, Event, LaserScan, Obstacles
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import BlockedConfig, RobotConfig
+from curio.core.geometry import Pose2D
+from curio.core.messages import BlockedState, Event, LaserScan, Obstacles
+from curio.core.topics import BLOCKED, EVENTS, OBSTACLES, ODOM, PLAN, POSE, SCAN, WHEEL_ODOM
 from curio.nav.obstacles_kernel import extract_obstacles
-from curio.topics import BLOCKED, EVENTS, OBSTACLES, ODOM, PLAN, POSE, SCAN, WHEEL_ODOM
 
 if TYPE_CHECKING:
     from curio.app import App

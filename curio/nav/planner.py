@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from curio.config import PlannerConfig
-from curio.geometry import Pose2D, wrap_angle
+from curio.core.config import PlannerConfig
+from curio.core.geometry import Pose2D, wrap_angle
 from curio.nav import planner_kernels as kern
 from curio.nav.api import (
     GoalBlockedError,

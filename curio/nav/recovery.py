@@ -27,12 +27,12 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import RecoveryConfig, RobotConfig
-from curio.geometry import Pose2D, wrap_angle
-from curio.messages import Event, Twist
-from curio.topics import CMD_VEL_NAV, EVENTS, ODOM, POSE, SCAN
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import RecoveryConfig, RobotConfig
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.messages import Event, Twist
+from curio.core.topics import CMD_VEL_NAV, EVENTS, ODOM, POSE, SCAN
 
 __all__ = ["Recovery", "RecoveryOutcome", "points_behind_distance_m"]
 

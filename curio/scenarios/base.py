@@ -4,7 +4,8 @@ A scenario is a class with a ``name``, an optional :meth:`Scenario.configure` th
 config, and :meth:`Scenario.run`, an async script that schedules timed events (close a door,
 place an obstacle, teleport the rover, press a dashboard button), waits for conditions and
 records checks. :func:`run_scenario` builds the :class:`~curio.app.App` on a
-:class:`~curio.clock.SimClock`, runs the script, and returns the report of DESIGN.md's contract.
+:class:`~curio.core.clock.SimClock`, runs the script, and returns the report of DESIGN.md's
+contract.
 
 Report fields: ``scenario``, ``seed``, ``success``, ``sim_time_s``, ``wall_time_s``,
 ``goals_reached``, ``goals_total``, ``collisions``, ``path_length_m`` (ground-truth distance
@@ -27,12 +28,12 @@ from pathlib import Path
 from typing import Any
 
 from curio.app import App
-from curio.clock import SimClock, wall_perf_counter
-from curio.config import Config
-from curio.fileio import atomic_write_json
-from curio.geometry import Pose2D
-from curio.messages import Event, OperatorAction, OperatorCommand, PoseWithCovariance
-from curio.topics import EVENTS, GROUND_TRUTH, OPERATOR, POSE
+from curio.core.clock import SimClock, wall_perf_counter
+from curio.core.config import Config
+from curio.core.fileio import atomic_write_json
+from curio.core.geometry import Pose2D
+from curio.core.messages import Event, OperatorAction, OperatorCommand, PoseWithCovariance
+from curio.core.topics import EVENTS, GROUND_TRUTH, OPERATOR, POSE
 
 __all__ = ["Scenario", "ScenarioArgs", "ScenarioContext", "ScenarioFailed", "run_scenario"]
 

@@ -22,11 +22,11 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from curio.config import Config, TourStopConfig
-from curio.geometry import Pose2D
-from curio.messages import Event
+from curio.core.config import Config, TourStopConfig
+from curio.core.geometry import Pose2D
+from curio.core.messages import Event
+from curio.core.topics import EVENTS, STATUS
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, ScenarioFailed
-from curio.topics import EVENTS, STATUS
 
 __all__ = ["BlockedDoorScenario"]
 

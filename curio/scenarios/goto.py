@@ -25,12 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from curio.config import Config
-from curio.geometry import Pose2D
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.topics import PLAN, POSE
 from curio.nav.api import GoalState
 from curio.nav.planner import path_length_m
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, ScenarioFailed
-from curio.topics import PLAN, POSE
 
 __all__ = ["GotoScenario", "free_poses", "pick_free_pose"]
 
@@ -41,8 +41,8 @@ def free_poses(cfg: Config, clearance_m: float = 0.15) -> tuple[np.ndarray, Any]
     Uses the navigation costmap of ``sim.world`` (its inflation), so a pose listed here can be
     planned to: the centre cost is below the inscribed cost by a margin.
     """
+    from curio.estimation.maps import load_map
     from curio.nav.costmap import Costmap
-    from curio.nav.maps import load_map
 
     grid = load_map(cfg.resolve(cfg.sim.world))
     cm = Costmap(grid, cfg.robot, cfg.nav.costmap)
@@ -91,8 +91,8 @@ class GotoScenario(Scenario):
         sim = cfg.sim.model_copy()
         start = Pose2D(*(sim.start if sim.start is not None else cfg.robot.home))
         if args.start is None:
+            from curio.estimation.maps import load_map
             from curio.nav.costmap import Costmap
-            from curio.nav.maps import load_map
 
             grid = load_map(cfg.resolve(sim.world))
             cm = Costmap(grid, cfg.robot, cfg.nav.costmap)

@@ -12,11 +12,11 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.messages import Event
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import Event
+from curio.core.topics import EVENTS
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, ScenarioFailed
-from curio.topics import EVENTS
 
 __all__ = ["GuidedTourScenario"]
 

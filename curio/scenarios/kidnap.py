@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from curio.config import Config, TourStopConfig
-from curio.geometry import Pose2D, wrap_angle
+from curio.core.config import Config, TourStopConfig
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.topics import LOCALIZATION, POSE
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext
-from curio.topics import LOCALIZATION, POSE
 
 __all__ = ["KidnapScenario"]
 
@@ -52,7 +52,7 @@ class KidnapScenario(Scenario):
 
     @staticmethod
     def _target(ctx: ScenarioContext, rng: np.random.Generator, away: Pose2D) -> Pose2D:
-        from curio.nav.localization import DistanceField
+        from curio.estimation.localization import DistanceField
 
         world = ctx.world
         grid = world.grid

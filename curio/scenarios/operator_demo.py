@@ -37,11 +37,11 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.messages import Event, Progress, StatusText
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import Event, Progress, StatusText
+from curio.core.topics import EVENTS, PROGRESS, STATUS
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, ScenarioFailed
-from curio.topics import EVENTS, PROGRESS, STATUS
 
 __all__ = ["OperatorDemoScenario"]
 

@@ -28,12 +28,12 @@ from __future__ import annotations
 
 import math
 
-from curio.bus import Topic
-from curio.config import Config
-from curio.geometry import Pose2D, angle_diff
-from curio.messages import Odometry, Twist
+from curio.core.bus import Topic
+from curio.core.config import Config
+from curio.core.geometry import Pose2D, angle_diff
+from curio.core.messages import Odometry, Twist
+from curio.core.topics import CMD_VEL_NAV, GROUND_TRUTH, ODOM, WHEEL_ODOM
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, ScenarioFailed
-from curio.topics import CMD_VEL_NAV, GROUND_TRUTH, ODOM, WHEEL_ODOM
 
 __all__ = ["SquareScenario"]
 

@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from curio.config import Config, PathConfig
-from curio.geometry import Pose2D
+from curio.core.config import Config, PathConfig
+from curio.core.geometry import Pose2D
 from curio.nav.api import GoalHandle, GoalState
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, ScenarioFailed
 

@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
-from curio.nav.maps import OccupancyGrid
+from curio.estimation.maps import OccupancyGrid
 from curio.sim.raycast_kernel import cast_beams
 
 __all__ = ["GridRaycaster", "cast_circles", "cast_segments", "naive_cast"]

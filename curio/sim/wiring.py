@@ -19,11 +19,10 @@ import logging
 from collections.abc import AsyncIterator
 from typing import TYPE_CHECKING
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import Config
-from curio.drivers.kinematics import twist_to_servo_command
-from curio.messages import (
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import Config
+from curio.core.messages import (
     BatteryState,
     DriverHealth,
     Event,
@@ -32,8 +31,7 @@ from curio.messages import (
     Twist,
     WheelEncoders,
 )
-from curio.sim.world import World
-from curio.topics import (
+from curio.core.topics import (
     BATTERY,
     CMD_VEL,
     EVENTS,
@@ -44,6 +42,8 @@ from curio.topics import (
     SERVO_CMD,
     WHEELS,
 )
+from curio.drivers.kinematics import twist_to_servo_command
+from curio.sim.world import World
 
 if TYPE_CHECKING:
     from curio.app import App

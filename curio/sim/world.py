@@ -51,7 +51,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from curio.config import Config
+from curio.core.config import Config
+from curio.core.geometry import Pose2D, wrap_angle, yaw_to_quat
+from curio.core.messages import Imu, LaserScan, ServoCommand
 from curio.drivers.kinematics import (
     STEER_CORNERS,
     WHEEL_SIDES,
@@ -59,9 +61,7 @@ from curio.drivers.kinematics import (
     steer_position_to_angle,
     wheel_geometry,
 )
-from curio.geometry import Pose2D, wrap_angle, yaw_to_quat
-from curio.messages import Imu, LaserScan, ServoCommand
-from curio.nav.maps import OccupancyGrid, load_map
+from curio.estimation.maps import OccupancyGrid, load_map
 from curio.sim.objects import (
     Box,
     Door,

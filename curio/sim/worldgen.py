@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from curio.fileio import atomic_write_text
-from curio.geometry import Pose2D
-from curio.nav.maps import OccupancyGrid, save_map
+from curio.core.fileio import atomic_write_text
+from curio.core.geometry import Pose2D
+from curio.estimation.maps import OccupancyGrid, save_map
 
 __all__ = ["DOORS", "TOUR_STOPS", "build_grid", "generate"]
 

@@ -31,8 +31,8 @@ from typing import Any, get_args
 
 from aiohttp import web
 
-from curio.geometry import Pose2D
-from curio.messages import OperatorAction, OperatorCommand
+from curio.core.geometry import Pose2D
+from curio.core.messages import OperatorAction, OperatorCommand
 from curio.web.encode import to_json
 from curio.web.hub import CommandError, Hub, parse_json_object, path_to_json
 

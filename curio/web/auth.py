@@ -14,7 +14,7 @@ from urllib.parse import urlsplit
 
 from aiohttp import web
 
-from curio.fileio import atomic_write_text
+from curio.core.fileio import atomic_write_text
 
 __all__ = ["RateLimiter", "check_origin", "load_or_create_token", "request_token"]
 

@@ -31,8 +31,8 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
-from curio.geometry import Pose2D
-from curio.messages import GridMessage, LaserScan, Odometry, Path, PoseWithCovariance
+from curio.core.geometry import Pose2D
+from curio.core.messages import GridMessage, LaserScan, Odometry, Path, PoseWithCovariance
 
 __all__ = [
     "FRAME_LOCAL_PLAN",

@@ -14,7 +14,7 @@ Design (after rosboard's per-client throttling, made safe for a robot):
   e-stop, help state, paths, grids, tree, health, recent events marked as history) and the
   latest binary frames. Commands are never queued or replayed: each carries a ``request_id``
   and a duplicate id is acknowledged without being published again.
-* Teleop: ``teleop`` messages publish :data:`~curio.topics.CMD_VEL_TELEOP` (source ``web``); a
+* Teleop: ``teleop`` messages publish :data:`~curio.core.topics.CMD_VEL_TELEOP` (source ``web``); a
   zero velocity is published when the teleop client disconnects or goes silent for
   ``cfg.nav.safety.teleop_timeout_s`` (the safety stage also has its own watchdog).
 
@@ -36,11 +36,11 @@ from typing import Any
 
 from aiohttp import WSCloseCode, web
 
-from curio.bus import Bus, Subscription, Topic
-from curio.clock import Clock
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.messages import (
+from curio.core.bus import Bus, Subscription, Topic
+from curio.core.clock import Clock
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import (
     BatteryState,
     BlockedState,
     DriverHealth,
@@ -59,7 +59,7 @@ from curio.messages import (
     TreeSnapshot,
     Twist,
 )
-from curio.topics import (
+from curio.core.topics import (
     BATTERY,
     BLOCKED,
     CMD_VEL,

@@ -33,10 +33,10 @@ from typing import Any
 
 from aiohttp import WSCloseCode, WSMsgType, web
 
-from curio.bus import Bus
-from curio.clock import Clock, wall_perf_counter
-from curio.config import Config
-from curio.topics import HEALTH
+from curio.core.bus import Bus
+from curio.core.clock import Clock, wall_perf_counter
+from curio.core.config import Config
+from curio.core.topics import HEALTH
 from curio.web.api import build_command, http_error, parse_pose, routes
 from curio.web.auth import RateLimiter, check_origin, request_token, token_matches
 from curio.web.hub import CLIENT_OPS, Client, CommandError, Hub, parse_json_object

@@ -15,12 +15,12 @@ import pytest
 import serial
 import serial_asyncio_fast
 
-from curio.clock import RealClock, SimClock, wall_sleep
-from curio.config import ArduinoConfig, RobotConfig
+from curio.core.clock import RealClock, SimClock, wall_sleep
+from curio.core.config import ArduinoConfig, RobotConfig
+from curio.core.messages import Twist
+from curio.core.topics import CMD_VEL, make_bus
 from curio.drivers.arduino import ArduinoBase, ArduinoEmulator
 from curio.drivers.arduino import protocol as p
-from curio.messages import Twist
-from curio.topics import CMD_VEL, make_bus
 from tests.integration.test_arduino_emulator import FAST, make_rig
 from tests.integration.test_arduino_fakes import FakeWorld
 

@@ -12,13 +12,13 @@ from dataclasses import dataclass
 
 import pytest
 
-from curio.bus import Bus
-from curio.clock import RealClock
-from curio.config import ArduinoConfig, RobotConfig
+from curio.core.bus import Bus
+from curio.core.clock import RealClock
+from curio.core.config import ArduinoConfig, RobotConfig
+from curio.core.messages import EStop, Twist
+from curio.core.topics import BATTERY, CMD_VEL, ESTOP, HEALTH, SERVO_CMD, WHEELS, make_bus
 from curio.drivers.arduino import ArduinoBase, ArduinoEmulator
 from curio.drivers.arduino import protocol as p
-from curio.messages import EStop, Twist
-from curio.topics import BATTERY, CMD_VEL, ESTOP, HEALTH, SERVO_CMD, WHEELS, make_bus
 from tests.integration.test_arduino_fakes import FakeWorld
 
 # Short timeouts, with margins for a loaded CI machine (the loop may stall ~100 ms).
@@ -255,7 +255,7 @@ async def test_missing_port_says_what_to_check() -> None:
 async def test_emulated_mode_on_a_simulated_clock() -> None:
     """As ``drivers.mode = "emulated"`` runs it: virtual time as fast as the CPU allows, real
     pty I/O in between (the clock grants a few idle I/O polls before moving time on)."""
-    from curio.clock import SimClock
+    from curio.core.clock import SimClock
 
     clock = SimClock(settle_polls=3)
     bus = make_bus()
@@ -340,7 +340,7 @@ async def test_port_held_by_another_program() -> None:
 
 
 async def test_rc_transmitter_teleop() -> None:
-    from curio.topics import CMD_VEL_TELEOP
+    from curio.core.topics import CMD_VEL_TELEOP
 
     cfg = FAST.model_copy(update={"rc_enabled": True})
     async with make_rig(cfg) as rig:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from curio.core.messages import ServoCommand
 from curio.drivers.arduino.lx16a import reading_from_count
-from curio.messages import ServoCommand
 
 COUNTS_PER_S_PER_DUTY = 1.5  # duty 1000 → one turn (1500 counts) per second
 

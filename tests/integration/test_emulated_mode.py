@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from curio.app import App
-from curio.clock import SimClock
-from curio.config import load_config
-from curio.messages import Twist
-from curio.topics import CMD_VEL, CMD_VEL_TELEOP, EVENTS, HEALTH, IMU, SCAN, WHEELS
+from curio.core.clock import SimClock
+from curio.core.config import load_config
+from curio.core.messages import Twist
+from curio.core.topics import CMD_VEL, CMD_VEL_TELEOP, EVENTS, HEALTH, IMU, SCAN, WHEELS
 
 pytestmark = [pytest.mark.timeout(120), pytest.mark.slow]
 

@@ -9,17 +9,17 @@ from typing import Any
 
 import numpy as np
 
-from curio.clock import RealClock, SimClock, wall_sleep
-from curio.config import Config, LocalizationConfig
-from curio.geometry import Pose2D
-from curio.messages import LaserScan, Odometry
-from curio.nav.estimation import build_estimation
-from curio.nav.localization import Localizer, LocalizerNode
-from curio.nav.mapping import MappingNode
-from curio.nav.maps import OccupancyGrid
+from curio.core.clock import RealClock, SimClock, wall_sleep
+from curio.core.config import Config, LocalizationConfig
+from curio.core.geometry import Pose2D
+from curio.core.messages import LaserScan, Odometry
+from curio.core.topics import LOCALIZATION, MAP, ODOM, POSE, SCAN, WHEEL_ODOM, make_bus
+from curio.estimation.localization import Localizer, LocalizerNode
+from curio.estimation.mapping import MappingNode
+from curio.estimation.maps import OccupancyGrid
+from curio.estimation.wiring import build_estimation
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, run_scenario
-from curio.topics import LOCALIZATION, MAP, ODOM, POSE, SCAN, WHEEL_ODOM, make_bus
 
 
 class FakeApp:
@@ -70,10 +70,10 @@ async def test_relay_publishes_map_odom_and_pose(cfg: Config, shared_maps: Path)
 
 async def test_ekf_and_localizer_track_a_drive_on_the_bus(cfg: Config) -> None:
     """WHEEL_ODOM (drifting) + IMU + SCAN in; POSE out, time-stamped like the odometry."""
-    from curio.geometry import yaw_to_quat
-    from curio.messages import Imu
-    from curio.nav.maps import save_map
-    from curio.topics import IMU, MAP_TO_ODOM, SCAN
+    from curio.core.geometry import yaw_to_quat
+    from curio.core.messages import Imu
+    from curio.core.topics import IMU, MAP_TO_ODOM, SCAN
+    from curio.estimation.maps import save_map
     from tests.unit.test_localization_helpers import cast_scan, room_grid
 
     grid = room_grid()
@@ -121,9 +121,9 @@ async def test_ekf_and_localizer_track_a_drive_on_the_bus(cfg: Config) -> None:
 async def test_initial_pose_sets_the_pose_and_a_huge_covariance_starts_a_global_search(
         cfg: Config) -> None:
     """INITIAL_POSE from the dashboard/CLI: a pose, or (std > global_std_xy_m) 'find me'."""
-    from curio.messages import PoseWithCovariance
-    from curio.nav.maps import save_map
-    from curio.topics import INITIAL_POSE, SCAN
+    from curio.core.messages import PoseWithCovariance
+    from curio.core.topics import INITIAL_POSE, SCAN
+    from curio.estimation.maps import save_map
     from tests.unit.test_localization_helpers import cast_scan, room_grid
 
     grid = room_grid()
@@ -168,8 +168,8 @@ async def test_initial_pose_sets_the_pose_and_a_huge_covariance_starts_a_global_
 
 async def test_mapping_mode_builds_publishes_and_saves_a_map(cfg: Config) -> None:
     """localization.mode = "map": drive through the room; MAP grows; the map is saved."""
-    from curio.nav.maps import load_map
-    from curio.topics import SCAN
+    from curio.core.topics import SCAN
+    from curio.estimation.maps import load_map
     from tests.unit.test_localization_helpers import cast_scan, room_grid
 
     grid = room_grid()

@@ -5,10 +5,10 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
-from curio.config import REPO_ROOT
-from curio.nav.carmen import read_run
-from curio.nav.mapcli import main as map_main
-from curio.nav.maps import load_map
+from curio.commands.map import main as map_main
+from curio.core.config import REPO_ROOT
+from curio.estimation.carmen import read_run
+from curio.estimation.maps import load_map
 
 
 def test_record_then_build(tmp_path: Path) -> None:

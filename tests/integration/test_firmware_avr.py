@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from curio.config import REPO_ROOT
+from curio.core.config import REPO_ROOT
 
 ARDUINO_MK = Path("/usr/share/arduino/Arduino.mk")
 

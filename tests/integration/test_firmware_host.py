@@ -20,13 +20,13 @@ from pathlib import Path
 import pytest
 import serial
 
-from curio.bus import Bus
-from curio.clock import RealClock, wall_perf_counter
-from curio.config import REPO_ROOT, ArduinoConfig, RobotConfig
+from curio.core.bus import Bus
+from curio.core.clock import RealClock, wall_perf_counter
+from curio.core.config import REPO_ROOT, ArduinoConfig, RobotConfig
+from curio.core.messages import Twist
+from curio.core.topics import CMD_VEL, WHEELS, make_bus
 from curio.drivers.arduino import ArduinoBase, ArduinoEmulator
 from curio.drivers.arduino import protocol as p
-from curio.messages import Twist
-from curio.topics import CMD_VEL, WHEELS, make_bus
 from tests.integration.test_arduino_fakes import FakeWorld
 
 FIRMWARE = REPO_ROOT / "firmware"

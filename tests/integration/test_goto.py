@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from curio.config import REPO_ROOT, Config, load_config
-from curio.geometry import Pose2D
-from curio.nav.maps import OccupancyGrid, save_map
+from curio.core.config import REPO_ROOT, Config, load_config
+from curio.core.geometry import Pose2D
+from curio.estimation.maps import OccupancyGrid, save_map
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, run_scenario
 

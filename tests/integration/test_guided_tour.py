@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from curio.config import Config, TourStopConfig
+from curio.core.config import Config, TourStopConfig
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, ScenarioFailed, run_scenario
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from curio.config import Config
+from curio.core.config import Config
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, run_scenario
 

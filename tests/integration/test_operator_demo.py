@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from curio.config import REPO_ROOT, load_config
+from curio.core.config import REPO_ROOT, load_config
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, run_scenario
 

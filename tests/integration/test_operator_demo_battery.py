@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from curio.config import REPO_ROOT, Config, TourStopConfig, load_config
-from curio.messages import Event
+from curio.core.config import REPO_ROOT, Config, TourStopConfig, load_config
+from curio.core.messages import Event
+from curio.core.topics import EVENTS
 from curio.scenarios.base import (
     Scenario,
     ScenarioArgs,
@@ -16,7 +17,6 @@ from curio.scenarios.base import (
     ScenarioFailed,
     run_scenario,
 )
-from curio.topics import EVENTS
 
 
 class LowBatteryTour(Scenario):

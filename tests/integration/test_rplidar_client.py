@@ -17,9 +17,9 @@ import pytest
 import rplidar  # rplidar-roboticia, in the `test` extra
 import serial.serialposix
 
-from curio.clock import RealClock
+from curio.core.clock import RealClock
+from curio.core.messages import LaserScan
 from curio.drivers.rplidar.emulator import RplidarEmulator
-from curio.messages import LaserScan
 
 
 def wall_ranges(angles_rad: np.ndarray) -> np.ndarray:

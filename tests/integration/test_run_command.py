@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 
 from curio.app import App
-from curio.clock import SimClock
-from curio.config import REPO_ROOT, Config
-from curio.messages import Twist
-from curio.topics import CMD_VEL, CMD_VEL_TELEOP, SERVO_CMD
+from curio.core.clock import SimClock
+from curio.core.config import REPO_ROOT, Config
+from curio.core.messages import Twist
+from curio.core.topics import CMD_VEL, CMD_VEL_TELEOP, SERVO_CMD
 
 
 async def test_stop_sends_zero_velocity_and_stops_the_wheels(cfg: Config) -> None:

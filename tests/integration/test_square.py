@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from curio.config import Config
+from curio.core.config import Config
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, run_scenario
 

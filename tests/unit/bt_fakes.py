@@ -8,10 +8,10 @@ from typing import Any
 from curio.bt.paths import PathManager
 from curio.bt.runner import TreeRunner, build_tree_runner
 from curio.bt.speech import Speaker
-from curio.bus import Bus, Subscription
-from curio.config import BtConfig
-from curio.geometry import Pose2D
-from curio.messages import (
+from curio.core.bus import Bus, Subscription
+from curio.core.config import BtConfig
+from curio.core.geometry import Pose2D
+from curio.core.messages import (
     BatteryState,
     BlockedState,
     EStop,
@@ -20,8 +20,8 @@ from curio.messages import (
     Progress,
     StatusText,
 )
+from curio.core.topics import BATTERY, BLOCKED, ESTOP, EVENTS, OPERATOR, PROGRESS, STATUS, make_bus
 from curio.nav.api import GoalHandle, GoalState, NavError, NoPathError
-from curio.topics import BATTERY, BLOCKED, ESTOP, EVENTS, OPERATOR, PROGRESS, STATUS, make_bus
 
 
 class ManualClock:

@@ -14,15 +14,15 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from curio.bus import Bus
-from curio.clock import SimClock
-from curio.config import ImuConfig
+from curio.core.bus import Bus
+from curio.core.clock import SimClock
+from curio.core.config import ImuConfig
+from curio.core.geometry import quat_to_yaw, yaw_to_quat
+from curio.core.messages import DriverHealth, Imu
+from curio.core.topics import EVENTS, HEALTH, IMU, make_bus
 from curio.drivers.bno055 import registers as r
 from curio.drivers.bno055.driver import Bno055Driver
 from curio.drivers.bno055.fake_bus import FakeBno055Bus
-from curio.geometry import quat_to_yaw, yaw_to_quat
-from curio.messages import DriverHealth, Imu
-from curio.topics import EVENTS, HEALTH, IMU, make_bus
 
 
 def truth(t: float) -> Imu:
@@ -277,7 +277,7 @@ async def test_chip_reset_is_reinitialised(tmp_path: Path) -> None:
 
 async def test_threaded_io_on_real_clock(tmp_path: Path) -> None:
     """The real configuration: bus calls in a worker thread, wall-clock time."""
-    from curio.clock import RealClock
+    from curio.core.clock import RealClock
 
     clock = RealClock()
     bus = make_bus()

@@ -10,8 +10,8 @@ import pytest
 from py_trees.common import Status
 
 from curio.bt.paths import Waypoint
-from curio.config import BtConfig
-from curio.topics import TREE
+from curio.core.config import BtConfig
+from curio.core.topics import TREE
 
 from .bt_fakes import make_harness
 
@@ -162,7 +162,7 @@ def test_cancel_stops_the_route() -> None:
 
 
 def test_dashboard_goal_interrupts_the_path_and_idle_reports_it() -> None:
-    from curio.geometry import Pose2D
+    from curio.core.geometry import Pose2D
 
     h = make_harness()
     start_path(h, 2)
@@ -271,7 +271,7 @@ def test_resume_when_not_paused_is_answered() -> None:
 
 
 def test_goto_while_paused_is_cancelled_with_a_message() -> None:
-    from curio.geometry import Pose2D
+    from curio.core.geometry import Pose2D
 
     h = make_harness()
     h.press("pause")
@@ -580,8 +580,8 @@ async def test_runner_ticks_on_the_injected_clock() -> None:
 
     from curio.bt.paths import PathManager
     from curio.bt.runner import build_tree_runner
-    from curio.clock import SimClock
-    from curio.topics import make_bus
+    from curio.core.clock import SimClock
+    from curio.core.topics import make_bus
 
     from .bt_fakes import FakeNavigator
 
@@ -708,7 +708,7 @@ def test_negative_and_unknown_ids_are_rejected(path_id: int) -> None:
 
 def test_commands_are_not_replayed_after_a_restart() -> None:
     # §9.18: the original's latched switch_path replayed the last command ("-1") on restart.
-    from curio.topics import OPERATOR
+    from curio.core.topics import OPERATOR
 
     assert OPERATOR.kind == "reliable" and not OPERATOR.latched
     h = make_harness()

@@ -11,7 +11,7 @@ from py_trees.common import Status
 
 from curio.bt.probe import WayProbe
 from curio.bt.speech import Speaker
-from curio.config import BtConfig, TourStopConfig
+from curio.core.config import BtConfig, TourStopConfig
 
 from .bt_fakes import make_harness
 
@@ -264,13 +264,13 @@ async def test_espeak_ng_speaks() -> None:  # pragma: no cover - depends on the 
 def test_way_probe_on_a_real_planner() -> None:
     import numpy as np
 
-    from curio.config import Config
-    from curio.geometry import Pose2D
-    from curio.messages import PoseWithCovariance
+    from curio.core.config import Config
+    from curio.core.geometry import Pose2D
+    from curio.core.messages import PoseWithCovariance
+    from curio.core.topics import POSE, make_bus
+    from curio.estimation.maps import OccupancyGrid
     from curio.nav.costmap import Costmap
-    from curio.nav.maps import OccupancyGrid
     from curio.nav.planner import GlobalPlanner
-    from curio.topics import POSE, make_bus
 
     cfg = Config()
     data = np.zeros((80, 80), dtype=np.int8)

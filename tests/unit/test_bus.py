@@ -6,10 +6,10 @@ import asyncio
 
 import pytest
 
-from curio.bus import Bus, Topic
-from curio.clock import SimClock
-from curio.messages import Event, OperatorCommand, Twist
-from curio.topics import ALL_TOPICS, EVENTS, OPERATOR, make_bus
+from curio.core.bus import Bus, Topic
+from curio.core.clock import SimClock
+from curio.core.messages import Event, OperatorCommand, Twist
+from curio.core.topics import ALL_TOPICS, EVENTS, OPERATOR, make_bus
 
 STREAM = Topic("/test_stream", Twist)
 LATCHED = Topic("/test_latched", Twist, latched=True)

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from curio.config import REPO_ROOT
-from curio.geometry import Pose2D
-from curio.nav.carmen import LogError, RunRecorder, read_carmen, read_log, read_run
+from curio.core.config import REPO_ROOT
+from curio.core.geometry import Pose2D
+from curio.estimation.carmen import LogError, RunRecorder, read_carmen, read_log, read_run
 
 MIT = REPO_ROOT.parent / "shared" / "datasets" / "mit-csail.clf"
 

@@ -9,9 +9,9 @@ from typing import Any
 
 import pytest
 
-from curio.clock import RealClock
-from curio.config import Config, load_config
-from curio.drivers import check
+from curio.commands import check
+from curio.core.clock import RealClock
+from curio.core.config import Config, load_config
 from curio.drivers.arduino.emulator import ArduinoEmulator
 from curio.drivers.bno055.fake_bus import FakeBno055Bus
 from curio.drivers.rplidar.emulator import RplidarEmulator
@@ -165,7 +165,7 @@ def test_port_discovery_by_usb_id() -> None:
 
 
 def test_emulate_usage_errors(tmp_path: Path) -> None:
-    from curio.drivers import emulate
+    from curio.commands import emulate
 
     assert emulate.main(["rplidar", "--map", str(tmp_path / "missing.yaml")]) == 2
     assert emulate.main(["arduino", "--duration", "0"]) == 2

@@ -6,10 +6,10 @@ import asyncio
 import socket
 from pathlib import Path
 
-from curio.clock import SimClock
+from curio.core.clock import SimClock
+from curio.core.messages import DriverHealth
+from curio.core.topics import HEALTH, make_bus
 from curio.drivers.health import SystemdNotifier
-from curio.messages import DriverHealth
-from curio.topics import HEALTH, make_bus
 
 
 async def test_ready_watchdog_and_status(tmp_path: Path) -> None:

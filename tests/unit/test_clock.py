@@ -6,7 +6,7 @@ import asyncio
 
 import pytest
 
-from curio.clock import RateStats, RealClock, SimClock, wall_perf_counter
+from curio.core.clock import RateStats, RealClock, SimClock, wall_perf_counter
 
 
 async def test_timers_fire_in_time_then_registration_order() -> None:

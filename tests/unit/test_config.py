@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from curio.cli import main
-from curio.config import REPO_ROOT, ConfigError, dump_config, load_config
+from curio.core.config import REPO_ROOT, ConfigError, dump_config, load_config
 
 
 def test_shipped_config_runs_the_simulator() -> None:

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from curio.config import Config
-from curio.geometry import Pose2D, wrap_angle
+from curio.core.config import Config
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.estimation.maps import OccupancyGrid
 from curio.nav.controller import ControlStatus, LocalController, ProgressChecker
 from curio.nav.costmap import Costmap
-from curio.nav.maps import OccupancyGrid
 
 
 def open_grid(size_m: float = 8.0, res: float = 0.05) -> OccupancyGrid:

@@ -8,11 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from curio.bus import Bus
-from curio.clock import SimClock
-from curio.config import CostmapConfig, RobotConfig
-from curio.geometry import Pose2D
-from curio.messages import GridMessage, LaserScan, PoseWithCovariance
+from curio.core.bus import Bus
+from curio.core.clock import SimClock
+from curio.core.config import CostmapConfig, RobotConfig
+from curio.core.geometry import Pose2D
+from curio.core.messages import GridMessage, LaserScan, PoseWithCovariance
+from curio.core.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
+from curio.estimation.maps import OccupancyGrid, load_map
 from curio.nav.costmap import (
     INSCRIBED,
     LETHAL,
@@ -23,8 +25,6 @@ from curio.nav.costmap import (
     footprint_radii,
     pad_footprint,
 )
-from curio.nav.maps import OccupancyGrid, load_map
-from curio.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
 
 RES = 0.05
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from curio.config import EkfConfig
-from curio.geometry import Pose2D, yaw_to_quat
-from curio.messages import Imu, Odometry
-from curio.nav.ekf import OdomEkf
+from curio.core.config import EkfConfig
+from curio.core.geometry import Pose2D, yaw_to_quat
+from curio.core.messages import Imu, Odometry
+from curio.estimation.ekf import OdomEkf
 
 
 def _run(ekf: OdomEkf, seconds: float, v: float, w_true: float, *, gyro_bias: float = 0.0,

@@ -9,7 +9,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from curio.geometry import Pose2D, angle_diff, quat_to_yaw, wrap_angle, wrap_angles, yaw_to_quat
+from curio.core.geometry import (
+    Pose2D,
+    angle_diff,
+    quat_to_yaw,
+    wrap_angle,
+    wrap_angles,
+    yaw_to_quat,
+)
 
 coords = st.floats(-100, 100, allow_nan=False)
 angles = st.floats(-20, 20, allow_nan=False)

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from curio.config import RobotConfig
+from curio.core.config import RobotConfig
 from curio.drivers.kinematics import (
     forward_kinematics,
     inverse_kinematics,

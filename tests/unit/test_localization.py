@@ -8,9 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from curio.config import LocalizationConfig
-from curio.geometry import Pose2D
-from curio.nav.localization import DistanceField, Localizer, _kld_bound, scan_match, scan_to_points
+from curio.core.config import LocalizationConfig
+from curio.core.geometry import Pose2D
+from curio.estimation.localization import (
+    DistanceField,
+    Localizer,
+    _kld_bound,
+    scan_match,
+    scan_to_points,
+)
 from tests.unit.test_localization_helpers import cast_scan, room_grid
 
 LASER = Pose2D(0.152, 0.078, 0.0)

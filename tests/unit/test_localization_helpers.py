@@ -10,10 +10,10 @@ import math
 
 import numpy as np
 
-from curio.geometry import Pose2D
-from curio.messages import LaserScan
-from curio.nav.localization import DistanceField
-from curio.nav.maps import OccupancyGrid
+from curio.core.geometry import Pose2D
+from curio.core.messages import LaserScan
+from curio.estimation.localization import DistanceField
+from curio.estimation.maps import OccupancyGrid
 
 
 def room_grid(resolution_m: float = 0.05) -> OccupancyGrid:

@@ -12,17 +12,17 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from curio.config import REPO_ROOT
-from curio.geometry import Pose2D
-from curio.nav.carmen import LogScan, RunRecorder
-from curio.nav.mapcli import main as map_main
-from curio.nav.mapping import (
+from curio.commands.map import main as map_main
+from curio.core.config import REPO_ROOT
+from curio.core.geometry import Pose2D
+from curio.estimation.carmen import LogScan, RunRecorder
+from curio.estimation.mapping import (
     MapperParams,
     ScanMapper,
     build_map_from_log,
     optimize_pose_graph,
 )
-from curio.nav.maps import OccupancyGrid, load_map
+from curio.estimation.maps import OccupancyGrid, load_map
 from tests.unit.test_localization_helpers import cast_scan, room_grid
 
 LASER = Pose2D(0.152, 0.078, 0.0)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from curio.geometry import Pose2D
-from curio.nav.maps import MapError, OccupancyGrid, load_map, map_stats, save_map
+from curio.core.geometry import Pose2D
+from curio.estimation.maps import MapError, OccupancyGrid, load_map, map_stats, save_map
 
 
 def _write(tmp: Path, pixels: list[list[int]], yaml_text: str, name: str = "m.pgm",

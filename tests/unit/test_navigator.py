@@ -8,11 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from curio.bus import Bus
-from curio.clock import SimClock
-from curio.config import Config
-from curio.geometry import Pose2D, wrap_angle
-from curio.messages import EStop, Odometry, OperatorCommand, PoseWithCovariance, Twist
+from curio.core.bus import Bus
+from curio.core.clock import SimClock
+from curio.core.config import Config
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.messages import EStop, Odometry, OperatorCommand, PoseWithCovariance, Twist
+from curio.core.topics import CMD_VEL_NAV, ESTOP, EVENTS, ODOM, OPERATOR, PLAN, POSE, make_bus
+from curio.estimation.maps import OccupancyGrid
 from curio.nav.api import (
     GoalBlockedError,
     GoalOutsideMapError,
@@ -21,11 +23,9 @@ from curio.nav.api import (
 )
 from curio.nav.controller import LocalController
 from curio.nav.costmap import Costmap
-from curio.nav.maps import OccupancyGrid
 from curio.nav.navigator import InvalidGoalError, NavigatorNode
 from curio.nav.planner import GlobalPlanner
 from curio.nav.recovery import Recovery
-from curio.topics import CMD_VEL_NAV, ESTOP, EVENTS, ODOM, OPERATOR, PLAN, POSE, make_bus
 
 
 def room(size_m: float = 8.0, res: float = 0.05) -> OccupancyGrid:
@@ -338,8 +338,8 @@ async def test_no_progress_towards_the_goal_makes_a_keep_out_spot(fast_cfg: Conf
 
 
 async def test_holds_while_localisation_is_lost_then_goes_on(fast_cfg: Config) -> None:
-    from curio.messages import LocalizationStatus
-    from curio.topics import LOCALIZATION
+    from curio.core.messages import LocalizationStatus
+    from curio.core.topics import LOCALIZATION
 
     cfg = fast_cfg.model_copy(deep=True)
     cfg.nav.controller.lost_timeout_s = 20.0
@@ -364,9 +364,9 @@ async def test_holds_while_localisation_is_lost_then_goes_on(fast_cfg: Config) -
 
 
 async def test_aborts_when_still_lost_after_the_timeout(fast_cfg: Config) -> None:
-    from curio.messages import LocalizationStatus
+    from curio.core.messages import LocalizationStatus
+    from curio.core.topics import LOCALIZATION
     from curio.nav.api import LocalizationLostError
-    from curio.topics import LOCALIZATION
 
     cfg = fast_cfg.model_copy(deep=True)
     cfg.nav.controller.lost_timeout_s = 4.0

@@ -8,17 +8,17 @@ import math
 import numpy as np
 import pytest
 
-from curio.clock import SimClock
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.messages import LaserScan, Obstacles, Odometry, Path, PoseWithCovariance
+from curio.core.clock import SimClock
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import LaserScan, Obstacles, Odometry, Path, PoseWithCovariance
+from curio.core.topics import BLOCKED, EVENTS, OBSTACLES, ODOM, PLAN, POSE, SCAN, make_bus
 from curio.nav.obstacles import (
     BlockedDetector,
     ObstacleExtractor,
     ObstacleNode,
     travel_direction,
 )
-from curio.topics import BLOCKED, EVENTS, OBSTACLES, ODOM, PLAN, POSE, SCAN, make_bus
 
 
 def scan_from(world_pts: np.ndarray, laser: Pose2D, beams: int = 720) -> LaserScan:

@@ -8,11 +8,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from curio.clock import SimClock
-from curio.config import Config
+from curio.core.clock import SimClock
+from curio.core.config import Config
+from curio.core.messages import ServoCommand, WheelEncoders
+from curio.core.topics import SERVO_CMD, WHEEL_ODOM, make_bus
 from curio.drivers.odometry import EncoderFilter, MidWheelOdometry, WheelOdometry
-from curio.messages import ServoCommand, WheelEncoders
-from curio.topics import SERVO_CMD, WHEEL_ODOM, make_bus
 
 R = 0.060 * 1.04
 B = 0.52 * 0.96875

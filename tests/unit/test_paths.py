@@ -17,7 +17,7 @@ from curio.bt.paths import (
     Waypoint,
     format_xy,
 )
-from curio.config import BtConfig, ConfigError, PathConfig, load_config
+from curio.core.config import BtConfig, ConfigError, PathConfig, load_config
 
 from .bt_fakes import make_harness
 

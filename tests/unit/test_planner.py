@@ -14,8 +14,9 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from curio.config import CostmapConfig, PlannerConfig, RobotConfig
-from curio.geometry import Pose2D
+from curio.core.config import CostmapConfig, PlannerConfig, RobotConfig
+from curio.core.geometry import Pose2D
+from curio.estimation.maps import OccupancyGrid, load_map
 from curio.nav.api import (
     GoalBlockedError,
     GoalOutsideMapError,
@@ -25,7 +26,6 @@ from curio.nav.api import (
     StartOutsideMapError,
 )
 from curio.nav.costmap import Costmap
-from curio.nav.maps import OccupancyGrid, load_map
 from curio.nav.planner import GlobalPlanner, path_length_m, traversal_lut
 
 RES = 0.05

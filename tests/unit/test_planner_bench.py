@@ -15,8 +15,8 @@ from benchmarks.bench_planner import (
     heapq_astar,
     sample_pairs,
 )
-from curio.config import PlannerConfig
-from curio.geometry import Pose2D
+from curio.core.config import PlannerConfig
+from curio.core.geometry import Pose2D
 from curio.nav.planner import GlobalPlanner, traversal_lut
 
 

@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.messages import LaserScan
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import LaserScan
+from curio.core.topics import CMD_VEL_NAV, EVENTS, SCAN
+from curio.estimation.maps import OccupancyGrid
 from curio.nav.costmap import Costmap
-from curio.nav.maps import OccupancyGrid
 from curio.nav.recovery import Recovery, points_behind_distance_m
-from curio.topics import CMD_VEL_NAV, EVENTS, SCAN
 from tests.unit.test_navigator import FakeRover, room
 
 FOOTPRINT = np.array([(0.33, 0.31), (0.33, -0.31), (-0.33, -0.31), (-0.33, 0.31)])
@@ -43,8 +43,8 @@ def test_points_behind() -> None:
 
 async def run_step(cfg: Config, step: str, start: Pose2D, world_pts: np.ndarray,
                    grid: OccupancyGrid | None = None) -> tuple[Recovery, FakeRover, object]:
-    from curio.clock import SimClock
-    from curio.topics import make_bus
+    from curio.core.clock import SimClock
+    from curio.core.topics import make_bus
 
     clock = SimClock()
     bus = make_bus()
@@ -105,9 +105,9 @@ async def test_rotate_where_there_is_room_and_not_where_there_is_none(cfg: Confi
 
 
 async def test_clear_costmap_forgets_marks_and_wait_waits(cfg: Config) -> None:
-    from curio.clock import SimClock
-    from curio.messages import PoseWithCovariance
-    from curio.topics import POSE, make_bus
+    from curio.core.clock import SimClock
+    from curio.core.messages import PoseWithCovariance
+    from curio.core.topics import POSE, make_bus
 
     clock = SimClock()
     bus = make_bus()

@@ -12,13 +12,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from curio.bus import Bus
-from curio.clock import RealClock
-from curio.config import LidarConfig
+from curio.core.bus import Bus
+from curio.core.clock import RealClock
+from curio.core.config import LidarConfig
+from curio.core.messages import DriverHealth, Event, LaserScan
+from curio.core.topics import EVENTS, HEALTH, SCAN, make_bus
 from curio.drivers.rplidar.driver import RplidarDriver
 from curio.drivers.rplidar.emulator import RplidarEmulator
-from curio.messages import DriverHealth, Event, LaserScan
-from curio.topics import EVENTS, HEALTH, SCAN, make_bus
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -210,7 +210,7 @@ async def test_shutdown_stops_scanning_and_motor(rig: Rig) -> None:
 
 
 async def _paced_run(tmp_path: Any) -> list[tuple[float, float]]:
-    from curio.clock import SimClock
+    from curio.core.clock import SimClock
 
     clock, bus = SimClock(settle_polls=3), make_bus()
     bus.bind_loop(asyncio.get_running_loop())

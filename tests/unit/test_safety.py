@@ -9,19 +9,19 @@ import math
 import numpy as np
 import pytest
 
-from curio.bus import Bus
-from curio.clock import SimClock
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.messages import LaserScan, OperatorCommand, Twist
-from curio.nav.safety import (
+from curio.core.bus import Bus
+from curio.core.clock import SimClock
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import LaserScan, OperatorCommand, Twist
+from curio.core.topics import CMD_VEL, CMD_VEL_NAV, CMD_VEL_TELEOP, ESTOP, EVENTS, OPERATOR, SCAN
+from curio.safety.stage import (
     SafetyStage,
     StopZone,
     fastest_wheel_speed_mps,
     limit_to_wheel_speed,
     polygon_distances,
 )
-from curio.topics import CMD_VEL, CMD_VEL_NAV, CMD_VEL_TELEOP, ESTOP, EVENTS, OPERATOR, SCAN
 
 FOOTPRINT = [(0.33, 0.31), (0.33, -0.31), (-0.33, -0.31), (-0.33, 0.31)]
 
@@ -204,7 +204,7 @@ async def test_no_scan_holds_the_rover(cfg: Config, bus: Bus) -> None:
 
 
 async def test_estop_latches_through_the_bus(cfg: Config) -> None:
-    from curio.topics import make_bus
+    from curio.core.topics import make_bus
 
     bus = make_bus()
     clock = SimClock()

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.nav.maps import OccupancyGrid
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.estimation.maps import OccupancyGrid
 from curio.sim.objects import Door, Person
 from curio.sim.raycast import GridRaycaster, cast_circles, cast_segments, naive_cast
 from curio.sim.world import World, WorldSpec

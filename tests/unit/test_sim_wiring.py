@@ -8,15 +8,11 @@ from typing import Any
 
 import pytest
 
-from curio.clock import SimClock
-from curio.config import Config
-from curio.drivers.kinematics import twist_to_servo_command
-from curio.drivers.odometry import WheelOdometry
-from curio.geometry import Pose2D
-from curio.messages import Twist
-from curio.sim.wiring import SimBase, Simulator
-from curio.sim.world import World
-from curio.topics import (
+from curio.core.clock import SimClock
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import Twist
+from curio.core.topics import (
     BATTERY,
     CMD_VEL,
     EVENTS,
@@ -29,6 +25,10 @@ from curio.topics import (
     WHEELS,
     make_bus,
 )
+from curio.drivers.kinematics import twist_to_servo_command
+from curio.drivers.odometry import WheelOdometry
+from curio.sim.wiring import SimBase, Simulator
+from curio.sim.world import World
 from tests.unit.test_sim_raycast import room
 
 

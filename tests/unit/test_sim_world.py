@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from curio.config import REPO_ROOT, Config
+from curio.core.config import REPO_ROOT, Config
+from curio.core.geometry import Pose2D, quat_to_yaw
+from curio.core.messages import ServoCommand
 from curio.drivers.kinematics import twist_to_servo_command
-from curio.geometry import Pose2D, quat_to_yaw
-from curio.messages import ServoCommand
-from curio.nav.maps import load_map
+from curio.estimation.maps import load_map
 from curio.sim import worldgen
 from curio.sim.objects import Door
 from curio.sim.world import World, WorldError, WorldSpec, load_world_spec

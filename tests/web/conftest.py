@@ -9,9 +9,9 @@ from typing import Any
 import pytest
 from aiohttp.test_utils import TestClient
 
-from curio.bus import Bus
-from curio.clock import SimClock
-from curio.config import Config
+from curio.core.bus import Bus
+from curio.core.clock import SimClock
+from curio.core.config import Config
 from curio.web.hub import Hub
 from curio.web.server import HUB, WebServices, create_app
 

@@ -9,9 +9,9 @@ import json
 import numpy as np
 from PIL import Image
 
-from curio.geometry import Pose2D
-from curio.messages import GridMessage
-from curio.topics import INITIAL_POSE, MAP, OPERATOR
+from curio.core.geometry import Pose2D
+from curio.core.messages import GridMessage
+from curio.core.topics import INITIAL_POSE, MAP, OPERATOR
 from tests.web.conftest import TOKEN, MakeDash
 
 

@@ -19,9 +19,9 @@ import pytest
 from playwright import async_api as playwright_api
 
 from curio.app import App
-from curio.clock import SimClock
-from curio.config import REPO_ROOT, Config, load_config
-from curio.topics import CMD_VEL, GROUND_TRUTH, INITIAL_POSE, OPERATOR
+from curio.core.clock import SimClock
+from curio.core.config import REPO_ROOT, Config, load_config
+from curio.core.topics import CMD_VEL, GROUND_TRUTH, INITIAL_POSE, OPERATOR
 
 pytestmark = [pytest.mark.browser]
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from aiohttp import WSMsgType
 
-from curio.geometry import Pose2D
-from curio.messages import (
+from curio.core.geometry import Pose2D
+from curio.core.messages import (
     DriverHealth,
     Event,
     LaserScan,
@@ -24,7 +24,7 @@ from curio.messages import (
     StatusText,
     TreeSnapshot,
 )
-from curio.topics import (
+from curio.core.topics import (
     CMD_VEL_TELEOP,
     EVENTS,
     HEALTH,

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from curio.app import App
-from curio.clock import SimClock
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.messages import LaserScan
-from curio.messages import Path as PathMsg
+from curio.core.clock import SimClock
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import LaserScan
+from curio.core.messages import Path as PathMsg
 from curio.web.api import describe_path_ids
 from curio.web.auth import RateLimiter, load_or_create_token
 from curio.web.encode import FRAME_LOCAL_PLAN, decode_frame, encode_path, encode_scan

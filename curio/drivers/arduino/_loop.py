@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
-from curio.clock import Clock
+from curio.core.clock import Clock
 
 __all__ = ["wait_until"]
 

@@ -70,14 +70,21 @@ from typing import Any, cast
 
 import serial_asyncio_fast
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import ArduinoConfig, RobotConfig
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import ArduinoConfig, RobotConfig
+from curio.core.messages import (
+    BatteryState,
+    DriverHealth,
+    EStop,
+    ServoCommand,
+    Twist,
+    WheelEncoders,
+)
+from curio.core.topics import BATTERY, CMD_VEL, CMD_VEL_TELEOP, ESTOP, HEALTH, SERVO_CMD, WHEELS
 from curio.drivers.arduino import protocol as p
 from curio.drivers.arduino._loop import Pacer, wait_until
 from curio.drivers.kinematics import twist_to_servo_command
-from curio.messages import BatteryState, DriverHealth, EStop, ServoCommand, Twist, WheelEncoders
-from curio.topics import BATTERY, CMD_VEL, CMD_VEL_TELEOP, ESTOP, HEALTH, SERVO_CMD, WHEELS
 
 __all__ = ["ArduinoBase", "CommandFn", "McuClock"]
 

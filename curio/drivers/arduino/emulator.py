@@ -65,10 +65,10 @@ from typing import Any, Protocol, cast
 
 import numpy as np
 
-from curio.clock import Clock, SimClock
+from curio.core.clock import Clock, SimClock
+from curio.core.messages import ServoCommand
 from curio.drivers.arduino import protocol as p
 from curio.drivers.arduino._loop import Pacer
-from curio.messages import ServoCommand
 
 __all__ = ["ArduinoEmulator", "EmulatorWorld", "FirmwareModel", "ServoSide"]
 

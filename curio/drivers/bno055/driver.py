@@ -38,13 +38,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
-from curio.bus import Bus
-from curio.clock import Clock, wall_sleep
-from curio.config import ImuConfig
+from curio.core.bus import Bus
+from curio.core.clock import Clock, wall_sleep
+from curio.core.config import ImuConfig
+from curio.core.fileio import atomic_write_json
+from curio.core.messages import DriverHealth, Event, Imu
+from curio.core.topics import EVENTS, HEALTH, IMU
 from curio.drivers.bno055 import registers as r
-from curio.fileio import atomic_write_json
-from curio.messages import DriverHealth, Event, Imu
-from curio.topics import EVENTS, HEALTH, IMU
 
 __all__ = ["Bno055Driver", "ImuFault", "SMBusLike", "open_smbus"]
 

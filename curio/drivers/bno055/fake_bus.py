@@ -34,9 +34,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from curio.core.geometry import quat_to_yaw, yaw_to_quat
+from curio.core.messages import Imu
 from curio.drivers.bno055 import registers as r
-from curio.geometry import quat_to_yaw, yaw_to_quat
-from curio.messages import Imu
 
 __all__ = ["Bno055Faults", "FakeBno055Bus"]
 

@@ -31,13 +31,13 @@ from typing import Any
 
 import numpy as np
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import LidarConfig
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import LidarConfig
+from curio.core.messages import DriverHealth, Event, LaserScan
+from curio.core.topics import EVENTS, HEALTH, SCAN
 from curio.drivers.health import BytePacer, wait_event
 from curio.drivers.rplidar import protocol as p
-from curio.messages import DriverHealth, Event, LaserScan
-from curio.topics import EVENTS, HEALTH, SCAN
 
 __all__ = ["LidarFault", "RplidarDriver"]
 

@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from curio.clock import Clock, SimClock
+from curio.core.clock import Clock, SimClock
+from curio.core.messages import LaserScan
 from curio.drivers.health import BytePacer
 from curio.drivers.rplidar import protocol as p
 from curio.drivers.rplidar.ptydevice import PtyDevice
-from curio.messages import LaserScan
 
 __all__ = ["RplidarEmulator", "RplidarFaults"]
 

@@ -1,6 +1,6 @@
 """Estimation wiring: map server, EKF (``odom``) and localisation (``map`` → ``odom``).
 
-Topics (see ``curio/topics.py``):
+Topics (see ``curio/core/topics.py``):
 
 * ``MAP`` (latched): the navigation map, loaded from ``localization.map_yaml`` or ``sim.world``.
 * ``ODOM``: fused odometry, ``odom`` → ``base_link`` (the EKF; wheel odometry passed through when
@@ -10,7 +10,7 @@ Topics (see ``curio/topics.py``):
 * ``MAP_TO_ODOM`` (latched) and ``LOCALIZATION`` (latched): the correction and its quality.
 
 With ``localization.mode = "map"`` the rover maps a new building instead
-(:mod:`curio.nav.mapping`): ``MAP`` is republished as it grows and the map is saved to
+(:mod:`curio.estimation.mapping`): ``MAP`` is republished as it grows and the map is saved to
 ``data_dir/localization.mapping_out`` at shutdown. ``app.localizer`` is then the mapping node.
 """
 
@@ -21,20 +21,26 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.geometry import Pose2D
-from curio.messages import GridMessage, LocalizationStatus, Odometry, PoseWithCovariance, Transform
-from curio.nav.maps import OccupancyGrid, load_map
-from curio.topics import LOCALIZATION, MAP, MAP_TO_ODOM, ODOM, POSE, WHEEL_ODOM
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.geometry import Pose2D
+from curio.core.messages import (
+    GridMessage,
+    LocalizationStatus,
+    Odometry,
+    PoseWithCovariance,
+    Transform,
+)
+from curio.core.topics import LOCALIZATION, MAP, MAP_TO_ODOM, ODOM, POSE, WHEEL_ODOM
+from curio.estimation.maps import OccupancyGrid, load_map
 
 if TYPE_CHECKING:
     from curio.app import App
-    from curio.config import Config
+    from curio.core.config import Config
 
 __all__ = ["MapServer", "OdomRelay", "build_estimation", "map_path", "start_pose"]
 
-log = logging.getLogger("curio.nav.estimation")
+log = logging.getLogger("curio.estimation.wiring")
 
 
 class MapServer:
@@ -136,15 +142,15 @@ def build_estimation(app: App) -> None:
     relay_odom = not cfg.ekf.enabled
     compose_pose = not cfg.localization.enabled
     if cfg.ekf.enabled:
-        from curio.nav.ekf import build_ekf_part
+        from curio.estimation.ekf import build_ekf_part
 
         app.ekf = build_ekf_part(app)
     if mapping:
-        from curio.nav.mapping import build_mapping_part
+        from curio.estimation.mapping import build_mapping_part
 
         app.localizer = build_mapping_part(app, start, cfg.data_path(cfg.localization.mapping_out))
     elif cfg.localization.enabled:
-        from curio.nav.localization import build_localizer_part
+        from curio.estimation.localization import build_localizer_part
 
         app.localizer = build_localizer_part(app, grid, start)
     if relay_odom or compose_pose:

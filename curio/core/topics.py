@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from curio.bus import Bus, Topic
-from curio.messages import (
+from curio.core.bus import Bus, Topic
+from curio.core.messages import (
     BatteryState,
     BlockedState,
     DriverHealth,

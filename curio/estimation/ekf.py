@@ -38,12 +38,12 @@ import numpy as np
 import numpy.typing as npt
 from filterpy.kalman import ExtendedKalmanFilter
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import EkfConfig
-from curio.geometry import Pose2D, quat_to_yaw, wrap_angle
-from curio.messages import Imu, Odometry
-from curio.topics import IMU, ODOM, WHEEL_ODOM
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import EkfConfig
+from curio.core.geometry import Pose2D, quat_to_yaw, wrap_angle
+from curio.core.messages import Imu, Odometry
+from curio.core.topics import IMU, ODOM, WHEEL_ODOM
 
 if TYPE_CHECKING:
     from curio.app import App

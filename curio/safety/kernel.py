@@ -4,7 +4,7 @@ All coordinates are metres in ``base_link`` (x forward, y left). A polygon is an
 array of vertices in either orientation; the signed distance of a point is its distance to the
 nearest edge, negative inside (crossing-number test). The sweep moves the scan points into the
 rover's frame at each predicted pose of the commanded arc and reduces, per point, what
-:meth:`curio.nav.safety.StopZone.evaluate` needs — with the same arithmetic as the former numpy
+:meth:`curio.safety.stage.StopZone.evaluate` needs — with the same arithmetic as the former numpy
 version, so the results are the same.
 
 The first call compiles the kernels (a few seconds); numba caches the machine code on disk.

@@ -2,7 +2,7 @@
 
 Every velocity source passes through it: the local controller, recovery and scenarios on
 ``/cmd_vel_nav``, the dashboard's teleop on ``/cmd_vel_teleop`` (which takes precedence while it
-is fresh). At ``rate_hz`` it publishes one :class:`~curio.messages.Twist` in ``base_link``
+is fresh). At ``rate_hz`` it publishes one :class:`~curio.core.messages.Twist` in ``base_link``
 (forward m/s, yaw rate rad/s) after, in order:
 
 1. **Latched e-stop** — an operator ``estop`` command stops the rover at once and keeps it
@@ -22,7 +22,7 @@ is fresh). At ``rate_hz`` it publishes one :class:`~curio.messages.Twist` in ``b
 5. **Acceleration smoothing** — ``max_accel_mps2`` / ``max_angular_accel_radps2``; a stop
    (stop zone, e-stop) brakes at up to ``max_brake_mps2``.
 
-It publishes ``/health`` (name ``safety``) once a second and an :class:`~curio.messages.Event`
+It publishes ``/health`` (name ``safety``) once a second and an :class:`~curio.core.messages.Event`
 when it intervenes: ``safety.stop_zone`` (and ``safety.stop_zone_cleared``), ``safety.estop``,
 ``safety.watchdog``, ``safety.no_scan``.
 """
@@ -37,11 +37,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from curio.bus import Bus, Subscription
-from curio.clock import Clock
-from curio.config import Config
-from curio.geometry import Pose2D
-from curio.messages import (
+from curio.core.bus import Bus, Subscription
+from curio.core.clock import Clock
+from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import (
     DriverHealth,
     EStop,
     Event,
@@ -50,8 +50,7 @@ from curio.messages import (
     OperatorCommand,
     Twist,
 )
-from curio.nav.safety_kernel import polygon_distances_into, sweep_stop_zone
-from curio.topics import (
+from curio.core.topics import (
     CMD_VEL,
     CMD_VEL_NAV,
     CMD_VEL_TELEOP,
@@ -63,6 +62,7 @@ from curio.topics import (
     SCAN,
     WHEEL_ODOM,
 )
+from curio.safety.kernel import polygon_distances_into, sweep_stop_zone
 
 if TYPE_CHECKING:
     from curio.app import App

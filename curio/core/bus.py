@@ -1,6 +1,6 @@
 """The in-process message bus: typed topics, conflating streams, reliable commands.
 
-* A :class:`Topic` is declared once (see ``curio/topics.py``) with its name, message type, kind
+* A :class:`Topic` is declared once (see ``curio/core/topics.py``) with its name, message type, kind
   and whether it is latched.
 * ``stream`` topics conflate: each subscriber has a small ring (default one message); when it is
   full the oldest message is dropped and the drop counted. Sensors use streams.

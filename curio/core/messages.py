@@ -14,7 +14,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from curio.geometry import Pose2D
+from curio.core.geometry import Pose2D
 
 FloatArray = npt.NDArray[np.float32]
 

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from curio.clock import SimClock
-from curio.nav.safety import register_safety
+from curio.core.clock import SimClock
+from curio.safety.stage import register_safety
 
 if TYPE_CHECKING:
     from curio.app import App
@@ -32,9 +32,9 @@ __all__ = ["build_navigation"]
 def build_navigation(app: App) -> None:
     """Construct this subsystem's parts from ``app.cfg`` and register them on ``app``."""
     from curio.app import Part
+    from curio.estimation.maps import load_map
     from curio.nav.controller import LocalController
     from curio.nav.costmap import Costmap, CostmapNode
-    from curio.nav.maps import load_map
     from curio.nav.navigator import NavigatorNode
     from curio.nav.obstacles import register_obstacles
     from curio.nav.planner import GlobalPlanner, narrow_cost

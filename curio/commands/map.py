@@ -14,9 +14,9 @@ odometry message (and, in the simulator, the ground truth) to a Curio run log un
 ``--duration`` seconds (simulated seconds in ``sim`` mode, where it runs as fast as it can).
 
 ``--log`` takes a CARMEN log (FLASER / ROBOTLASER1 / ODOM lines, e.g. the public Freiburg and
-MIT logs) or a Curio run log (``.jsonl``, see :mod:`curio.nav.carmen`). The trajectory CSV has
-the header ``t,x,y,yaw`` (seconds, metres, metres, radians; the corrected pose of every scan in
-the map frame). Exit codes: 0 success, 1 failure, 2 bad arguments or unreadable input.
+MIT logs) or a Curio run log (``.jsonl``, see :mod:`curio.estimation.carmen`). The trajectory
+CSV has the header ``t,x,y,yaw`` (seconds, metres, metres, radians; the corrected pose of every
+scan in the map frame). Exit codes: 0 success, 1 failure, 2 bad arguments or unreadable input.
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ import sys
 from pathlib import Path
 from typing import TextIO
 
-from curio.fileio import atomic_write_text
-from curio.nav.carmen import LogError, read_log
-from curio.nav.maps import MapError, load_map, map_stats, save_map
+from curio.core.fileio import atomic_write_text
+from curio.estimation.carmen import LogError, read_log
+from curio.estimation.maps import MapError, load_map, map_stats, save_map
 
 __all__ = ["main"]
 
@@ -71,8 +71,8 @@ def _count_scans(path: Path) -> int:
 
 
 def _build(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
-    from curio.clock import wall_perf_counter
-    from curio.nav.mapping import MapperParams, build_map_from_log
+    from curio.core.clock import wall_perf_counter
+    from curio.estimation.mapping import MapperParams, build_map_from_log
 
     log_path = Path(args.log)
     if not log_path.is_file():
@@ -163,11 +163,11 @@ def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     import signal
 
     from curio.app import App, Part
-    from curio.clock import Clock, RealClock, SimClock
-    from curio.config import ConfigError, load_config
-    from curio.geometry import Pose2D
-    from curio.nav.carmen import RunRecorder
-    from curio.topics import GROUND_TRUTH, ODOM, SCAN
+    from curio.core.clock import Clock, RealClock, SimClock
+    from curio.core.config import ConfigError, load_config
+    from curio.core.geometry import Pose2D
+    from curio.core.topics import GROUND_TRUTH, ODOM, SCAN
+    from curio.estimation.carmen import RunRecorder
 
     try:
         cfg = load_config(args.config, args.set)

@@ -47,20 +47,20 @@ import numpy.typing as npt
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
-from curio.geometry import Pose2D, wrap_angle, wrap_angles
-from curio.nav.carmen import LogScan, read_log
-from curio.nav.localization import DistanceField, scan_match
-from curio.nav.maps import OccupancyGrid, save_map
+from curio.core.geometry import Pose2D, wrap_angle, wrap_angles
+from curio.estimation.carmen import LogScan, read_log
+from curio.estimation.localization import DistanceField, scan_match
+from curio.estimation.maps import OccupancyGrid, save_map
 
 if TYPE_CHECKING:
     from curio.app import App
-    from curio.bus import Bus
-    from curio.clock import Clock
-    from curio.messages import LaserScan, Odometry
+    from curio.core.bus import Bus
+    from curio.core.clock import Clock
+    from curio.core.messages import LaserScan, Odometry
 
 __all__ = ["MapperParams", "MappingNode", "ScanMapper", "build_map_from_log", "optimize_pose_graph"]
 
-log = logging.getLogger("curio.nav.mapping")
+log = logging.getLogger("curio.estimation.mapping")
 
 F64 = npt.NDArray[np.float64]
 
@@ -569,8 +569,8 @@ class MappingNode:
 
     def on_odom(self, odom: Odometry) -> None:
         """Publish ``POSE`` = map→odom ∘ odom."""
-        from curio.messages import LocalizationStatus, PoseWithCovariance, Transform
-        from curio.topics import LOCALIZATION, MAP_TO_ODOM, POSE
+        from curio.core.messages import LocalizationStatus, PoseWithCovariance, Transform
+        from curio.core.topics import LOCALIZATION, MAP_TO_ODOM, POSE
 
         self._odom.append(odom)
         if len(self._odom) > 200:
@@ -610,8 +610,8 @@ class MappingNode:
     def _after_scan(self, scan: LaserScan, odom: Odometry, pose: Pose2D,
                     grid: OccupancyGrid | None) -> None:
         """Publish the correction and the map (on the loop)."""
-        from curio.messages import Transform
-        from curio.topics import MAP_TO_ODOM
+        from curio.core.messages import Transform
+        from curio.core.topics import MAP_TO_ODOM
 
         self.map_to_odom = pose @ odom.pose.inverse()
         self.bus.publish(MAP_TO_ODOM, Transform(scan.stamp, self.map_to_odom))
@@ -638,7 +638,7 @@ class MappingNode:
 
     async def run(self) -> None:
         """Consume odometry and scans until cancelled."""
-        from curio.topics import ODOM, SCAN
+        from curio.core.topics import ODOM, SCAN
 
         odom_sub = self.bus.subscribe(ODOM, maxsize=64)
         scan_sub = self.bus.subscribe(SCAN, maxsize=1)
@@ -679,7 +679,7 @@ def build_mapping_part(app: App, start: Pose2D, out_yaml: Path) -> MappingNode:
     def publish(grid: OccupancyGrid) -> None:
         app.map_server.set_grid(grid)
 
-    from curio.clock import SimClock
+    from curio.core.clock import SimClock
 
     node = MappingNode(app.bus, app.clock, Pose2D(*cfg.robot.laser_pose), start, publish,
                        params, in_thread=not isinstance(app.clock, SimClock))

@@ -22,8 +22,8 @@ import numpy.typing as npt
 import yaml
 from PIL import Image
 
-from curio.fileio import atomic_write_bytes, atomic_write_text
-from curio.geometry import Pose2D
+from curio.core.fileio import atomic_write_bytes, atomic_write_text
+from curio.core.geometry import Pose2D
 
 __all__ = ["MapError", "OccupancyGrid", "load_map", "map_stats", "save_map"]
 

@@ -18,8 +18,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from curio.config import REPO_ROOT
-from curio.fileio import atomic_write_json
+from curio.core.config import REPO_ROOT
+from curio.core.fileio import atomic_write_json
 
 __all__ = ["BenchOptions", "available_benchmarks", "machine_info", "run_benchmark"]
 

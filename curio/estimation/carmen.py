@@ -44,7 +44,7 @@ from typing import IO, Any
 import numpy as np
 import numpy.typing as npt
 
-from curio.geometry import Pose2D
+from curio.core.geometry import Pose2D
 
 __all__ = ["LogError", "LogScan", "RunRecorder", "read_carmen", "read_log", "read_run"]
 

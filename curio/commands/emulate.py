@@ -24,8 +24,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from curio.clock import RealClock
-from curio.config import ConfigError, load_config
+from curio.core.clock import RealClock
+from curio.core.config import ConfigError, load_config
 
 __all__ = ["main"]
 

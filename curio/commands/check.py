@@ -30,8 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from curio.clock import RealClock, wall_sleep
-from curio.config import Config, ConfigError, load_config
+from curio.core.clock import RealClock, wall_sleep
+from curio.core.config import Config, ConfigError, load_config
 
 __all__ = ["CheckResult", "check_arduino", "check_imu", "check_lidar", "find_ports", "main"]
 

@@ -39,13 +39,19 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
-from curio.bus import Bus
-from curio.clock import Clock
-from curio.config import LocalizationConfig
-from curio.geometry import Pose2D, wrap_angle, wrap_angles
-from curio.messages import LaserScan, LocalizationStatus, Odometry, PoseWithCovariance, Transform
-from curio.nav.maps import OccupancyGrid
-from curio.topics import INITIAL_POSE, LOCALIZATION, MAP_TO_ODOM, ODOM, POSE, SCAN
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import LocalizationConfig
+from curio.core.geometry import Pose2D, wrap_angle, wrap_angles
+from curio.core.messages import (
+    LaserScan,
+    LocalizationStatus,
+    Odometry,
+    PoseWithCovariance,
+    Transform,
+)
+from curio.core.topics import INITIAL_POSE, LOCALIZATION, MAP_TO_ODOM, ODOM, POSE, SCAN
+from curio.estimation.maps import OccupancyGrid
 
 if TYPE_CHECKING:
     from curio.app import App
@@ -60,7 +66,7 @@ __all__ = [
     "scan_to_points",
 ]
 
-log = logging.getLogger("curio.nav.localization")
+log = logging.getLogger("curio.estimation.localization")
 
 F64 = npt.NDArray[np.float64]
 State = Literal["ok", "uncertain", "lost", "off"]
@@ -880,7 +886,7 @@ class LocalizerNode:
     def _timed_update(self, scan: LaserScan, odom_pose: Pose2D) -> float | None:
         """The filter update (thread-safe to run off the loop: touches the localiser only);
         its wall time in seconds, or None if the filter did not update."""
-        from curio.clock import wall_perf_counter
+        from curio.core.clock import wall_perf_counter
 
         t0 = wall_perf_counter()
         if not self.localizer.update(scan, odom_pose):
@@ -964,7 +970,7 @@ def build_localizer_part(app: App, grid: OccupancyGrid, start: Pose2D) -> Locali
 
     cfg = app.cfg
     laser = Pose2D(*cfg.robot.laser_pose)
-    from curio.clock import SimClock
+    from curio.core.clock import SimClock
 
     loc = Localizer(grid, cfg.localization, laser, seed=cfg.sim.seed * 7919 + 4)
     node = LocalizerNode(app.bus, app.clock, loc, start,
