@@ -38,6 +38,7 @@ from curio.nav.api import NavError
 from curio.nav.controller import ControlStatus, LocalController
 from curio.nav.costmap import Costmap
 from curio.nav.planner import GlobalPlanner
+from curio.robot import RobotModel
 
 
 def _cfg(opts: BenchOptions) -> Config:
@@ -72,7 +73,7 @@ def _drive(cfg: Config, grid: OccupancyGrid, pairs: list[tuple[Pose2D, Pose2D]],
     cpu_times: list[float] = []
     reached = 0
     for start, goal in pairs:
-        cm = Costmap(grid, cfg.robot, cfg.nav.costmap)
+        cm = Costmap(grid, RobotModel.from_config(cfg.robot), cfg.nav.costmap)
         try:
             plan = planner.plan(start, goal, cm.costs(), cm.resolution_m, cm.origin)
         except NavError:
@@ -82,10 +83,10 @@ def _drive(cfg: Config, grid: OccupancyGrid, pairs: list[tuple[Pose2D, Pose2D]],
             data = grid.data.copy()
             r, c = cm.world_to_cell(mid.x, mid.y)
             data[max(0, r - 3):r + 3, max(0, c - 3):c + 3] = 100
-            cm = Costmap(OccupancyGrid(data, grid.resolution_m, grid.origin), cfg.robot,
+            cm = Costmap(OccupancyGrid(data, grid.resolution_m, grid.origin),
+                         RobotModel.from_config(cfg.robot),
                          cfg.nav.costmap)
-        ctrl = LocalController(cfg.nav.controller, cfg.robot, cm)
-        ctrl.set_cost_scaling(cfg.nav.costmap.cost_scaling_factor)
+        ctrl = LocalController(cfg.nav.controller, RobotModel.from_config(cfg.robot), cm)
         ctrl.set_plan(plan, Pose2D(goal.x, goal.y, math.nan), check_yaw=False)
         pose = start
         dt = ctrl.dt_s

@@ -41,6 +41,7 @@ from curio.drivers.arduino.driver import ArduinoBase
 from curio.drivers.bno055.driver import Bno055Driver
 from curio.drivers.bno055.fake_bus import FakeBno055Bus
 from curio.drivers.rplidar.driver import RplidarDriver
+from curio.robot import RobotModel
 from curio.sim.world import World
 
 WARMUP_S = 3.0
@@ -116,7 +117,7 @@ async def _phase(which: set[str], cfg: Config, links: dict[str, Path], duration_
         drivers.append(lidar)
         tasks.append(asyncio.create_task(lidar.run()))
     if "arduino" in which:
-        base = ArduinoBase(cfg.drivers.arduino, cfg.robot, bus, clock,
+        base = ArduinoBase(cfg.drivers.arduino, RobotModel.from_config(cfg.robot), bus, clock,
                            port=str(links["arduino"]))
         drivers.append(base)
         tasks.append(asyncio.create_task(base.run()))

@@ -36,6 +36,7 @@ from curio.drivers.kinematics import twist_to_servo_command
 from curio.drivers.odometry import WheelOdometry
 from curio.estimation.ekf import OdomEkf
 from curio.estimation.localization import Localizer, LocalizerNode
+from curio.robot import RobotModel
 from curio.sim.world import World
 
 # A tour of the default building (map metres): lobby → gallery → lab → meeting room → library
@@ -74,7 +75,7 @@ class Rig:
         world = World.from_config(cfg)
         bus = make_bus()
         clock = SimClock()
-        odometry = WheelOdometry(cfg, bus, clock)
+        odometry = WheelOdometry(RobotModel.from_config(cfg.robot), bus, clock)
         ekf = OdomEkf(cfg.ekf, cfg.robot.imu_pose[2])
         loc = Localizer(world.grid, cfg.localization, Pose2D(*cfg.robot.laser_pose),
                         seed=cfg.sim.seed * 7919 + 4)
@@ -129,7 +130,8 @@ class Rig:
         if t >= self.next_ctrl:
             self.next_ctrl += 0.1
             self.cmd = controller()
-            servo = twist_to_servo_command(self.cmd[0], self.cmd[1], self.cfg.robot, t)
+            servo = twist_to_servo_command(self.cmd[0], self.cmd[1],
+                                           RobotModel.from_config(self.cfg.robot), t)
             self.world.apply_servo_command(servo)
             self.bus.publish(SERVO_CMD, servo)
         est = self.pose()

@@ -42,6 +42,7 @@ from curio.estimation.carmen import LogScan, read_carmen
 from curio.estimation.ekf import OdomEkf
 from curio.estimation.mapping import MapperParams, build_map_from_log
 from curio.estimation.maps import OccupancyGrid
+from curio.robot import RobotModel
 from curio.sim.world import World
 
 MIT_LOG = REPO_ROOT.parent / "shared" / "datasets" / "mit-csail.clf"
@@ -59,7 +60,7 @@ def record_tour(opts: BenchOptions, loops: int = 1,
     cfg = load_config(None, overrides)
     world = World.from_config(cfg)
     bus = make_bus()
-    odometry = WheelOdometry(cfg, bus, SimClock())
+    odometry = WheelOdometry(RobotModel.from_config(cfg.robot), bus, SimClock())
     ekf = OdomEkf(cfg.ekf, cfg.robot.imu_pose[2])
     laser = Pose2D(*cfg.robot.laser_pose)
     dt = 1.0 / cfg.sim.physics_rate_hz
@@ -100,7 +101,7 @@ def record_tour(opts: BenchOptions, loops: int = 1,
                 v, w = 0.0, math.copysign(0.6, err)
             else:
                 v, w = 0.3 * max(0.2, math.cos(err)), max(-0.8, min(0.8, 1.5 * err))
-            servo = twist_to_servo_command(v, w, cfg.robot, t)
+            servo = twist_to_servo_command(v, w, RobotModel.from_config(cfg.robot), t)
             world.apply_servo_command(servo)
             bus.publish(SERVO_CMD, servo)
     return scans, world, t

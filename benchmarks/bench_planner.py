@@ -52,6 +52,7 @@ from curio.estimation.maps import OccupancyGrid, load_map
 from curio.nav.api import NavError
 from curio.nav.costmap import Costmap
 from curio.nav.planner import GlobalPlanner, narrow_cost, traversal_lut
+from curio.robot import RobotModel
 
 DEFAULT_SIZE = 2000
 DEFAULT_RES_M = 0.05
@@ -199,7 +200,7 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
     else:
         grid = generate_map(opts.seed)
     n_pairs = opts.pairs if opts.pairs is not None else 50
-    costmap = Costmap(grid, cfg.robot, cfg.nav.costmap)
+    costmap = Costmap(grid, RobotModel.from_config(cfg.robot), cfg.nav.costmap)
     costs = costmap.costs()
     res = grid.resolution_m
     origin = grid.origin

@@ -1,10 +1,14 @@
 """The composition root: builds every part from the config and runs them in one task group.
 
-Each subsystem has one wiring function that constructs its parts by constructor injection and
-registers them here (``curio/sim/wiring.py``, ``curio/drivers/wiring.py``,
-``curio/estimation/wiring.py``, ``curio/nav/wiring.py``, ``curio/bt/wiring.py``,
-``curio/web/wiring.py``). The order of the calls below is the order of dependencies. Nothing
-is a module-level singleton: two ``App`` objects can run side by side (tests do).
+Each subsystem has one wiring function that takes its dependencies explicitly, constructs its
+objects by constructor injection, registers its running pieces on a
+:class:`~curio.core.parts.Parts` registry and returns a typed result: ``build_sim``
+(``curio/sim/wiring.py``), ``build_drivers`` (``curio/drivers/wiring.py``),
+``build_estimation`` (``curio/estimation/wiring.py``), ``build_safety``
+(``curio/safety/wiring.py``), ``build_navigation`` (``curio/nav/wiring.py``),
+``build_behaviour`` (``curio/bt/wiring.py``) and ``build_web`` (``curio/web/wiring.py``). The
+order of the calls below is the order of dependencies. Nothing below this module imports it,
+and nothing is a module-level singleton: two ``App`` objects can run side by side (tests do).
 
 Shutdown order: the rover is stopped first (a zero velocity goes to the base and the base's
 ``halt()`` is awaited), then every task is cancelled and each part's ``close()`` runs.
@@ -16,125 +20,113 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass
-from typing import Any
 
+from curio.bt.paths import PathManager
+from curio.bt.runner import TreeRunner
+from curio.bt.wiring import build_behaviour
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.messages import Twist
+from curio.core.parts import Part, Parts
 from curio.core.topics import CMD_VEL, make_bus
+from curio.drivers.wiring import BaseDriver, build_drivers
+from curio.estimation.ekf import EkfNode
+from curio.estimation.wiring import Localiser, MapServer, build_estimation
+from curio.nav.controller import LocalController
+from curio.nav.costmap import Costmap
+from curio.nav.navigator import NavigatorNode
+from curio.nav.obstacles import BlockedDetector, ObstacleNode
+from curio.nav.planner import GlobalPlanner
+from curio.nav.wiring import build_navigation
+from curio.robot import RobotModel
+from curio.safety.stage import SafetyStage
+from curio.safety.wiring import build_safety
+from curio.sim.wiring import Simulator, build_sim
+from curio.sim.world import World
+from curio.web.wiring import WebServer, build_web
 
-__all__ = ["App", "Part"]
+__all__ = ["App"]
 
 log = logging.getLogger("curio.app")
-
-
-@dataclass
-class Part:
-    """A running piece of the application.
-
-    Attributes:
-        name: for logs and health.
-        run: the long-lived coroutine function (cancelled at shutdown); None if passive.
-        close: optional cleanup, awaited after every task has stopped.
-    """
-
-    name: str
-    run: Callable[[], Awaitable[None]] | None = None
-    close: Callable[[], Awaitable[None]] | None = None
 
 
 class App:
     """Everything that runs on the rover (or in the simulator), wired together.
 
-    The attributes below are set by the subsystems' wiring functions; ``None`` means that part
-    is not configured (e.g. ``world`` on the real rover).
+    ``None`` means that part is not configured (e.g. ``world`` on the real rover, ``ekf`` when
+    ``ekf.enabled`` is false, ``web`` without the dashboard).
     """
 
     def __init__(self, cfg: Config, clock: Clock, *, web: bool | None = None) -> None:
         self.cfg = cfg
         self.clock = clock
         self.bus: Bus = make_bus()
-        self.parts: list[Part] = []
-        self.halt_hooks: list[Callable[[], Awaitable[None]]] = []
-        # Simulator (curio/sim/wiring.py)
-        self.world: Any = None
-        self.simulator: Any = None
-        # Drivers (curio/drivers/wiring.py)
-        self.base: Any = None
-        self.lidar: Any = None
-        self.imu: Any = None
-        self.emulators: list[Any] = []
-        # Estimation (curio/estimation/wiring.py)
-        self.map_server: Any = None
-        self.ekf: Any = None
-        self.localizer: Any = None
-        # Navigation (curio/nav/wiring.py)
-        self.costmap: Any = None
-        self.planner: Any = None
-        self.controller: Any = None
-        self.navigator: Any = None
-        self.safety: Any = None
-        self.obstacles: Any = None
-        self.blocked: Any = None
-        # Behaviour (curio/bt/wiring.py)
-        self.paths: Any = None
-        self.tree: Any = None
-        # Web (curio/web/wiring.py)
-        self.web: Any = None
-        self.web_url: str | None = None
+        self.robot = RobotModel.from_config(cfg.robot)
+        self._registry = Parts()
         self._tasks: list[asyncio.Task[None]] = []
-        self._build(web)
+        reg = self._registry
+        sim = build_sim(cfg, self.bus, clock, reg, self.robot)
+        self.world: World | None = sim.world if sim else None
+        self.simulator: Simulator | None = sim.simulator if sim else None
+        drivers = build_drivers(cfg, self.bus, clock, reg, self.robot, world=self.world,
+                                sim_base=sim.base if sim else None)
+        self.base: BaseDriver | None = drivers.base
+        self.lidar = drivers.lidar
+        self.imu = drivers.imu
+        self.emulators = drivers.emulators
+        est = build_estimation(cfg, self.bus, clock, reg, self.robot)
+        self.map_server: MapServer = est.map_server
+        self.ekf: EkfNode | None = est.ekf
+        self.localizer: Localiser | None = est.localizer
+        self.safety: SafetyStage = build_safety(cfg, self.bus, clock, reg, self.robot)
+        nav = build_navigation(cfg, self.bus, clock, reg, self.robot, est.map_server.grid)
+        self.costmap: Costmap = nav.costmap
+        self.planner: GlobalPlanner = nav.planner
+        self.controller: LocalController = nav.controller
+        self.navigator: NavigatorNode = nav.navigator
+        self.obstacles: ObstacleNode = nav.obstacles
+        self.blocked: BlockedDetector = nav.obstacles.detector
+        behaviour = build_behaviour(cfg, self.bus, clock, reg, nav)
+        self.paths: PathManager = behaviour.paths
+        self.tree: TreeRunner = behaviour.tree
+        self.web: WebServer | None = None
+        self.web_url: str | None = None
+        if cfg.web.enabled if web is None else web:
+            self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths)
+            self.web_url = self.web.control_url
 
-    def _build(self, web: bool | None) -> None:
-        from curio.bt.wiring import build_behaviour
-        from curio.drivers.wiring import build_drivers
-        from curio.estimation.wiring import build_estimation
-        from curio.nav.wiring import build_navigation
-        from curio.sim.wiring import build_sim
-
-        build_sim(self)
-        build_drivers(self)
-        build_estimation(self)
-        build_navigation(self)
-        build_behaviour(self)
-        if self.cfg.web.enabled if web is None else web:
-            from curio.web.wiring import build_web
-
-            build_web(self)
+    @property
+    def parts(self) -> list[Part]:
+        """Every registered part, in start order."""
+        return self._registry.parts
 
     def add(self, part: Part) -> None:
-        """Register a part (wiring functions call this)."""
-        self.parts.append(part)
-
-    def add_halt_hook(self, hook: Callable[[], Awaitable[None]]) -> None:
-        """Register a coroutine that stops the motors (run first at shutdown)."""
-        self.halt_hooks.append(hook)
+        """Register one more part (a command's recorder, a scenario's helper) before start."""
+        self._registry.add(part)
 
     async def start(self) -> None:
         """Start every part's task; return at once."""
         self.bus.bind_loop(asyncio.get_running_loop())
         for part in self.parts:
             if part.run is not None:
-                task = asyncio.create_task(self._guard(part), name=part.name)
+                task = asyncio.create_task(self._guard(part.run, part.name), name=part.name)
                 self._tasks.append(task)
 
-    async def _guard(self, part: Part) -> None:
-        assert part.run is not None
+    async def _guard(self, run: Callable[[], Awaitable[None]], name: str) -> None:
         try:
-            await part.run()
+            await run()
         except asyncio.CancelledError:
             raise
         except Exception:
-            log.exception("part %s crashed; stopping the rover", part.name)
+            log.exception("part %s crashed; stopping the rover", name)
             await self.halt()
             raise
 
     async def halt(self) -> None:
         """Stop the rover now: zero velocity to the base and every halt hook."""
         self.bus.publish(CMD_VEL, Twist(self.clock.now(), 0.0, 0.0, source="halt"))
-        for hook in self.halt_hooks:
+        for hook in self._registry.halt_hooks:
             with contextlib.suppress(Exception):
                 await hook()
 

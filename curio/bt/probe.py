@@ -6,9 +6,9 @@ global planner, on the current costmap, whether a collision-free path now leads 
 rover's pose (``/pose``, ``map``) to the waypoint it was heading for: a closed door that
 reopens or an obstacle taken away clears its cells (lidar ray tracing), and the plan appears.
 
-Behaviours never block: :meth:`WayProbe.start` launches the plan in a worker thread on the real
-clock (``asyncio.to_thread``) and :meth:`WayProbe.poll` picks the answer up on a later tick. On
-a simulated clock the plan runs inline (like the navigator's), so runs stay deterministic.
+Behaviours never block: :meth:`WayProbe.start` launches the plan with ``Clock.offload`` (a
+worker thread on the real clock, inline on a simulated one, like the navigator's plans) and
+:meth:`WayProbe.poll` picks the answer up.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from curio.core.bus import Bus
+from curio.core.clock import Clock
 from curio.core.geometry import Pose2D
 from curio.core.topics import POSE
 from curio.nav.api import NavError
@@ -45,14 +46,14 @@ class WayProbe:
             raises :class:`~curio.nav.api.NavError` when there is no path.
         costmap: has ``costs()``, ``resolution_m`` and ``origin``.
         bus: for the rover's pose (``/pose``).
-        in_thread: plan in a worker thread (real clock) or inline (simulated clock).
+        clock: plans run through ``clock.offload`` (a worker thread on real time).
     """
 
-    def __init__(self, planner: Any, costmap: Any, bus: Bus, *, in_thread: bool) -> None:
+    def __init__(self, planner: Any, costmap: Any, bus: Bus, clock: Clock) -> None:
         self.planner = planner
         self.costmap = costmap
         self.bus = bus
-        self.in_thread = in_thread
+        self.clock = clock
         self._job: asyncio.Future[list[Pose2D]] | None = None
         self._job_started_s = 0.0
         self.last: ProbeResult | None = None
@@ -76,16 +77,8 @@ class WayProbe:
         origin = self.costmap.origin
         self.count += 1
         self._job_started_s = now_s
-        if self.in_thread:
-            self._job = asyncio.ensure_future(
-                asyncio.to_thread(self.planner.plan, start, goal, costs, res, origin))
-            self.poll()
-        else:
-            try:
-                self.planner.plan(start, goal, costs, res, origin)
-                self.last = ProbeResult(now_s, True)
-            except Exception as exc:  # reported as "not clear", never raised into the tree
-                self.last = ProbeResult(now_s, False, str(exc))
+        self._job = self.clock.offload(self.planner.plan, start, goal, costs, res, origin)
+        self.poll()
         return True
 
     def poll(self) -> ProbeResult | None:

@@ -23,6 +23,7 @@ from py_trees.common import Status
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import BtConfig
+from curio.core.jsonable import to_jsonable
 from curio.core.messages import Event, OperatorCommand, TreeSnapshot
 from curio.core.topics import EVENTS, TREE
 
@@ -36,18 +37,6 @@ from .trees import build_root, tour_route_from_config
 __all__ = ["TreeRunner", "build_tree_runner"]
 
 log = logging.getLogger("curio.bt.runner")
-
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, float):
-        return round(value, 4)
-    if value is None or isinstance(value, (bool, int, str)):
-        return value
-    return str(value)
-
 
 def _preorder(root: Behaviour) -> list[Behaviour]:
     """Every node, parents before children, left to right (snapshot ids follow this order)."""
@@ -141,7 +130,7 @@ class TreeRunner:
         """This tree's blackboard, keys without the namespace, values JSON-safe."""
         prefix = self.ctx.namespace + "/"
         storage = py_trees.blackboard.Blackboard.storage
-        return {key[len(prefix):]: _json_safe(value) for key, value in sorted(storage.items())
+        return {key[len(prefix):]: to_jsonable(value, 4) for key, value in sorted(storage.items())
                 if key.startswith(prefix)}
 
     def _node_dicts(self) -> tuple[dict[str, Any], ...]:

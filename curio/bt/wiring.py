@@ -1,51 +1,53 @@
-"""Behaviour wiring: the path manager on ``app.paths`` and the tree runner on ``app.tree``.
+"""Behaviour wiring: the path manager and the configured tree's runner, as a part.
 
-``build_behaviour(app)`` runs after navigation is built, so ``app.navigator`` is set when the
-navigation stack is configured (None otherwise: the tree still runs and answers every command,
-and goals fail with "navigation is not running").
+``build_behaviour`` runs after navigation is built: the tree drives the navigator, and its help
+request asks the way probe (the planner on the live costmap) whether the way is clear.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
-from curio.core.clock import SimClock
+from curio.bt.paths import PathManager
+from curio.bt.probe import WayProbe
+from curio.bt.runner import TreeRunner, build_tree_runner
+from curio.bt.speech import Speaker
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import Config
 from curio.core.messages import Event
+from curio.core.parts import Part, Parts
 from curio.core.topics import EVENTS
+from curio.nav.wiring import Navigation
 
-from .paths import PathManager
-from .probe import WayProbe
-from .runner import build_tree_runner
-from .speech import Speaker
-
-if TYPE_CHECKING:
-    from curio.app import App
+__all__ = ["Behaviour", "build_behaviour"]
 
 
-def build_behaviour(app: App) -> None:
-    """Construct the path manager and the configured tree; register the tree as a Part."""
-    from curio.app import Part
+@dataclass(frozen=True)
+class Behaviour:
+    """The behaviour subsystem's objects."""
 
-    cfg = app.cfg
+    paths: PathManager
+    tree: TreeRunner
+
+
+def build_behaviour(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
+                    nav: Navigation) -> Behaviour:
+    """Construct the path manager and the configured tree; register the tree as a part."""
     paths = PathManager(cfg.bt.paths, cfg.data_path(cfg.bt.paths_file))
-    app.paths = paths
 
     def on_paths_changed(what: str, path_id: int) -> None:
-        app.bus.publish(EVENTS, Event(app.clock.now(), "paths.changed",
-                                      {"change": what, "path_id": path_id}))
+        bus.publish(EVENTS, Event(clock.now(), "paths.changed",
+                                  {"change": what, "path_id": path_id}))
 
     paths.add_listener(on_paths_changed)
     speaker = Speaker(enabled=cfg.bt.speak)
-    probe = None
-    if app.planner is not None and app.costmap is not None:
-        probe = WayProbe(app.planner, app.costmap, app.bus,
-                         in_thread=not isinstance(app.clock, SimClock))
-    runner = build_tree_runner(cfg.bt, app.bus, app.clock, app.navigator, paths, speaker,
-                               probe=probe)
-    app.tree = runner
+    probe = WayProbe(nav.planner, nav.costmap, bus, clock)
+    runner = build_tree_runner(cfg.bt, bus, clock, nav.navigator, paths, speaker, probe=probe)
 
     async def close() -> None:
         await runner.close()
         await speaker.close()
 
-    app.add(Part("behaviour", run=runner.run, close=close))
+    parts.add(Part("behaviour", run=runner.run, close=close))
+    return Behaviour(paths, runner)

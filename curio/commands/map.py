@@ -162,10 +162,10 @@ def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     import contextlib
     import signal
 
-    from curio.app import App, Part
+    from curio.app import App
     from curio.core.clock import Clock, RealClock, SimClock
     from curio.core.config import ConfigError, load_config
-    from curio.core.geometry import Pose2D
+    from curio.core.parts import Part
     from curio.core.topics import GROUND_TRUTH, ODOM, SCAN
     from curio.estimation.carmen import RunRecorder
 
@@ -191,7 +191,7 @@ def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     async def main() -> int:
         app = App(cfg, clock)
         with out_path.open("w", encoding="utf-8") as fh:
-            rec = RunRecorder(fh, Pose2D(*cfg.robot.laser_pose))
+            rec = RunRecorder(fh, app.robot.laser_in_base)
             scan_sub = app.bus.subscribe(SCAN, maxsize=8)
             odom_sub = app.bus.subscribe(ODOM, maxsize=256)
             truth_sub = app.bus.subscribe(GROUND_TRUTH, maxsize=256)

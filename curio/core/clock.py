@@ -11,6 +11,10 @@ Two clocks implement :class:`Clock`:
 
 All times are seconds. ``now()`` is monotonic (the epoch is arbitrary, 0 for a fresh
 ``SimClock``); ``wall_time()`` is UNIX time for log and report stamps.
+
+The clock also decides, once for the whole application, where heavy work runs
+(:meth:`Clock.offload`): in a worker thread on the real clock, so the loop never blocks; inline
+on a simulated clock, so a run never depends on wall-clock speed and stays deterministic.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
-from typing import Protocol, TypeVar, runtime_checkable
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 T = TypeVar("T")
 
@@ -108,6 +112,10 @@ class Clock(Protocol):
         """Poll ``predicate`` until it holds; False after ``timeout_s``."""
         ...
 
+    def offload(self, fn: Callable[..., T], *args: Any) -> asyncio.Future[T]:
+        """Run ``fn(*args)`` off the loop when time is real (a future of its result)."""
+        ...
+
 
 async def _yield_once() -> None:
     """Give every other ready task one turn (a zero-length sleep)."""
@@ -183,6 +191,10 @@ class _ClockMixin(ABC):
 class RealClock(_ClockMixin):
     """Monotonic wall time, for the rover and ``curio run``."""
 
+    def offload(self, fn: Callable[..., T], *args: Any) -> asyncio.Future[T]:
+        """Run ``fn(*args)`` in a worker thread; the loop goes on meanwhile."""
+        return asyncio.ensure_future(asyncio.to_thread(fn, *args))
+
     def now(self) -> float:
         """Monotonic time in seconds."""
         return time.monotonic()
@@ -250,6 +262,19 @@ class SimClock(_ClockMixin):
         fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         heapq.heappush(self._timers, (t_s, next(self._seq), fut))
         await fut
+
+    def offload(self, fn: Callable[..., T], *args: Any) -> asyncio.Future[T]:
+        """Run ``fn(*args)`` inline and return a finished future (its result or exception).
+
+        Awaiting a finished future does not yield to the loop, so inline work keeps the
+        order of events exactly as if it had been a plain call: runs stay deterministic.
+        """
+        fut: asyncio.Future[T] = asyncio.get_running_loop().create_future()
+        try:
+            fut.set_result(fn(*args))
+        except Exception as exc:
+            fut.set_exception(exc)
+        return fut
 
     def pending_timers(self) -> int:
         """Number of live sleepers (cancelled ones are pruned lazily)."""

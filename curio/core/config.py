@@ -14,7 +14,14 @@ import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 __all__ = ["Config", "ConfigError", "default_config_path", "dump_config", "load_config"]
 
@@ -207,7 +214,6 @@ class EkfConfig(Section):
     enabled: bool = True
     rate_hz: float = Field(50.0, gt=0.0, le=500.0)
     use_imu_heading: bool = False
-    odom_position_sigma_m: float = Field(0.01, gt=0.0)
     odom_yaw_rate_sigma_radps: float = Field(0.05, gt=0.0)
     imu_yaw_rate_sigma_radps: float = Field(0.01, gt=0.0)
     imu_heading_sigma_rad: float = Field(0.02, gt=0.0)
@@ -402,14 +408,16 @@ class RecoveryConfig(Section):
         default_factory=lambda: list(_DEFAULT_LADDER)
     )
     step_back_distance_m: float = Field(1.0, gt=0.0, le=3.0)
-    step_back_speed_mps: float = Field(0.3, gt=0.0, le=0.37)
+    step_back_speed_mps: float = Field(
+        0.3, gt=0.0, description="at most robot.max_wheel_speed_mps")
     step_back_clearance_m: float = Field(0.5, ge=0.0)
     rotate_angle_rad: float = Field(math.pi / 2, gt=0.0)
     wait_s: float = Field(5.0, ge=0.0)
     clear_radius_m: float = Field(
         1.5, ge=0.0, description="clear_costmap forgets obstacle marks this near the rover")
     step_back_timeout_s: float = Field(15.0, gt=0.0)
-    rotate_speed_radps: float = Field(0.6, gt=0.0, le=1.45)
+    rotate_speed_radps: float = Field(
+        0.6, gt=0.0, description="at most robot.max_angular_radps")
     rotate_timeout_s: float = Field(10.0, gt=0.0)
     rate_hz: float = Field(10.0, gt=0.0, le=50.0, description="command rate of the actions")
     max_rounds: int = Field(
@@ -538,7 +546,6 @@ class Config(Section):
     """The whole application configuration."""
 
     data_dir: str = Field("var", description="where paths, tokens and calibrations are kept")
-    log_level: Literal["debug", "info", "warning", "error"] = "info"
     robot: RobotConfig = Field(default_factory=RobotConfig)
     drivers: DriversConfig = Field(default_factory=DriversConfig)
     sim: SimConfig = Field(default_factory=SimConfig)
@@ -550,6 +557,22 @@ class Config(Section):
 
     # Where relative paths are resolved; not a config key.
     base_dir: Path = Field(default_factory=lambda: REPO_ROOT, exclude=True)
+
+    @model_validator(mode="after")
+    def _within_the_robot(self) -> Config:
+        """Speeds that other sections ask of the robot must be within the robot's limits."""
+        robot, rec = self.robot, self.nav.recovery
+        if rec.step_back_speed_mps > robot.max_wheel_speed_mps:
+            raise ValueError(
+                f"nav.recovery.step_back_speed_mps = {rec.step_back_speed_mps:g} is faster than "
+                f"the robot can drive (robot.max_wheel_speed_mps = {robot.max_wheel_speed_mps:g}); "
+                "allowed: 0 < step_back_speed_mps <= robot.max_wheel_speed_mps")
+        if rec.rotate_speed_radps > robot.max_angular_radps:
+            raise ValueError(
+                f"nav.recovery.rotate_speed_radps = {rec.rotate_speed_radps:g} is faster than the "
+                f"robot can turn (robot.max_angular_radps = {robot.max_angular_radps:g}); "
+                "allowed: 0 < rotate_speed_radps <= robot.max_angular_radps")
+        return self
 
     def resolve(self, path_str: str) -> Path:
         """Resolve a path from the config against the config file's directory."""
@@ -590,6 +613,19 @@ def _model_at(path: list[str]) -> type[BaseModel] | None:
     return model
 
 
+# Keys that older Curio versions accepted: an unknown-key error says what became of them.
+REMOVED_KEYS: dict[str, str] = {
+    "ekf.odom_position_sigma_m": "it was never used (the EKF fuses wheel speed, "
+    "ekf.odom_speed_sigma_mps); delete the line",
+    "log_level": "it was never used; use `curio -v` for debug logging; delete the line",
+}
+
+
+def _removed_hint(dotted: str) -> str:
+    why = REMOVED_KEYS.get(dotted)
+    return f" '{dotted}' was removed: {why}." if why else ""
+
+
 def _suggest(word: str, choices: list[str]) -> str:
     close = difflib.get_close_matches(word, choices, n=1, cutoff=0.5)
     hint = f" Did you mean '{close[0]}'?" if close else ""
@@ -605,7 +641,7 @@ def _check_key(dotted: str) -> None:
         if part not in fields:
             where = ".".join(parts[:i]) or "the top level"
             raise ConfigError(f"unknown config key '{dotted}' ('{part}' is not a key of {where})."
-                              + _suggest(part, fields))
+                              + (_removed_hint(dotted) or _suggest(part, fields)))
         sub = _model_at(parts[: i + 1])
         if sub is None:
             if i != len(parts) - 1:
@@ -650,7 +686,10 @@ def _describe_errors(exc: ValidationError, source: str) -> str:
         if err["type"] == "extra_forbidden":
             parent = _model_at([p for p in loc[:-1] if not p.isdigit()]) or Config
             lines.append(f"unknown config key '{key}' in {source}." +
-                         _suggest(loc[-1], _fields_of(parent)))
+                         (_removed_hint(key) or _suggest(loc[-1], _fields_of(parent))))
+            continue
+        if not loc:  # a check across sections: the message names the keys
+            lines.append(f"{err['msg'].removeprefix('Value error, ')} (in {source}).")
             continue
         value = err.get("input")
         shown = repr(value) if not isinstance(value, dict) else "{...}"

@@ -1,4 +1,5 @@
-"""Planar geometry: SE(2) poses, angle wrapping and yaw ↔ quaternion conversion.
+"""Planar geometry: SE(2) poses, angle wrapping, yaw ↔ quaternion conversion, constant-twist
+arcs and a per-step rate limit.
 
 Conventions (REP-103): metres and radians, x forward, y left, yaw counter-clockwise from +x.
 Quaternions are stored in ROS order ``(x, y, z, w)``.
@@ -15,6 +16,8 @@ import numpy.typing as npt
 __all__ = [
     "Pose2D",
     "angle_diff",
+    "approach",
+    "arc_poses",
     "quat_to_yaw",
     "wrap_angle",
     "wrap_angles",
@@ -35,6 +38,30 @@ def wrap_angles(angles_rad: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
 def angle_diff(a_rad: float, b_rad: float) -> float:
     """Return ``a - b`` wrapped to [-π, π)."""
     return wrap_angle(a_rad - b_rad)
+
+
+def approach(current: float, target: float, max_step: float) -> float:
+    """Move ``current`` towards ``target`` by at most ``max_step`` (a per-cycle rate limit)."""
+    if target > current + max_step:
+        return current + max_step
+    if target < current - max_step:
+        return current - max_step
+    return target
+
+
+def arc_poses(linear_mps: float, angular_radps: float,
+              times_s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Poses ``(K, 3)`` (x, y, yaw) in the start's frame reached by holding a body twist
+    (``linear_mps`` forward, ``angular_radps`` counter-clockwise) for each of ``times_s``."""
+    th = angular_radps * times_s
+    if abs(angular_radps) < 1e-6:
+        x = linear_mps * times_s
+        y = np.zeros_like(times_s)
+    else:
+        r = linear_mps / angular_radps
+        x = r * np.sin(th)
+        y = r * (1.0 - np.cos(th))
+    return np.stack([x, y, th], axis=-1)
 
 
 def yaw_to_quat(yaw_rad: float) -> tuple[float, float, float, float]:

@@ -24,12 +24,6 @@ WHEEL_NAMES: tuple[str, ...] = ("FL", "ML", "BL", "FR", "MR", "BR")
 STEER_NAMES: tuple[str, ...] = ("FL", "BL", "FR", "BR")
 
 
-def _frozen_array(values: Any, dtype: Any = np.float32) -> FloatArray:
-    arr = np.array(values, dtype=dtype)
-    arr.flags.writeable = False
-    return arr
-
-
 @dataclass(frozen=True, slots=True)
 class Twist:
     """A velocity command or estimate in ``base_link``: forward m/s and yaw rate rad/s."""
@@ -71,6 +65,29 @@ class LaserScan:
         r = self.ranges_m
         with np.errstate(invalid="ignore"):
             return np.isfinite(r) & (r >= self.range_min_m) & (r <= self.range_max_m)
+
+    def points(self, laser_in_base: Pose2D | None = None, *, max_beams: int | None = None,
+               range_max_m: float | None = None) -> npt.NDArray[np.float64]:
+        """The valid beams' end points ``(N, 2)``, metres.
+
+        Args:
+            laser_in_base: the ``laser`` frame in ``base_link``: points come in ``base_link``;
+                None keeps them in ``laser``.
+            max_beams: evenly subsample the valid beams to at most this many.
+            range_max_m: also drop returns beyond this range.
+        """
+        ranges = np.asarray(self.ranges_m, dtype=np.float64)
+        valid = self.valid_mask()
+        if range_max_m is not None:
+            valid &= ranges <= range_max_m
+        idx = np.flatnonzero(valid)
+        if max_beams is not None and len(idx) > max_beams:
+            pick = np.linspace(0, len(idx) - 1, max_beams).round().astype(np.int64)
+            idx = idx[pick]
+        ang = self.angle_min_rad + idx * self.angle_increment_rad
+        r = ranges[idx]
+        pts = np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
+        return pts if laser_in_base is None else laser_in_base.transform_points(pts)
 
 
 @dataclass(frozen=True, slots=True)

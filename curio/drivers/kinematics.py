@@ -16,22 +16,22 @@ exactly:
 * LX-16A steering position ``trunc((120 − δ_i[deg]) · 1000 / 240)`` (500 = straight).
 
 Wheel order everywhere: ``FL, ML, BL, FR, MR, BR``; steering order: ``FL, BL, FR, BR``. The
-0.5 s command timeout is the caller's job (the base driver / SimBase), not this module's.
+geometry (wheel contact points, radius, the fastest-wheel limit) comes from the robot model
+(:class:`curio.robot.RobotModel`). The 0.5 s command timeout is the caller's job (the base
+driver / SimBase), not this module's.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
-from curio.core.config import RobotConfig
 from curio.core.messages import ServoCommand
+from curio.robot import RobotModel
 
 __all__ = [
     "DUTY_PER_RADPS",
     "STEER_CORNERS",
     "WHEEL_SIDES",
-    "WheelGeometry",
     "duty_to_servo_radps",
     "forward_kinematics",
     "inverse_kinematics",
@@ -39,7 +39,6 @@ __all__ = [
     "steer_angle_to_position",
     "steer_position_to_angle",
     "twist_to_servo_command",
-    "wheel_geometry",
 ]
 
 # LX-16A motor mode: duty ±1000 ↔ ±2π rad/s (hardware.md §2.3, an assumed mapping constant).
@@ -51,41 +50,15 @@ STEER_CORNERS: tuple[int, int, int, int] = (0, 2, 3, 5)
 _MAX_TURN_RADIUS_M = 1e6
 
 
-@dataclass(frozen=True, slots=True)
-class WheelGeometry:
-    """Wheel contact points in ``base_link`` (metres), order FL, ML, BL, FR, MR, BR."""
-
-    x_m: tuple[float, float, float, float, float, float]
-    y_m: tuple[float, float, float, float, float, float]
-    wheel_radius_m: float
-
-
-def wheel_geometry(robot: RobotConfig, lateral_scale: float = 1.0) -> WheelGeometry:
-    """The controller's wheel contact points from the config (hardware.md §2.1 table).
-
-    Args:
-        lateral_scale: multiplies every y (the simulator uses the track multiplier to model
-            rocker-bogie flex); 1.0 gives the controller's nominal geometry.
-    """
-    xf, xb = robot.front_wheel_lon_m, -robot.back_wheel_lon_m
-    yc = 0.5 * robot.corner_wheel_track_m * lateral_scale
-    ym = 0.5 * robot.mid_wheel_track_m * lateral_scale
-    return WheelGeometry(
-        x_m=(xf, 0.0, xb, xf, 0.0, xb),
-        y_m=(yc, ym, yc, -yc, -ym, -yc),
-        wheel_radius_m=robot.wheel_radius_m,
-    )
-
-
 def inverse_kinematics(
-    linear_mps: float, angular_radps: float, robot: RobotConfig
+    linear_mps: float, angular_radps: float, robot: RobotModel
 ) -> tuple[list[float], list[float]]:
     """Wheel ground speeds (m/s, six, after the limiter) and corner angles (rad, four, ±π/2).
 
     Speeds are signed along each wheel's steered heading, forward positive, before the servo
     orientation is applied.
     """
-    geo = wheel_geometry(robot)
+    geo = robot.wheels
     v, w = float(linear_mps), float(angular_radps)
     if not (math.isfinite(v) and math.isfinite(w)):
         raise ValueError(f"twist must be finite, got linear {v} m/s, angular {w} rad/s")
@@ -133,7 +106,7 @@ def _clamp_duty(value: int) -> int:
 
 
 def twist_to_servo_command(
-    linear_mps: float, angular_radps: float, robot: RobotConfig, stamp: float
+    linear_mps: float, angular_radps: float, robot: RobotModel, stamp: float
 ) -> ServoCommand:
     """The servo command for a twist in ``base_link`` (hardware.md §2.2, exactly).
 
@@ -150,7 +123,7 @@ def twist_to_servo_command(
         ValueError: a non-finite speed.
     """
     speeds, angles = inverse_kinematics(linear_mps, angular_radps, robot)
-    radius = robot.wheel_radius_m
+    radius = robot.wheels.wheel_radius_m
     duties = tuple(
         _clamp_duty(int((s / radius) * o * DUTY_PER_RADPS))
         for s, o in zip(speeds, WHEEL_SIDES, strict=True)
@@ -171,13 +144,13 @@ def forward_kinematics(
     return 0.5 * (left_mps + right_mps), (right_mps - left_mps) / track_m
 
 
-def servo_command_to_twist(cmd: ServoCommand, robot: RobotConfig) -> tuple[float, float]:
+def servo_command_to_twist(cmd: ServoCommand, robot: RobotModel) -> tuple[float, float]:
     """The twist ``(v m/s, ω rad/s)`` a servo command asks for, from its mid-wheel duties.
 
     Exact up to the duty truncation (the ICC lies on the mid axle), using the nominal radius
     and track of the controller.
     """
-    radius = robot.wheel_radius_m
-    left = duty_to_servo_radps(cmd.wheel_duty[1]) * radius * WHEEL_SIDES[1]
-    right = duty_to_servo_radps(cmd.wheel_duty[4]) * radius * WHEEL_SIDES[4]
-    return forward_kinematics(left, right, robot.mid_wheel_track_m)
+    geo = robot.wheels
+    left = duty_to_servo_radps(cmd.wheel_duty[1]) * geo.wheel_radius_m * WHEEL_SIDES[1]
+    right = duty_to_servo_radps(cmd.wheel_duty[4]) * geo.wheel_radius_m * WHEEL_SIDES[4]
+    return forward_kinematics(left, right, geo.mid_track_m)

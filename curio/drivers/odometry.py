@@ -29,10 +29,10 @@ from dataclasses import dataclass
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
-from curio.core.config import Config
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.core.messages import DriverHealth, Odometry, WheelEncoders
 from curio.core.topics import HEALTH, SERVO_CMD, WHEEL_ODOM, WHEELS
+from curio.robot import RobotModel
 
 __all__ = ["EncoderFilter", "MidWheelOdometry", "OdomState", "WheelOdometry"]
 
@@ -206,13 +206,10 @@ class MidWheelOdometry:
 class WheelOdometry:
     """The odometry component: ``/wheels`` (+ ``/servo_cmd``) → ``/wheel_odom``."""
 
-    def __init__(self, cfg: Config, bus: Bus, clock: Clock) -> None:
-        robot = cfg.robot
-        self.cfg = cfg
+    def __init__(self, robot: RobotModel, bus: Bus, clock: Clock) -> None:
         self.bus = bus
         self.clock = clock
-        self.odom = MidWheelOdometry(robot.wheel_radius_m * robot.wheel_radius_multiplier,
-                                     robot.mid_wheel_track_m * robot.mid_wheel_track_multiplier)
+        self.odom = MidWheelOdometry(robot.odom_wheel_radius_m, robot.odom_track_m)
         self.filters = (EncoderFilter(), EncoderFilter())
         self.published = 0
         self._sub = bus.subscribe(WHEELS, maxsize=16)

@@ -32,7 +32,6 @@ at ``rate_hz``.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -45,10 +44,7 @@ from curio.core.geometry import Pose2D, quat_to_yaw, wrap_angle
 from curio.core.messages import Imu, Odometry
 from curio.core.topics import IMU, ODOM, WHEEL_ODOM
 
-if TYPE_CHECKING:
-    from curio.app import App
-
-__all__ = ["EkfNode", "OdomEkf", "build_ekf_part"]
+__all__ = ["EkfNode", "OdomEkf"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -403,12 +399,3 @@ class EkfNode:
         finally:
             wheel_sub.close()
             imu_sub.close()
-
-
-def build_ekf_part(app: App) -> EkfNode:
-    """Construct the EKF node for ``app`` and register its part."""
-    from curio.app import Part
-
-    node = EkfNode(app.bus, app.clock, OdomEkf(app.cfg.ekf, app.cfg.robot.imu_pose[2]))
-    app.add(Part("ekf", run=node.run))
-    return node

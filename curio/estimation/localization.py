@@ -33,7 +33,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -53,17 +53,12 @@ from curio.core.messages import (
 from curio.core.topics import INITIAL_POSE, LOCALIZATION, MAP_TO_ODOM, ODOM, POSE, SCAN
 from curio.estimation.maps import OccupancyGrid
 
-if TYPE_CHECKING:
-    from curio.app import App
-
 __all__ = [
     "DistanceField",
     "Localizer",
     "LocalizerNode",
     "MatchResult",
-    "build_localizer_part",
     "scan_match",
-    "scan_to_points",
 ]
 
 log = logging.getLogger("curio.estimation.localization")
@@ -138,23 +133,6 @@ class DistanceField:
             c, s = math.cos(self.origin.yaw), math.sin(self.origin.yaw)
             gx, gy = c * gx - s * gy, s * gx + c * gy
         return val, gx, gy
-
-
-def scan_to_points(scan: LaserScan, laser_pose: Pose2D, max_beams: int | None = None,
-                   range_max_m: float | None = None) -> F64:
-    """Valid beam end points in ``base_link`` as ``(N, 2)``, evenly subsampled to ``max_beams``."""
-    ranges = np.asarray(scan.ranges_m, dtype=np.float64)
-    valid = scan.valid_mask()
-    if range_max_m is not None:
-        valid &= ranges <= range_max_m
-    idx = np.flatnonzero(valid)
-    if max_beams is not None and len(idx) > max_beams:
-        pick = np.linspace(0, len(idx) - 1, max_beams).round().astype(np.int64)
-        idx = idx[pick]
-    ang = scan.angle_min_rad + idx * scan.angle_increment_rad
-    r = ranges[idx]
-    pts = np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
-    return laser_pose.transform_points(pts)
 
 
 @dataclass(frozen=True, slots=True)
@@ -378,8 +356,8 @@ class Localizer:
             self.search.top_odom = (self.search.top_odom @ delta
                                     if self.search.top_odom is not None else None)
             self._propagate_top(delta)
-        pts_pf = scan_to_points(scan, self.laser_pose, self.cfg.laser_beams,
-                                scan.range_max_m - 0.05)
+        pts_pf = scan.points(self.laser_pose, max_beams=self.cfg.laser_beams,
+                             range_max_m=scan.range_max_m - 0.05)
         if len(pts_pf) < 8:
             # Nothing to weigh the particles with: the estimate follows the odometry.
             track = self._predict_track()
@@ -478,8 +456,8 @@ class Localizer:
         my = float(ws @ p[sel, 1])
         myaw = math.atan2(float(ws @ np.sin(p[sel, 2])), float(ws @ np.cos(p[sel, 2])))
         mean = Pose2D(mx, my, myaw)
-        pts = scan_to_points(scan, self.laser_pose, self.cfg.scan_match_beams,
-                             scan.range_max_m - 0.05)
+        pts = scan.points(self.laser_pose, max_beams=self.cfg.scan_match_beams,
+                          range_max_m=scan.range_max_m - 0.05)
         # The prior only while the particles agree on one place (not while hypotheses compete
         # after a global search: the particle filter decides between them).
         unimodal = float(w[sel].sum()) >= 0.8 * float(w.sum())
@@ -699,7 +677,7 @@ class Localizer:
         s = self.search
         assert s is not None and s.top is not None
         self.search = None
-        pts = scan_to_points(scan, self.laser_pose, 90, scan.range_max_m - 0.05)
+        pts = scan.points(self.laser_pose, max_beams=90, range_max_m=scan.range_max_m - 0.05)
         if len(pts):
             # Re-score against this scan, each candidate at its best of five headings across
             # its lattice cell (at 5 m a heading off by half a step misses a wall by 0.4 m).
@@ -736,7 +714,7 @@ class Localizer:
         results.append((current.inlier_fraction, current.pose))
         # Rank by a fine fit on every beam (within 5 cm of a wall face): the right place fits
         # to the sensor noise, a look-alike (repeated benches, symmetric rooms) only roughly.
-        all_pts = scan_to_points(scan, self.laser_pose, None, scan.range_max_m - 0.05)
+        all_pts = scan.points(self.laser_pose, range_max_m=scan.range_max_m - 0.05)
         half = 0.5 * self.grid.resolution_m
         ranked: list[tuple[float, Pose2D]] = []
         for coarse, pose in results:
@@ -798,16 +776,14 @@ class LocalizerNode:
     stamp; the correction changes only after a filter update.
     """
 
-    def __init__(self, bus: Bus, clock: Clock, localizer: Localizer, start: Pose2D, *,
-                 in_thread: bool = False) -> None:
-        """``in_thread``: run filter updates in a worker thread (``asyncio.to_thread``) so that
-        a global-search step or a slow update never blocks the event loop — for a real clock;
-        on a simulated clock updates run inline, keeping runs deterministic."""
+    def __init__(self, bus: Bus, clock: Clock, localizer: Localizer, start: Pose2D) -> None:
+        """Filter updates run through ``clock.offload``: in a worker thread on the real clock,
+        so a global-search step or a slow update never blocks the event loop; inline on a
+        simulated clock, keeping runs deterministic."""
         self.bus = bus
         self.clock = clock
         self.localizer = localizer
         self.start = start
-        self.in_thread = in_thread
         self._working = False  # a worker thread owns the localiser
         self._pending: list[Callable[[], None]] = []  # requests made meanwhile, in order
         self.map_to_odom: Pose2D | None = None
@@ -937,15 +913,12 @@ class LocalizerNode:
             async for s in scan_sub:
                 for o in odom_sub.drain():  # the odometry up to the scan's time first
                     self.on_odom(o)
-                if not self.in_thread:
-                    self.on_scan(s)
-                    continue
                 odom_pose = self._odom_at(s.stamp)
                 if odom_pose is None:
                     continue
                 self._working = True
                 try:
-                    took = await asyncio.to_thread(self._timed_update, s, odom_pose)
+                    took = await self.clock.offload(self._timed_update, s, odom_pose)
                 finally:
                     self._working = False
                 self._after_update(s, odom_pose, took)
@@ -962,18 +935,3 @@ class LocalizerNode:
             odom_sub.close()
             scan_sub.close()
             init_sub.close()
-
-
-def build_localizer_part(app: App, grid: OccupancyGrid, start: Pose2D) -> LocalizerNode:
-    """Construct the localiser node for ``app`` and register its part."""
-    from curio.app import Part
-
-    cfg = app.cfg
-    laser = Pose2D(*cfg.robot.laser_pose)
-    from curio.core.clock import SimClock
-
-    loc = Localizer(grid, cfg.localization, laser, seed=cfg.sim.seed * 7919 + 4)
-    node = LocalizerNode(app.bus, app.clock, loc, start,
-                         in_thread=not isinstance(app.clock, SimClock))
-    app.add(Part("localization", run=node.run))
-    return node

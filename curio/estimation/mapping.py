@@ -39,7 +39,6 @@ import logging
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -48,12 +47,11 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
 from curio.core.geometry import Pose2D, wrap_angle, wrap_angles
-from curio.estimation.carmen import LogScan, read_log
+from curio.estimation.carmen import LogScan
 from curio.estimation.localization import DistanceField, scan_match
-from curio.estimation.maps import OccupancyGrid, save_map
+from curio.estimation.maps import OccupancyGrid
 
 if TYPE_CHECKING:
-    from curio.app import App
     from curio.core.bus import Bus
     from curio.core.clock import Clock
     from curio.core.messages import LaserScan, Odometry
@@ -532,15 +530,6 @@ def build_map_from_log(scans: Iterable[LogScan], params: MapperParams | None = N
     return mapper
 
 
-def build_map_file(log_path: Path | str, out_yaml: Path | str,
-                   params: MapperParams | None = None,
-                   progress: Callable[[int], None] | None = None) -> ScanMapper:
-    """Build and save a map from a log file (the work of ``curio map build``)."""
-    mapper = build_map_from_log(read_log(log_path), params, progress)
-    save_map(mapper.occupancy(), out_yaml)
-    return mapper
-
-
 class MappingNode:
     """Online mapping while the rover is driven: ``SCAN`` + ``ODOM`` → ``POSE``, ``MAP``.
 
@@ -550,12 +539,11 @@ class MappingNode:
 
     def __init__(self, bus: Bus, clock: Clock, laser: Pose2D, start: Pose2D,
                  on_map: Callable[[OccupancyGrid], None], params: MapperParams | None = None,
-                 publish_period_s: float = 2.0, *, in_thread: bool = False) -> None:
-        """``in_thread``: map each scan in a worker thread (``asyncio.to_thread``) — a loop
-        closure re-optimises the graph and rebuilds the grid, hundreds of milliseconds that must
-        not block the event loop on a real clock; on a simulated clock scans are mapped inline,
-        keeping runs deterministic."""
-        self.in_thread = in_thread
+                 publish_period_s: float = 2.0) -> None:
+        """Each scan is mapped through ``clock.offload``: a loop closure re-optimises the graph
+        and rebuilds the grid, hundreds of milliseconds that must not block the event loop on
+        a real clock (a worker thread); on a simulated clock scans are mapped inline, keeping
+        runs deterministic."""
         self._inflight: asyncio.Future[tuple[Pose2D, OccupancyGrid | None]] | None = None
         self.bus = bus
         self.clock = clock
@@ -621,8 +609,8 @@ class MappingNode:
 
     async def finish(self) -> OccupancyGrid | None:
         """After ``run`` ends: wait for a scan still being mapped, close the pending loops and
-        return the final map (None if nothing was mapped); heavy work off the loop if
-        ``in_thread``."""
+        return the final map (None if nothing was mapped); heavy work through
+        ``clock.offload``."""
         if self._inflight is not None:
             await asyncio.wait([self._inflight])
         mapper = self.mapper
@@ -634,7 +622,7 @@ class MappingNode:
                 mapper._optimize()
             return mapper.occupancy()
 
-        return await asyncio.to_thread(final) if self.in_thread else final()
+        return await self.clock.offload(final)
 
     async def run(self) -> None:
         """Consume odometry and scans until cancelled."""
@@ -651,13 +639,9 @@ class MappingNode:
             async for s in scan_sub:
                 for o in odom_sub.drain():
                     self.on_odom(o)
-                if not self.in_thread:
-                    self.on_scan(s)
-                    continue
                 odom = self._odom_for(s)
                 if odom is not None:
-                    self._inflight = asyncio.ensure_future(
-                        asyncio.to_thread(self._map_scan, s, odom))
+                    self._inflight = self.clock.offload(self._map_scan, s, odom)
                     # Shielded: a cancelled run leaves the thread to finish (see ``finish``).
                     pose, grid = await asyncio.shield(self._inflight)
                     self._after_scan(s, odom, pose, grid)
@@ -667,28 +651,3 @@ class MappingNode:
         finally:
             odom_sub.close()
             scan_sub.close()
-
-
-def build_mapping_part(app: App, start: Pose2D, out_yaml: Path) -> MappingNode:
-    """Online mapping for ``app`` (instead of localisation); the map is saved at shutdown."""
-    from curio.app import Part
-
-    cfg = app.cfg
-    params = MapperParams(max_range_m=cfg.sim.lidar_range_max_m)
-
-    def publish(grid: OccupancyGrid) -> None:
-        app.map_server.set_grid(grid)
-
-    from curio.core.clock import SimClock
-
-    node = MappingNode(app.bus, app.clock, Pose2D(*cfg.robot.laser_pose), start, publish,
-                       params, in_thread=not isinstance(app.clock, SimClock))
-
-    async def close() -> None:
-        grid = await node.finish()
-        if grid is not None:
-            save_map(grid, out_yaml)
-            log.info("map saved to %s", out_yaml)
-
-    app.add(Part("mapping", run=node.run, close=close))
-    return node

@@ -11,18 +11,20 @@ Topics (see ``curio/core/topics.py``):
 
 With ``localization.mode = "map"`` the rover maps a new building instead
 (:mod:`curio.estimation.mapping`): ``MAP`` is republished as it grows and the map is saved to
-``data_dir/localization.mapping_out`` at shutdown. ``app.localizer`` is then the mapping node.
+``data_dir/localization.mapping_out`` at shutdown; the result's ``localizer`` is then the
+mapping node.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
+from curio.core.config import Config
 from curio.core.geometry import Pose2D
 from curio.core.messages import (
     GridMessage,
@@ -31,14 +33,23 @@ from curio.core.messages import (
     PoseWithCovariance,
     Transform,
 )
+from curio.core.parts import Part, Parts
 from curio.core.topics import LOCALIZATION, MAP, MAP_TO_ODOM, ODOM, POSE, WHEEL_ODOM
-from curio.estimation.maps import OccupancyGrid, load_map
+from curio.estimation.ekf import EkfNode, OdomEkf
+from curio.estimation.localization import Localizer, LocalizerNode
+from curio.estimation.mapping import MapperParams, MappingNode
+from curio.estimation.maps import OccupancyGrid, load_map, save_map
+from curio.robot import RobotModel
 
-if TYPE_CHECKING:
-    from curio.app import App
-    from curio.core.config import Config
-
-__all__ = ["MapServer", "OdomRelay", "build_estimation", "map_path", "start_pose"]
+__all__ = [
+    "Estimation",
+    "Localiser",
+    "MapServer",
+    "OdomRelay",
+    "build_estimation",
+    "map_path",
+    "start_pose",
+]
 
 log = logging.getLogger("curio.estimation.wiring")
 
@@ -76,11 +87,12 @@ def map_path(cfg: Config) -> str:
     return str(cfg.resolve(chosen))
 
 
-def start_pose(cfg: Config) -> Pose2D:
-    """The initial pose of ``base_link`` in ``map``: ``sim.start`` (simulator) or ``robot.home``."""
+def start_pose(cfg: Config, robot: RobotModel) -> Pose2D:
+    """The initial pose of ``base_link`` in ``map``: ``sim.start`` (simulator) or the robot's
+    home."""
     if cfg.drivers.mode != "real" and cfg.sim.start is not None:
         return Pose2D(*cfg.sim.start)
-    return Pose2D(*cfg.robot.home)
+    return robot.home
 
 
 class OdomRelay:
@@ -120,12 +132,29 @@ class OdomRelay:
             sub.close()
 
 
-def build_estimation(app: App) -> None:
-    """Load the map, then build the EKF and the localiser and register them on ``app``."""
-    from curio.app import Part
+Localiser = LocalizerNode | MappingNode
 
-    cfg = app.cfg
-    start = start_pose(cfg)
+
+@dataclass(frozen=True)
+class Estimation:
+    """The estimation subsystem's objects.
+
+    Attributes:
+        map_server: holds and publishes the navigation map.
+        ekf: the odometry EKF (None when ``ekf.enabled`` is false).
+        localizer: the localiser, or the mapping node in ``localization.mode = "map"``; None
+            when localisation is off.
+    """
+
+    map_server: MapServer
+    ekf: EkfNode | None
+    localizer: Localiser | None
+
+
+def build_estimation(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
+                     robot: RobotModel) -> Estimation:
+    """Load the map, then build the EKF and the localiser (or mapper) and register them."""
+    start = start_pose(cfg, robot)
     mapping = cfg.localization.enabled and cfg.localization.mode == "map"
     if mapping:
         # A new building: start from an unknown 20 m square around the start pose; the mapper
@@ -136,23 +165,41 @@ def build_estimation(app: App) -> None:
                              Pose2D(start.x - 10.0, start.y - 10.0, 0.0), name="mapping")
     else:
         grid = load_map(map_path(cfg))
-    app.map_server = MapServer(app.bus, app.clock, grid)
-    app.map_server.publish()
-
+    map_server = MapServer(bus, clock, grid)
+    map_server.publish()
+    ekf = None
+    if cfg.ekf.enabled:
+        ekf = EkfNode(bus, clock, OdomEkf(cfg.ekf, robot.imu_in_base.yaw))
+        parts.add(Part("ekf", run=ekf.run))
+    localizer: Localiser | None = None
+    if mapping:
+        localizer = _mapping(cfg, bus, clock, parts, robot, start, map_server)
+    elif cfg.localization.enabled:
+        loc = Localizer(grid, cfg.localization, robot.laser_in_base,
+                        seed=cfg.sim.seed * 7919 + 4)
+        localizer = LocalizerNode(bus, clock, loc, start)
+        parts.add(Part("localization", run=localizer.run))
     relay_odom = not cfg.ekf.enabled
     compose_pose = not cfg.localization.enabled
-    if cfg.ekf.enabled:
-        from curio.estimation.ekf import build_ekf_part
-
-        app.ekf = build_ekf_part(app)
-    if mapping:
-        from curio.estimation.mapping import build_mapping_part
-
-        app.localizer = build_mapping_part(app, start, cfg.data_path(cfg.localization.mapping_out))
-    elif cfg.localization.enabled:
-        from curio.estimation.localization import build_localizer_part
-
-        app.localizer = build_localizer_part(app, grid, start)
     if relay_odom or compose_pose:
-        relay = OdomRelay(app.bus, start, relay_odom=relay_odom, compose_pose=compose_pose)
-        app.add(Part("odom_relay", run=relay.run))
+        relay = OdomRelay(bus, start, relay_odom=relay_odom, compose_pose=compose_pose)
+        parts.add(Part("odom_relay", run=relay.run))
+    return Estimation(map_server, ekf, localizer)
+
+
+def _mapping(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
+             start: Pose2D, map_server: MapServer) -> MappingNode:
+    """Online mapping (instead of localisation); the map is saved to
+    ``data_dir/localization.mapping_out`` at shutdown."""
+    out_yaml = cfg.data_path(cfg.localization.mapping_out)
+    params = MapperParams(max_range_m=cfg.sim.lidar_range_max_m)
+    node = MappingNode(bus, clock, robot.laser_in_base, start, map_server.set_grid, params)
+
+    async def close() -> None:
+        grid = await node.finish()
+        if grid is not None:
+            save_map(grid, out_yaml)
+            log.info("map saved to %s", out_yaml)
+
+    parts.add(Part("mapping", run=node.run, close=close))
+    return node

@@ -36,42 +36,32 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from curio.core.config import ControllerConfig, RobotConfig
-from curio.core.geometry import Pose2D, wrap_angle
-from curio.safety.stage import approach, arc_poses
+from curio.core.config import ControllerConfig
+from curio.core.geometry import Pose2D, approach, arc_poses, wrap_angle
+from curio.nav.costs import (
+    INSCRIBED,
+    LETHAL,
+    NO_INFORMATION,
+    CostGrid,
+    cost_at_distance,
+    distance_beyond_inscribed_m,
+)
+from curio.robot import RobotModel
 
 __all__ = [
     "ControlOutput",
     "ControlStatus",
-    "CostOracle",
     "LocalController",
     "ProgressChecker",
 ]
 
 F64 = npt.NDArray[np.float64]
 
-LETHAL = 254
-INSCRIBED = 253
 OUTLINE_MARGIN_M = 0.015
-
-
-class CostOracle(Protocol):
-    """What the controller needs from the costmap (``curio.nav.costmap.Costmap`` provides it)."""
-
-    inscribed_radius_m: float
-
-    def footprint_costs(self, poses_in_map: F64) -> npt.NDArray[np.uint8]:
-        """Max cost under the footprint for each ``(N, 3)`` pose."""
-        ...
-
-    def cost_at(self, x_m: float, y_m: float) -> int:
-        """Cost of the cell containing a point."""
-        ...
 
 
 class ControlStatus(enum.Enum):
@@ -156,12 +146,13 @@ class LocalController:
 
     Args:
         cfg: ``nav.controller``.
-        robot: ``robot`` (footprint, wheel limit).
-        costmap: cost lookups for collision checks and clearance; None disables them.
+        robot: the robot model (the fastest-wheel speed on an arc).
+        costmap: cost lookups for collision checks and clearance (its padded footprint and
+            cost scaling); None disables them.
     """
 
-    def __init__(self, cfg: ControllerConfig, robot: RobotConfig,
-                 costmap: CostOracle | None = None) -> None:
+    def __init__(self, cfg: ControllerConfig, robot: RobotModel,
+                 costmap: CostGrid | None = None) -> None:
         self.cfg = cfg
         self.robot = robot
         self.costmap = costmap
@@ -258,35 +249,18 @@ class LocalController:
         return float(plan[j, 0]), float(plan[j, 1])
 
     def _clearance_m(self, pose: Pose2D) -> float:
-        """Distance from the footprint to the nearest obstacle, estimated from the centre cost."""
+        """Distance from the footprint to the nearest obstacle, estimated from the centre cost
+        (the inverse of the inflation: a lower bound of the flank clearance)."""
         if self.costmap is None:
             return math.inf
-        cost = self.costmap.cost_at(pose.x, pose.y)
-        if cost <= 0:
-            return math.inf
-        if cost >= INSCRIBED:
-            return 0.0
-        # cost = 253·exp(−k (d − r_in)) ⇒ d − r_in = −ln(cost/253)/k (the centre's distance
-        # beyond the inscribed radius, i.e. a lower bound of the flank clearance).
-        k = self._cost_scaling
-        return max(0.0, -math.log(cost / 253.0) / k)
+        return distance_beyond_inscribed_m(self.costmap.cost_at(pose.x, pose.y),
+                                           self.costmap.cost_scaling_factor)
 
-    _cost_scaling = 10.0
-
-    def _narrow_threshold(self) -> int:
-        """Centre cost at the circumscribed radius from an obstacle (256 = never narrow)."""
+    def _narrow_threshold(self, cm: CostGrid) -> int:
+        """Centre cost at the circumscribed radius from an obstacle."""
         if self._narrow_cost is None:
-            poly = np.asarray(getattr(self.costmap, "footprint", self.robot.footprint),
-                              dtype=np.float64).reshape(-1, 2)
-            d = np.hypot(poly[:, 0], poly[:, 1])
-            r_circ = float(d.max())
-            a, b = poly, np.roll(poly, -1, axis=0)
-            ab = b - a
-            t = np.clip(((-a) * ab).sum(axis=1) / np.maximum((ab * ab).sum(axis=1), 1e-12),
-                        0.0, 1.0)
-            near = a + t[:, None] * ab
-            r_in = float(np.hypot(near[:, 0], near[:, 1]).min())
-            self._narrow_cost = int(253.0 * math.exp(-self._cost_scaling * (r_circ - r_in)))
+            self._narrow_cost = int(cost_at_distance(
+                cm.circumscribed_radius_m - cm.inscribed_radius_m, cm.cost_scaling_factor))
         return self._narrow_cost
 
     _narrow_cost: int | None = None
@@ -295,37 +269,29 @@ class LocalController:
         """Whether the plan within ``narrow_ahead_m`` of index ``i`` passes nearer an obstacle
         than the footprint's circumscribed radius (a misaligned rover may not fit there)."""
         cm = self.costmap
-        costs_fn = getattr(cm, "costs", None)
-        if cm is None or costs_fn is None or self.cfg.narrow_ahead_m <= 0.0:
+        if cm is None or self.cfg.narrow_ahead_m <= 0.0:
             return False
         cum = self._cum
         j = int(np.searchsorted(cum, cum[i] + self.cfg.narrow_ahead_m, side="right"))
         ahead = self.plan[i:max(j, i + 1)]
-        grid = costs_fn()
-        res = float(cm.resolution_m)  # type: ignore[attr-defined]
-        origin: Pose2D = cm.origin  # type: ignore[attr-defined]
-        gxy = origin.inverse().transform_points(ahead[:, :2])
+        grid = cm.costs()
+        res = float(cm.resolution_m)
+        gxy = cm.origin.inverse().transform_points(ahead[:, :2])
         cols = np.floor(gxy[:, 0] / res).astype(np.int64)
         rows = np.floor(gxy[:, 1] / res).astype(np.int64)
         h, w = grid.shape
         inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
         vals = grid[rows[inside], cols[inside]]
-        vals = vals[vals != 255]
-        return bool(len(vals) and int(vals.max()) >= self._narrow_threshold())
+        vals = vals[vals != NO_INFORMATION]
+        return bool(len(vals) and int(vals.max()) >= self._narrow_threshold(cm))
 
-    def set_cost_scaling(self, cost_scaling_factor: float) -> None:
-        """The costmap's exponential decay rate (to turn costs back into distances)."""
-        self._cost_scaling = cost_scaling_factor
-        self._narrow_cost = None
-
-    def _perimeter(self) -> F64:
+    def _perimeter(self, cm: CostGrid) -> F64:
         """Points every half cell along the (padded) footprint's edges, ``base_link``."""
         if self._perimeter_pts is None:
-            poly = np.asarray(getattr(self.costmap, "footprint", self.robot.footprint),
-                              dtype=np.float64).reshape(-1, 2)
+            poly = np.asarray(cm.footprint, dtype=np.float64).reshape(-1, 2)
             # A little extra so a graze between the outline's samples is still seen.
             poly = poly + np.sign(poly) * OUTLINE_MARGIN_M
-            step = 0.5 * float(getattr(self.costmap, "resolution_m", 0.05))
+            step = 0.5 * float(cm.resolution_m)
             pts = []
             for a, b in zip(poly, np.roll(poly, -1, axis=0), strict=True):
                 n = max(2, math.ceil(float(np.hypot(*(b - a))) / step) + 1)
@@ -344,15 +310,10 @@ class LocalController:
         """
         cm = self.costmap
         assert cm is not None
-        m, k, _ = trajs.shape
-        costs_fn = getattr(cm, "costs", None)
-        if costs_fn is None:  # a minimal oracle: its own footprint test
-            flat = cm.footprint_costs(trajs.reshape(-1, 3))
-            return np.asarray(flat, dtype=np.uint8).reshape(m, k)
-        grid = costs_fn()
-        res = float(cm.resolution_m)  # type: ignore[attr-defined]
-        origin: Pose2D = cm.origin  # type: ignore[attr-defined]
-        per = self._perimeter()
+        grid = cm.costs()
+        res = float(cm.resolution_m)
+        origin = cm.origin
+        per = self._perimeter(cm)
         x = trajs[..., 0:1]
         y = trajs[..., 1:2]
         c, s = np.cos(trajs[..., 2:3]), np.sin(trajs[..., 2:3])
@@ -605,7 +566,7 @@ class LocalController:
         norm = math.hypot(tx, ty) or 1.0
         progress = (ex * tx + ey * ty) / norm
         align = np.abs((ends[:, 2] - (pose.yaw + target_bearing) + np.pi) % (2 * np.pi) - np.pi)
-        score = progress - 0.3 * align - 0.1 * worst / 253.0
+        score = progress - 0.3 * align - 0.1 * worst / INSCRIBED
         score[hit] = -np.inf
         # Prefer the fastest speed band that has a good option (as the loop used to).
         for band in range(len(fracs)):

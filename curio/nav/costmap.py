@@ -2,17 +2,11 @@
 footprint inflation, and a rolling local window (Nav2 ``costmap_2d`` semantics).
 
 Costs are ``uint8`` on the static map's grid (same shape, resolution and origin; row 0 at the
-bottom, as :class:`~curio.estimation.maps.OccupancyGrid`):
-
-* ``0`` free, ``1..252`` inflated (the exponential decay below), ``253`` inscribed (the rover's
-  centre there means a certain collision), ``254`` lethal (an obstacle), ``255`` unknown.
-* Inflation uses the distance ``d`` (metres, between cell centres) to the nearest lethal cell:
-  ``254`` at ``d = 0``; ``253`` for ``0 < d <= inscribed_radius``; for
-  ``inscribed_radius < d <= inflation_radius_m`` the cost is
-  ``floor(253 · exp(−cost_scaling_factor · (d − inscribed_radius)))`` capped at 252; 0 beyond.
-  The inscribed radius comes from ``robot.footprint`` grown by ``footprint_padding_m``.
-* Unknown static cells stay 255 until a laser ray sees them (then they are free) or inflation
-  raises them to 253 or more (Nav2's rule with ``inflate_unknown`` false).
+bottom, as :class:`~curio.estimation.maps.OccupancyGrid`), with the values and the inflation
+formula of :mod:`curio.nav.costs`. The inscribed radius is the robot model's footprint
+(``robot.footprint``) grown by ``footprint_padding_m``. Unknown static cells stay
+``NO_INFORMATION`` until a laser ray sees them (then they are free) or inflation raises them to
+``INSCRIBED`` or more (Nav2's rule with ``inflate_unknown`` false).
 
 Scans mark their returns within ``obstacle_range_m`` and clear every cell a ray passes
 through up to ``raytrace_range_m`` (``inf`` returns clear the full ray range). A return that
@@ -41,33 +35,18 @@ from scipy import ndimage
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
-from curio.core.config import CostmapConfig, RobotConfig
+from curio.core.config import CostmapConfig
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.core.messages import GridMessage, LaserScan
 from curio.core.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
 from curio.estimation.maps import OccupancyGrid
 from curio.nav.costmap_kernels import trace_scan
+from curio.nav.costs import INSCRIBED, LETHAL, NO_INFORMATION, inflation_costs
+from curio.robot import RobotModel, footprint_radii
 
-__all__ = [
-    "FREE_SPACE",
-    "INSCRIBED",
-    "LETHAL",
-    "NO_INFORMATION",
-    "Costmap",
-    "CostmapNode",
-    "GridInfo",
-    "costs_to_percent",
-    "footprint_radii",
-    "inflation_costs",
-    "pad_footprint",
-]
+__all__ = ["Costmap", "CostmapNode", "GridInfo", "costs_to_percent"]
 
 log = logging.getLogger("curio.nav.costmap")
-
-FREE_SPACE = 0
-INSCRIBED = 253
-LETHAL = 254
-NO_INFORMATION = 255
 
 U8Array = npt.NDArray[np.uint8]
 BoolArray = npt.NDArray[np.bool_]
@@ -87,47 +66,6 @@ class GridInfo:
     resolution_m: float
     origin: Pose2D
     shape: tuple[int, int]
-
-
-def pad_footprint(footprint: list[tuple[float, float]] | list[list[float]],
-                  padding_m: float) -> FloatArray:
-    """Grow a footprint polygon by ``padding_m`` (each vertex moved outwards per axis, as Nav2).
-
-    Returns an ``(N, 2)`` array in ``base_link``, metres.
-    """
-    poly = np.asarray(footprint, dtype=np.float64).reshape(-1, 2)
-    return poly + np.sign(poly) * padding_m
-
-
-def footprint_radii(polygon: FloatArray) -> tuple[float, float]:
-    """Return ``(inscribed, circumscribed)`` radii of a polygon about ``base_link``'s origin, m.
-
-    The inscribed radius is the smallest distance from the origin to an edge; the
-    circumscribed radius the largest distance to a vertex.
-    """
-    a = polygon
-    b = np.roll(polygon, -1, axis=0)
-    ab = b - a
-    denom = np.maximum((ab * ab).sum(axis=1), 1e-12)
-    t = np.clip(((-a) * ab).sum(axis=1) / denom, 0.0, 1.0)
-    closest = a + t[:, None] * ab
-    inscribed = float(np.min(np.hypot(closest[:, 0], closest[:, 1])))
-    circumscribed = float(np.max(np.hypot(a[:, 0], a[:, 1])))
-    return inscribed, circumscribed
-
-
-def inflation_costs(distance_m: FloatArray, inscribed_m: float, inflation_radius_m: float,
-                    cost_scaling_factor: float) -> U8Array:
-    """Costs for distances (metres) to the nearest lethal cell (see the module docstring)."""
-    d = np.asarray(distance_m, dtype=np.float64)
-    out = np.zeros(d.shape, dtype=np.uint8)
-    decay = (d > inscribed_m) & (d <= inflation_radius_m)
-    if decay.any():
-        vals = np.floor(INSCRIBED * np.exp(-cost_scaling_factor * (d[decay] - inscribed_m)))
-        out[decay] = np.clip(vals, 0, INSCRIBED - 1).astype(np.uint8)
-    out[(d > 0.0) & (d <= inscribed_m)] = INSCRIBED
-    out[d <= 0.0] = LETHAL
-    return out
 
 
 # Nav2's costmap → OccupancyGrid translation for display: 0 → 0, 1..252 → 1..98, 253 → 99,
@@ -152,13 +90,12 @@ class Costmap:
     :meth:`costs` are immutable snapshots and safe to read from any thread.
     """
 
-    def __init__(self, static_map: OccupancyGrid, robot: RobotConfig, cfg: CostmapConfig) -> None:
+    def __init__(self, static_map: OccupancyGrid, robot: RobotModel, cfg: CostmapConfig) -> None:
         self.cfg = cfg
         self.robot = robot
-        self.footprint = pad_footprint(robot.footprint, cfg.footprint_padding_m)
+        self.footprint = robot.padded_footprint(cfg.footprint_padding_m)
         self.inscribed_radius_m, self.circumscribed_radius_m = footprint_radii(self.footprint)
-        lp = robot.laser_pose
-        self.laser_in_base = Pose2D(float(lp[0]), float(lp[1]), float(lp[2]))
+        self.laser_in_base = robot.laser_in_base
         self.version = 0
         self._set_static(static_map)
 
@@ -224,6 +161,11 @@ class Costmap:
     def grid_info(self) -> GridInfo:
         """Resolution, origin and shape of the master grid."""
         return GridInfo(self.resolution_m, self.origin, self._master.shape)  # type: ignore[arg-type]
+
+    @property
+    def cost_scaling_factor(self) -> float:
+        """The inflation's exponential decay rate (``nav.costmap.cost_scaling_factor``), 1/m."""
+        return self.cfg.cost_scaling_factor
 
     @property
     def shape(self) -> tuple[int, int]:

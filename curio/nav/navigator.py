@@ -8,8 +8,8 @@ handle: ``distance_remaining_m`` (along the plan, plus the legs still to come) a
 
 Each cycle (``nav.controller.rate_hz``) it reads the pose (``/pose``, ``map``), asks the local
 controller for a command and publishes it on ``/cmd_vel_nav`` and the predicted trajectory on
-``/local_plan``. Plans come from the global planner in a worker thread (``asyncio.to_thread``),
-so the loop never blocks: at ``nav.planner.replan_rate_hz``, and at once when the current plan
+``/local_plan``. Plans come from the global planner off the loop (``Clock.offload``), so the loop
+never blocks: at ``nav.planner.replan_rate_hz``, and at once when the current plan
 runs into a lethal or inscribed cell of the costmap (an obstacle that was not on the map). When
 the rover is stuck (controller blocked, no progress, no path) it climbs the recovery ladder
 (``nav.recovery``) and then aborts with the reason. The operator's ``goto`` and ``cancel``
@@ -63,6 +63,7 @@ from curio.nav.api import (
     StartOutsideMapError,
 )
 from curio.nav.controller import ControlStatus, LocalController
+from curio.nav.costs import INSCRIBED, LETHAL, NO_INFORMATION
 from curio.nav.recovery import Recovery
 
 __all__ = ["InvalidGoalError", "NavigatorNode"]
@@ -70,8 +71,6 @@ __all__ = ["InvalidGoalError", "NavigatorNode"]
 log = logging.getLogger("curio.nav.navigator")
 
 U8 = npt.NDArray[np.uint8]
-INSCRIBED = 253
-LETHAL = 254
 
 
 class InvalidGoalError(NavError):
@@ -131,15 +130,11 @@ class NavigatorNode:
         planner: the global planner (runs in a worker thread).
         controller: the local controller.
         recovery: the recovery actions; None aborts at once when stuck.
-        plan_in_thread: run the planner in a worker thread (real time). On a simulated clock
-            it runs inline instead, so the result never depends on wall-clock speed and runs
-            stay deterministic.
     """
 
     def __init__(self, cfg: Config, clock: Clock, bus: Bus, costmap: PlanCostmap,
                  planner: Planner, controller: LocalController,
-                 recovery: Recovery | None = None, *, plan_in_thread: bool = True) -> None:
-        self.plan_in_thread = plan_in_thread
+                 recovery: Recovery | None = None) -> None:
         self.cfg = cfg
         self.clock = clock
         self.bus = bus
@@ -338,15 +333,7 @@ class NavigatorNode:
                 # up: where they cut the goal off (the only door out), plan without them.
                 return planner.plan(start, goal, plain, res, origin)
 
-        task: asyncio.Future[list[Pose2D]]
-        if self.plan_in_thread:
-            task = asyncio.ensure_future(asyncio.to_thread(plan))
-        else:
-            task = asyncio.get_running_loop().create_future()
-            try:
-                task.set_result(plan())
-            except NavError as exc:
-                task.set_exception(exc)
+        task = self.clock.offload(plan)
         self.plan_count += 1
         self._plan_job = _PlanJob(task, handle.goal_id, handle.current_index, reason)
         self._last_plan_t = self.clock.now()
@@ -421,7 +408,7 @@ class NavigatorNode:
         vals = costs[rows, cols]
         # Ignore the first few poses: the rover itself may sit in an inscribed cell.
         near = np.hypot(ahead[:, 0] - pose.x, ahead[:, 1] - pose.y) < 0.35
-        return bool(((vals >= INSCRIBED) & (vals != 255) & ~near).any())
+        return bool(((vals >= INSCRIBED) & (vals != NO_INFORMATION) & ~near).any())
 
     def _take_plan_result(self, handle: GoalHandle) -> NavError | None:
         job = self._plan_job
@@ -654,12 +641,8 @@ class NavigatorNode:
         period = 1.0 / self.cfg.nav.controller.rate_hz
         warm_up = getattr(self.planner, "warm_up", None)
         if callable(warm_up):
-            # Compile the planner's kernels before the first goal, off the loop on the real
-            # clock (inline on a simulated clock, where wall time does not pass for the rover).
-            if self.plan_in_thread:
-                await asyncio.to_thread(warm_up)
-            else:
-                warm_up()
+            # Compile the planner's kernels before the first goal (off the loop on real time).
+            await self.clock.offload(warm_up)
         next_t = self.clock.now()
         try:
             while True:

@@ -27,27 +27,23 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
-from curio.core.config import BlockedConfig, RobotConfig
+from curio.core.config import BlockedConfig
 from curio.core.geometry import Pose2D
 from curio.core.messages import BlockedState, Event, LaserScan, Obstacles
 from curio.core.topics import BLOCKED, EVENTS, OBSTACLES, ODOM, PLAN, POSE, SCAN, WHEEL_ODOM
 from curio.nav.obstacles_kernel import extract_obstacles
-
-if TYPE_CHECKING:
-    from curio.app import App
+from curio.robot import RobotModel
 
 __all__ = [
     "BlockedDetector",
     "ObstacleExtractor",
     "ObstacleNode",
-    "register_obstacles",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -70,19 +66,15 @@ class ObstacleExtractor:
     def extract(self, scan: LaserScan, base_in_map: Pose2D) -> Obstacles:
         """Obstacles of ``scan`` in ``map`` for the rover at ``base_in_map``."""
         cfg = self.cfg
-        mask = scan.valid_mask()
-        r = scan.ranges_m.astype(np.float64)
-        a = scan.angles_rad
-        idx = np.nonzero(mask)[0]
+        idx = np.flatnonzero(scan.valid_mask())
         if len(idx) < cfg.min_group_points:
             return Obstacles(scan.stamp)
-        rr = r[idx]
-        pts_l = np.stack([rr * np.cos(a[idx]), rr * np.sin(a[idx])], axis=1)
+        rr = np.asarray(scan.ranges_m, dtype=np.float64)[idx]
         laser_in_map = base_in_map @ self.laser_in_base
-        pts = laser_in_map.transform_points(pts_l)
+        pts = scan.points(laser_in_map)
         seg_rows, circle_rows = extract_obstacles(
             np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), rr,
-            idx.astype(np.int64), len(r), laser_in_map.x, laser_in_map.y,
+            idx.astype(np.int64), len(scan.ranges_m), laser_in_map.x, laser_in_map.y,
             cfg.group_distance_m, cfg.distance_proportion, cfg.min_group_points,
             cfg.split_distance_m, cfg.max_circle_radius_m, cfg.radius_enlargement_m)
         segments: tuple[Segment, ...] = tuple(
@@ -123,13 +115,12 @@ class BlockedDetector:
 
     Args:
         cfg: ``nav.blocked``.
-        robot: ``robot`` (its footprint's half width sets the corridor).
+        robot: the robot model (its footprint's half width sets the corridor).
     """
 
-    def __init__(self, cfg: BlockedConfig, robot: RobotConfig) -> None:
+    def __init__(self, cfg: BlockedConfig, robot: RobotModel) -> None:
         self.cfg = cfg
-        fp = np.asarray(robot.footprint, dtype=np.float64)
-        self.half_width_m = float(np.abs(fp[:, 1]).max())
+        self.half_width_m = float(np.abs(robot.footprint[:, 1]).max())
         self._anchor: Pose2D | None = None
         self._anchor_t = 0.0
 
@@ -213,18 +204,17 @@ class ObstacleNode:
 
     Args:
         cfg: ``nav.blocked``.
-        robot: ``robot``.
+        robot: the robot model (footprint, laser pose).
         clock, bus: injected.
         goal_active: returns whether the navigator has a goal (no goal ⇒ never blocked).
     """
 
-    def __init__(self, cfg: BlockedConfig, robot: RobotConfig, clock: Clock, bus: Bus,
+    def __init__(self, cfg: BlockedConfig, robot: RobotModel, clock: Clock, bus: Bus,
                  goal_active: Callable[[], bool]) -> None:
         self.cfg = cfg
         self.clock = clock
         self.bus = bus
-        lx, ly, lyaw = robot.laser_pose
-        self.extractor = ObstacleExtractor(cfg, Pose2D(lx, ly, lyaw))
+        self.extractor = ObstacleExtractor(cfg, robot.laser_in_base)
         self.detector = BlockedDetector(cfg, robot)
         self.goal_active = goal_active
         self.latest: Obstacles | None = None
@@ -271,18 +261,3 @@ class ObstacleNode:
             if next_t < self.clock.now():
                 next_t = self.clock.now() + period
             await self.clock.sleep_until(next_t)
-
-
-def register_obstacles(app: App) -> ObstacleNode:
-    """Build the obstacle/blocked node, set ``app.obstacles`` / ``app.blocked``, register it."""
-    from curio.app import Part
-
-    def goal_active() -> bool:
-        nav = app.navigator
-        return nav is not None and nav.active is not None
-
-    node = ObstacleNode(app.cfg.nav.blocked, app.cfg.robot, app.clock, app.bus, goal_active)
-    app.obstacles = node
-    app.blocked = node.detector
-    app.add(Part("obstacles", run=node.run))
-    return node

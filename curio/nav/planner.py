@@ -37,15 +37,19 @@ from curio.nav.api import (
     StartBlockedError,
     StartOutsideMapError,
 )
+from curio.nav.costs import (
+    INSCRIBED,
+    LETHAL,
+    MAX_NON_OBSTACLE,
+    NO_INFORMATION,
+    cost_at_distance,
+)
 
 __all__ = ["GlobalPlanner", "PlanResult", "narrow_cost", "path_length_m", "traversal_lut"]
 
 U8Array = npt.NDArray[np.uint8]
 FloatArray = npt.NDArray[np.float64]
 
-_INSCRIBED = 253
-_LETHAL = 254
-_UNKNOWN = 255
 
 
 def traversal_lut(cost_penalty: float, allow_unknown: bool, narrow_cost: int | None = None,
@@ -57,21 +61,21 @@ def traversal_lut(cost_penalty: float, allow_unknown: bool, narrow_cost: int | N
     crosses a narrow passage straight and centred (where a misaligned square footprint may
     not fit) instead of cutting into it at an angle.
     """
-    lut = 1.0 + cost_penalty * np.arange(256, dtype=np.float64) / 252.0
-    if narrow_cost is not None and 0 < narrow_cost < _INSCRIBED and narrow_penalty > 0.0:
-        v = np.arange(narrow_cost, _INSCRIBED, dtype=np.float64)
-        lut[narrow_cost:_INSCRIBED] += narrow_penalty * (v - narrow_cost + 1.0) / (
-            _INSCRIBED - narrow_cost)
-    lut[_INSCRIBED] = -1.0
-    lut[_LETHAL] = -1.0
-    lut[_UNKNOWN] = 1.0 + cost_penalty * 0.5 if allow_unknown else -1.0
+    lut = 1.0 + cost_penalty * np.arange(256, dtype=np.float64) / MAX_NON_OBSTACLE
+    if narrow_cost is not None and 0 < narrow_cost < INSCRIBED and narrow_penalty > 0.0:
+        v = np.arange(narrow_cost, INSCRIBED, dtype=np.float64)
+        lut[narrow_cost:INSCRIBED] += narrow_penalty * (v - narrow_cost + 1.0) / (
+            INSCRIBED - narrow_cost)
+    lut[INSCRIBED] = -1.0
+    lut[LETHAL] = -1.0
+    lut[NO_INFORMATION] = 1.0 + cost_penalty * 0.5 if allow_unknown else -1.0
     return lut
 
 
 def narrow_cost(inscribed_m: float, circumscribed_m: float, cost_scaling_factor: float) -> int:
-    """Costmap value at ``circumscribed_m`` from an obstacle (inflation ``253·e^(−k(d−r_in))``):
-    nearer than that, a footprint that is not round may not fit when misaligned."""
-    return int(253.0 * math.exp(-cost_scaling_factor * max(0.0, circumscribed_m - inscribed_m)))
+    """Costmap value at ``circumscribed_m`` from an obstacle (:mod:`curio.nav.costs`): nearer
+    than that, a footprint that is not round may not fit when misaligned."""
+    return int(cost_at_distance(circumscribed_m - inscribed_m, cost_scaling_factor))
 
 
 def path_length_m(poses: list[Pose2D]) -> float:
@@ -131,7 +135,7 @@ class GlobalPlanner:
     def warm_up(self) -> None:
         """Compile the kernels now (first use otherwise pays a few seconds; cached on disk)."""
         costs = np.zeros((8, 8), dtype=np.uint8)
-        costs[2:6, 4] = _LETHAL
+        costs[2:6, 4] = LETHAL
         self.plan(Pose2D(0.05, 0.15), Pose2D(0.35, 0.25), costs, 0.05, Pose2D())
 
     def plan(self, start: Pose2D, goal: Pose2D, costs: U8Array, resolution_m: float,
@@ -178,13 +182,13 @@ class GlobalPlanner:
                 f"the start ({start.x:.2f}, {start.y:.2f}) m is outside the costmap, which "
                 f"covers {_extent(origin, resolution_m, h, w)}")
         s_cost = int(costs[s_r, s_c])
-        if s_cost == _LETHAL or (s_cost == _UNKNOWN and lut[_UNKNOWN] < 0):
-            what = "an obstacle" if s_cost == _LETHAL else "unknown space"
+        if s_cost == LETHAL or (s_cost == NO_INFORMATION and lut[NO_INFORMATION] < 0):
+            what = "an obstacle" if s_cost == LETHAL else "unknown space"
             raise StartBlockedError(
                 f"the start ({start.x:.2f}, {start.y:.2f}) m is in {what} (cost {s_cost}); "
                 f"clear the costmap around the rover or move it away")
         escape_cells = self.escape_radius_m / resolution_m
-        escape_r2 = int(escape_cells * escape_cells) if s_cost == _INSCRIBED else 0
+        escape_r2 = int(escape_cells * escape_cells) if s_cost == INSCRIBED else 0
 
         gx, gy = inv.transform_point(goal.x, goal.y)
         g_r, g_c = math.floor(gy / resolution_m), math.floor(gx / resolution_m)
@@ -199,9 +203,9 @@ class GlobalPlanner:
             moved = self._nearest_free(costs, g_r, g_c, resolution_m) \
                 if self.cfg.goal_nearest_free else None
             if moved is None:
-                why = {253: "too close to an obstacle for the rover (inscribed cost 253)",
-                       254: "inside an obstacle (cost 254)",
-                       255: "in unknown space (cost 255)"}[g_cost]
+                why = {INSCRIBED: "too close to an obstacle for the rover (inscribed cost 253)",
+                       LETHAL: "inside an obstacle (cost 254)",
+                       NO_INFORMATION: "in unknown space (cost 255)"}[g_cost]
                 extra = (f" and no free cell lies within goal_nearest_free_max_m="
                          f"{self.cfg.goal_nearest_free_max_m:g} m"
                          if self.cfg.goal_nearest_free else
@@ -298,7 +302,7 @@ class GlobalPlanner:
         ok = inside & (new_cost <= np.maximum(orig_cost, 0)) & (self._lut[new_cost] >= 0)
         if escape_r2 > 0:
             near = (cc[:, 1] - s_r) ** 2 + (cc[:, 0] - s_c) ** 2 <= escape_r2
-            ok |= inside & near & (new_cost <= _INSCRIBED) & (new_cost <= orig_cost)
+            ok |= inside & near & (new_cost <= INSCRIBED) & (new_cost <= orig_cost)
         ok[0] = ok[-1] = True
         cur[~ok] = orig[~ok]
         cur[0], cur[-1] = orig[0], orig[-1]

@@ -17,6 +17,8 @@ import math
 import numpy as np
 from numba import njit  # type: ignore[import-untyped]
 
+from curio.nav.costs import INSCRIBED, MAX_NON_OBSTACLE
+
 __all__ = ["astar", "line_cost", "segments_clear", "shortcut", "trace_path"]
 
 _SQRT2 = math.sqrt(2.0)
@@ -30,7 +32,7 @@ def _passable(flat, lut, v, w, escape_r2, start_r, start_c):  # type: ignore[no-
     raw = flat[v]
     if lut[raw] >= 0.0:
         return True
-    if raw == 253 and escape_r2 > 0:
+    if raw == INSCRIBED and escape_r2 > 0:
         vr = v // w
         vc = v - vr * w
         return (vr - start_r) ** 2 + (vc - start_c) ** 2 <= escape_r2
@@ -77,7 +79,7 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
     heap[0] = (np.int64(f0 * _FIX) << 32) | start
     size = 1
     expansions = 0
-    lut252 = lut[252]
+    lut252 = lut[MAX_NON_OBSTACLE]
     low = np.int64(0xFFFFFFFF)
     offs = np.empty(8, dtype=np.int64)
     for k in range(8):
@@ -130,7 +132,7 @@ def astar(costs, lut, start_r, start_c, goal_r, goal_c, weight,  # type: ignore[
             cv_raw = flat[v]
             cv = lut[cv_raw]
             if cv < 0.0:
-                if cv_raw == 253 and escape_r2 > 0:
+                if cv_raw == INSCRIBED and escape_r2 > 0:
                     er = vr - start_r
                     ec = vc - start_c
                     if er * er + ec * ec <= escape_r2:
@@ -218,7 +220,7 @@ def line_cost(costs, lut, r0, c0, r1, c1, escape_r2, sr, sc):  # type: ignore[no
     length = math.sqrt(dr * dr + dc * dc)
     r = math.floor(r0 + 0.5)
     c = math.floor(c0 + 0.5)
-    lut252 = lut[252]
+    lut252 = lut[MAX_NON_OBSTACLE]
     if length == 0.0:
         if r < 0 or r >= h or c < 0 or c >= w:
             return -1.0
@@ -248,7 +250,7 @@ def line_cost(costs, lut, r0, c0, r1, c1, escape_r2, sr, sc):  # type: ignore[no
         raw = costs[r, c]
         cv = lut[raw]
         if cv < 0.0:
-            if raw == 253 and escape_r2 > 0 and (r - sr) ** 2 + (c - sc) ** 2 <= escape_r2:
+            if raw == INSCRIBED and escape_r2 > 0 and (r - sr) ** 2 + (c - sc) ** 2 <= escape_r2:
                 cv = lut252
             else:
                 return -1.0

@@ -22,34 +22,22 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
-from curio.core.config import RecoveryConfig, RobotConfig
+from curio.core.config import RecoveryConfig
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.core.messages import Event, Twist
 from curio.core.topics import CMD_VEL_NAV, EVENTS, ODOM, POSE, SCAN
+from curio.nav.costs import LETHAL, CostGrid
+from curio.robot import RobotModel
 
 __all__ = ["Recovery", "RecoveryOutcome", "points_behind_distance_m"]
 
 F64 = npt.NDArray[np.float64]
-LETHAL = 254
-
-
-class RecoveryCostmap(Protocol):
-    """What recovery needs from the costmap."""
-
-    def clear_around(self, pose_in_map: Pose2D, radius_m: float) -> None:
-        """Forget obstacle marks near a pose."""
-        ...
-
-    def footprint_costs(self, poses_in_map: F64) -> npt.NDArray[np.uint8]:
-        """Max cost under the footprint for ``(N, 3)`` poses."""
-        ...
 
 
 @dataclass(frozen=True)
@@ -89,21 +77,19 @@ class Recovery:
 
     Args:
         cfg: ``nav.recovery``.
-        robot: ``robot`` (footprint, laser pose).
+        robot: the robot model (footprint, laser pose).
         clock, bus: injected.
         costmap: the global costmap (clearing and room checks); None skips those.
     """
 
-    def __init__(self, cfg: RecoveryConfig, robot: RobotConfig, clock: Clock, bus: Bus,
-                 costmap: RecoveryCostmap | None) -> None:
+    def __init__(self, cfg: RecoveryConfig, robot: RobotModel, clock: Clock, bus: Bus,
+                 costmap: CostGrid | None) -> None:
         self.cfg = cfg
         self.robot = robot
         self.clock = clock
         self.bus = bus
         self.costmap = costmap
-        self.footprint = np.asarray(robot.footprint, dtype=np.float64)
-        lx, ly, lyaw = robot.laser_pose
-        self.laser_in_base = Pose2D(lx, ly, lyaw)
+        self.footprint = robot.footprint
         self.running: str | None = None
         self.history: list[RecoveryOutcome] = []
 
@@ -122,11 +108,7 @@ class Recovery:
         scan = self.bus.latest(SCAN)
         if scan is None:
             return np.zeros((0, 2))
-        mask = scan.valid_mask()
-        r = scan.ranges_m[mask].astype(np.float64)
-        a = scan.angles_rad[mask]
-        pts = np.stack([r * np.cos(a), r * np.sin(a)], axis=-1)
-        return self.laser_in_base.transform_points(pts)
+        return scan.points(self.robot.laser_in_base)
 
     def _send(self, v: float, w: float) -> None:
         self.bus.publish(CMD_VEL_NAV, Twist(self.clock.now(), v, w, source="recovery"))

@@ -30,17 +30,11 @@ when it intervenes: ``safety.stop_zone`` (and ``safety.stop_zone_cleared``), ``s
 from __future__ import annotations
 
 import math
-from collections.abc import AsyncIterator
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
-import numpy as np
-import numpy.typing as npt
 
 from curio.core.bus import Bus, Subscription
 from curio.core.clock import Clock
-from curio.core.config import Config
-from curio.core.geometry import Pose2D
+from curio.core.config import SafetyConfig
+from curio.core.geometry import approach
 from curio.core.messages import (
     DriverHealth,
     EStop,
@@ -62,242 +56,32 @@ from curio.core.topics import (
     SCAN,
     WHEEL_ODOM,
 )
-from curio.safety.kernel import polygon_distances_into, sweep_stop_zone
+from curio.robot import RobotModel
+from curio.safety.stop_zone import StopZone, StopZoneResult
 
-if TYPE_CHECKING:
-    from curio.app import App
-
-__all__ = [
-    "CURIO_WHEEL_POSITIONS_M",
-    "SafetyStage",
-    "StopZone",
-    "approach",
-    "fastest_wheel_speed_mps",
-    "limit_to_wheel_speed",
-    "polygon_distances",
-    "register_safety",
-]
-
-F64 = npt.NDArray[np.float64]
-
-# Wheel contact points in base_link (x, y), metres: FL, ML, BL, FR, MR, BR (hardware.md §2.1).
-CURIO_WHEEL_POSITIONS_M: tuple[tuple[float, float], ...] = (
-    (0.280, 0.235), (0.0, 0.260), (-0.250, 0.235),
-    (0.280, -0.235), (0.0, -0.260), (-0.250, -0.235),
-)
-
-
-def fastest_wheel_speed_mps(
-    linear_mps: float,
-    angular_radps: float,
-    wheels: tuple[tuple[float, float], ...] = CURIO_WHEEL_POSITIONS_M,
-) -> float:
-    """Speed of Curio's fastest wheel for a body twist, m/s.
-
-    Wheel ``i`` at ``(x, y)`` moves at ``|ω| · hypot(x, r − y)`` with ``r = v / ω``, i.e.
-    ``hypot(x·ω, v − y·ω)`` (hardware.md §2.2); for ``ω = 0`` every wheel moves at ``|v|``.
-    """
-    return max(math.hypot(x * angular_radps, linear_mps - y * angular_radps) for x, y in wheels)
-
-
-def limit_to_wheel_speed(
-    linear_mps: float,
-    angular_radps: float,
-    max_wheel_speed_mps: float,
-    wheels: tuple[tuple[float, float], ...] = CURIO_WHEEL_POSITIONS_M,
-) -> tuple[float, float]:
-    """Scale ``(v, ω)`` together so no wheel exceeds ``max_wheel_speed_mps`` (keeps the radius)."""
-    fastest = fastest_wheel_speed_mps(linear_mps, angular_radps, wheels)
-    if fastest <= max_wheel_speed_mps or fastest <= 0.0:
-        return linear_mps, angular_radps
-    k = max_wheel_speed_mps / fastest
-    return linear_mps * k, angular_radps * k
-
-
-def polygon_distances(points: F64, polygon: F64) -> F64:
-    """Signed distance from each point to a polygon's boundary, metres (negative inside).
-
-    Args:
-        points: ``(..., 2)`` points in the polygon's frame.
-        polygon: ``(E, 2)`` vertices, either orientation.
-    """
-    pts = np.asarray(points, dtype=np.float64)
-    flat = np.ascontiguousarray(pts.reshape(-1, 2))
-    out = np.empty(flat.shape[0])
-    polygon_distances_into(flat, np.ascontiguousarray(polygon, dtype=np.float64), out)
-    shaped: F64 = out.reshape(pts.shape[:-1])
-    return shaped
-
-
-def convex_hull(points: F64) -> F64:
-    """Convex hull ``(M, 2)`` of 2-D points, counter-clockwise (Andrew's monotone chain)."""
-    pts = sorted({(float(x), float(y)) for x, y in points})
-    if len(pts) < 3:
-        return np.asarray(pts, dtype=np.float64)
-
-    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    lower: list[tuple[float, float]] = []
-    for p in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
-            lower.pop()
-        lower.append(p)
-    upper: list[tuple[float, float]] = []
-    for p in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
-            upper.pop()
-        upper.append(p)
-    return np.asarray(lower[:-1] + upper[:-1], dtype=np.float64)
-
-
-def arc_poses(linear_mps: float, angular_radps: float, times_s: F64) -> F64:
-    """Poses ``(K, 3)`` (x, y, yaw) reached by a constant twist after each of ``times_s``."""
-    th = angular_radps * times_s
-    if abs(angular_radps) < 1e-6:
-        x = linear_mps * times_s
-        y = np.zeros_like(times_s)
-    else:
-        r = linear_mps / angular_radps
-        x = r * np.sin(th)
-        y = r * (1.0 - np.cos(th))
-    return np.stack([x, y, th], axis=-1)
-
-
-@dataclass
-class StopZoneResult:
-    """What the stop zone allows for one command.
-
-    Attributes:
-        factor: 0..1 multiplier for both ``v`` and ``ω`` (0 = stop).
-        reason: ``""``, ``"slow"`` or ``"stop"``.
-        clearance_m: smallest predicted distance between the footprint and an approached point.
-        time_to_contact_s: when the margin would be reached at the commanded speed (inf: never).
-    """
-
-    factor: float
-    reason: str = ""
-    clearance_m: float = math.inf
-    time_to_contact_s: float = math.inf
-
-
-class StopZone:
-    """Predicts contact of the swept footprint with scan points (all in ``base_link``).
-
-    Args:
-        footprint: polygon vertices in ``base_link``, metres.
-        stop_distance_m: margin kept around the footprint.
-        slow_distance_m: approached points nearer than this slow the rover.
-        lookahead_s: how far ahead the commanded arc is swept.
-        contact_margin_m: margin for points already inside ``stop_distance_m`` and for pure turns.
-        slow_min_fraction: the slowest the slow zone makes the rover (fraction of the command).
-        steps: samples along the sweep.
-    """
-
-    def __init__(
-        self,
-        footprint: list[tuple[float, float]],
-        stop_distance_m: float,
-        slow_distance_m: float,
-        lookahead_s: float,
-        contact_margin_m: float = 0.02,
-        slow_min_fraction: float = 0.4,
-        steps: int = 10,
-    ) -> None:
-        self.footprint = np.asarray(footprint, dtype=np.float64)
-        self.stop_distance_m = stop_distance_m
-        self.slow_distance_m = max(slow_distance_m, stop_distance_m)
-        self.lookahead_s = lookahead_s
-        self.contact_margin_m = min(contact_margin_m, stop_distance_m)
-        self.slow_min_fraction = slow_min_fraction
-        self.steps = steps
-        self.radius_m = float(np.max(np.hypot(self.footprint[:, 0], self.footprint[:, 1])))
-        self.points: F64 = np.zeros((0, 2))
-        self._poly_cache: dict[float, F64] = {}
-
-    def _extended(self, dx_m: float) -> F64:
-        """The footprint swept ``dx_m`` along x (its convex hull), the stop or slow polygon."""
-        key = round(dx_m, 6)
-        poly = self._poly_cache.get(key)
-        if poly is None:
-            shifted = self.footprint + np.array([dx_m, 0.0])
-            poly = convex_hull(np.vstack([self.footprint, shifted]))
-            self._poly_cache[key] = poly
-        return poly
-
-    def set_points(self, points_base: F64) -> None:
-        """Replace the obstacle points ``(N, 2)`` in ``base_link``."""
-        self.points = np.asarray(points_base, dtype=np.float64).reshape(-1, 2)
-
-    def evaluate(self, linear_mps: float, angular_radps: float) -> StopZoneResult:
-        """How much of the command ``(v, ω)`` the obstacles allow."""
-        if self.points.size == 0 or (abs(linear_mps) < 1e-6 and abs(angular_radps) < 1e-6):
-            return StopZoneResult(1.0)
-        reach = (self.radius_m + self.slow_distance_m + abs(linear_mps) * self.lookahead_s
-                 + 0.05)
-        dt = self.lookahead_s / self.steps
-        times = np.arange(self.steps + 1, dtype=np.float64) * dt
-        poses = arc_poses(linear_mps, angular_radps, times)  # (K, 3)
-        pure_turn = abs(linear_mps) < 1e-3
-        direction = 0.0 if pure_turn else math.copysign(1.0, linear_mps)
-        stop_poly = self._extended(direction * self.stop_distance_m)
-        use_slow = self.slow_distance_m > self.stop_distance_m and not pure_turn
-        slow_poly = self._extended(direction * self.slow_distance_m) if use_slow else stop_poly
-        # Compiled sweep (safety_kernel): per point within reach and outside the footprint,
-        # its distances to the stop polygon along the arc, reduced to what is decided below.
-        approached, clearance, first_hit, slow_near = sweep_stop_zone(
-            self.points, reach, poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]),
-            self.footprint, stop_poly, slow_poly, use_slow, self.contact_margin_m)
-        if not approached:
-            return StopZoneResult(1.0)
-        factor = 1.0
-        reason = ""
-        ttc = math.inf
-        if first_hit >= 0:  # first step (0-based over times[1:]) reaching the contact margin
-            ttc = float(times[first_hit + 1])
-            factor = min(1.0, float(times[first_hit]) / self.lookahead_s)
-            reason = "stop" if factor <= 0.0 else "slow"
-        if slow_near < math.inf:  # an approached point inside the slow polygon
-            near = max(0.0, float(slow_near))
-            span = self.slow_distance_m - self.stop_distance_m
-            slow = min(1.0, max(self.slow_min_fraction, near / span))
-            if slow < factor:
-                factor = slow
-                reason = reason or "slow"
-        return StopZoneResult(factor, reason, float(clearance), ttc)
-
-
-def approach(current: float, target: float, max_step: float) -> float:
-    """Move ``current`` towards ``target`` by at most ``max_step`` (a per-cycle rate limit)."""
-    if target > current + max_step:
-        return current + max_step
-    if target < current - max_step:
-        return current - max_step
-    return target
-
+__all__ = ["SafetyStage"]
 
 class SafetyStage:
     """Turns the wanted velocities into the one the base executes (see the module docstring).
 
     Args:
-        cfg: the application config (``nav.safety``, ``robot``).
+        cfg: ``nav.safety``.
+        robot: the robot model (footprint, laser pose, wheel positions and limits).
         clock: the injected clock.
         bus: the application bus.
     """
 
-    def __init__(self, cfg: Config, clock: Clock, bus: Bus) -> None:
-        self.cfg = cfg
-        self.scfg = cfg.nav.safety
+    def __init__(self, cfg: SafetyConfig, robot: RobotModel, clock: Clock, bus: Bus) -> None:
+        self.scfg = cfg
+        self.robot = robot
         self.clock = clock
         self.bus = bus
-        s = self.scfg
+        s = cfg
         self.zone = StopZone(
-            [(float(p[0]), float(p[1])) for p in cfg.robot.footprint], s.stop_distance_m,
-            s.slow_distance_m, s.lookahead_s, s.contact_margin_m, s.slow_min_fraction,
+            robot.footprint_points, s.stop_distance_m, s.slow_distance_m, s.lookahead_s,
+            s.contact_margin_m, s.slow_min_fraction,
         )
-        lx, ly, lyaw = cfg.robot.laser_pose
-        self.laser_in_base = Pose2D(lx, ly, lyaw)
-        self.max_wheel_speed_mps = cfg.robot.max_wheel_speed_mps
+        self.max_angular_radps = min(s.max_angular_radps, robot.max_angular_radps)
         self.estop_engaged = False
         self.estop_reason = ""
         self._nav: Twist | None = None
@@ -330,11 +114,7 @@ class SafetyStage:
 
     def on_scan(self, scan: LaserScan) -> None:
         """The latest lidar revolution: its valid points become the stop zone's obstacles."""
-        mask = scan.valid_mask()
-        r = scan.ranges_m[mask].astype(np.float64)
-        a = scan.angles_rad[mask]
-        pts = np.stack([r * np.cos(a), r * np.sin(a)], axis=-1)
-        self.zone.set_points(self.laser_in_base.transform_points(pts))
+        self.zone.set_points(scan.points(self.robot.laser_in_base))
         self._scan_stamp = scan.stamp
 
     def on_odom(self, msg: Odometry) -> None:
@@ -415,8 +195,8 @@ class SafetyStage:
         self.last_source = source
         # Limits.
         v = max(-s.max_speed_mps, min(s.max_speed_mps, v))
-        w = max(-s.max_angular_radps, min(s.max_angular_radps, w))
-        lv, lw = limit_to_wheel_speed(v, w, self.max_wheel_speed_mps)
+        w = max(-self.max_angular_radps, min(self.max_angular_radps, w))
+        lv, lw = self.robot.limit_to_wheel_speed(v, w)
         if (lv, lw) != (v, w):
             self.counters["wheel_limited_cycles"] += 1
         v, w = lv, lw
@@ -521,7 +301,7 @@ class SafetyStage:
         period = 1.0 / self.scfg.rate_hz
         last_health = -math.inf
         try:
-            async for now in self._every(period):
+            async for now in self.clock.every(period):
                 self._drain(nav, teleop, scan, odom, wodom, op)
                 self.step()
                 if now - last_health >= 1.0:
@@ -531,30 +311,3 @@ class SafetyStage:
             for sub in (nav, teleop, scan, odom, wodom, op):
                 sub.close()
             self.bus.publish(CMD_VEL, Twist(self.clock.now(), 0.0, 0.0, source="safety:stop"))
-
-    def _every(self, period: float) -> AsyncIterator[float]:
-        every = getattr(self.clock, "every", None)
-        if every is not None:
-            it: AsyncIterator[float] = every(period)
-            return it
-        return self._fallback_every(period)
-
-    async def _fallback_every(self, period: float) -> AsyncIterator[float]:
-        while True:
-            await self.clock.sleep(period)
-            yield self.clock.now()
-
-
-def register_safety(app: App) -> SafetyStage:
-    """Build the safety stage, set ``app.safety`` and register its part and halt hook."""
-    from curio.app import Part
-
-    stage = SafetyStage(app.cfg, app.clock, app.bus)
-    app.safety = stage
-
-    async def halt() -> None:
-        app.bus.publish(CMD_VEL, Twist(app.clock.now(), 0.0, 0.0, source="safety:halt"))
-
-    app.add(Part("safety", run=stage.run))
-    app.add_halt_hook(halt)
-    return stage

@@ -18,7 +18,6 @@ from __future__ import annotations
 import asyncio
 import bisect
 import contextlib
-import json
 import logging
 import math
 from abc import ABC, abstractmethod
@@ -32,6 +31,7 @@ from curio.core.clock import SimClock, wall_perf_counter
 from curio.core.config import Config
 from curio.core.fileio import atomic_write_json
 from curio.core.geometry import Pose2D
+from curio.core.jsonable import to_jsonable
 from curio.core.messages import Event, OperatorAction, OperatorCommand, PoseWithCovariance
 from curio.core.topics import EVENTS, GROUND_TRUTH, OPERATOR, POSE
 
@@ -212,7 +212,7 @@ async def _collect(ctx: ScenarioContext, metrics: _Metrics, stop: asyncio.Event)
         while not stop.is_set():
             for ev in events_sub.drain():
                 ctx.events.append({"t": round(ev.stamp, 3), "kind": ev.kind,
-                                   "detail": _json_safe(ev.detail)})
+                                   "detail": to_jsonable(ev.detail, 6)})
             for gt in truth_sub.drain():
                 if metrics.last_truth is not None:
                     metrics.path_length_m += metrics.last_truth.distance_to(gt.pose)
@@ -226,7 +226,7 @@ async def _collect(ctx: ScenarioContext, metrics: _Metrics, stop: asyncio.Event)
     finally:
         for ev in events_sub.drain():
             ctx.events.append({"t": round(ev.stamp, 3), "kind": ev.kind,
-                               "detail": _json_safe(ev.detail)})
+                               "detail": to_jsonable(ev.detail, 6)})
         events_sub.close()
         truth_sub.close()
         pose_sub.close()
@@ -247,20 +247,6 @@ def _score_pose(metrics: _Metrics, est: PoseWithCovariance) -> None:
     metrics.sq_yaw_err_sum += yaw_err * yaw_err
     metrics.max_err_m = max(metrics.max_err_m, err)
     metrics.err_count += 1
-
-
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, float):
-        return round(value, 6) if math.isfinite(value) else None
-    if isinstance(value, (str, int, bool)) or value is None:
-        return value
-    if isinstance(value, Pose2D):
-        return [round(value.x, 6), round(value.y, 6), round(value.yaw, 6)]
-    return str(value)
 
 
 async def run_scenario(
@@ -351,7 +337,7 @@ async def run_scenario(
         "localization_rmse_m": None if rmse is None else round(rmse, 6),
         "drivers_mode": cfg.drivers.mode,
         "checks": [{"name": c.name, "ok": c.ok, "detail": c.detail} for c in ctx.checks],
-        "metrics": _json_safe(ctx.metrics),
+        "metrics": to_jsonable(ctx.metrics, 6),
         "events": ctx.events,
     }
     if report_path is not None:
@@ -363,8 +349,3 @@ async def _settle_final_events(clock: SimClock) -> None:
     """Let already-queued work (final events) run before collecting."""
     for _ in range(5):
         await clock.sleep(0)
-
-
-def report_json(report: dict[str, Any]) -> str:
-    """The report as indented JSON text."""
-    return json.dumps(report, indent=2, sort_keys=True)

@@ -29,7 +29,9 @@ from curio.core.config import Config
 from curio.core.geometry import Pose2D
 from curio.core.topics import PLAN, POSE
 from curio.nav.api import GoalState
+from curio.nav.costs import INSCRIBED, cost_at_distance
 from curio.nav.planner import path_length_m
+from curio.robot import RobotModel
 from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, ScenarioFailed
 
 __all__ = ["GotoScenario", "free_poses", "pick_free_pose"]
@@ -45,10 +47,9 @@ def free_poses(cfg: Config, clearance_m: float = 0.15) -> tuple[np.ndarray, Any]
     from curio.nav.costmap import Costmap
 
     grid = load_map(cfg.resolve(cfg.sim.world))
-    cm = Costmap(grid, cfg.robot, cfg.nav.costmap)
+    cm = Costmap(grid, RobotModel.from_config(cfg.robot), cfg.nav.costmap)
     costs = cm.costs()
-    k = cfg.nav.costmap.cost_scaling_factor
-    limit = 253.0 * math.exp(-k * clearance_m)
+    limit = cost_at_distance(clearance_m, cfg.nav.costmap.cost_scaling_factor)
     ok = (costs < limit) & (grid.free_mask())
     rows, cols = np.nonzero(ok)
     xs = grid.origin.x + (cols + 0.5) * grid.resolution_m
@@ -69,7 +70,7 @@ def pick_free_pose(cfg: Config, rng: np.random.Generator, away_from: Pose2D | No
     for _ in range(200):
         x, y = pts[int(rng.integers(len(pts)))]
         yaw = float(rng.uniform(-math.pi, math.pi))
-        if cm.footprint_cost(Pose2D(float(x), float(y), yaw)) < 253:
+        if cm.footprint_cost(Pose2D(float(x), float(y), yaw)) < INSCRIBED:
             return Pose2D(float(x), float(y), yaw)
     x, y = pts[int(rng.integers(len(pts)))]
     return Pose2D(float(x), float(y), 0.0)
@@ -95,9 +96,9 @@ class GotoScenario(Scenario):
             from curio.nav.costmap import Costmap
 
             grid = load_map(cfg.resolve(sim.world))
-            cm = Costmap(grid, cfg.robot, cfg.nav.costmap)
+            cm = Costmap(grid, RobotModel.from_config(cfg.robot), cfg.nav.costmap)
             r, c = cm.world_to_cell(start.x, start.y)
-            if not cm.in_bounds(r, c) or cm.footprint_cost(start) >= 253:
+            if not cm.in_bounds(r, c) or cm.footprint_cost(start) >= INSCRIBED:
                 start = pick_free_pose(cfg, rng)
                 sim.start = start.as_tuple()
         if args.goal is not None:

@@ -65,7 +65,7 @@ class GuidedTourScenario(Scenario):
                       [e.detail.get("message") for e in seen("tour.stop")]
                       == [s.message for s in stops])
             ctx.press("go_home")
-            home = Pose2D(*ctx.cfg.robot.home)
+            home = ctx.app.robot.home
             tolerance_m = ctx.cfg.nav.controller.xy_goal_tolerance_m + 0.05
 
             def at_home() -> bool:

@@ -1,11 +1,12 @@
 """Simulator wiring: the world, rover physics and simulated sensors (owner: simulator).
 
-``build_sim(app)`` runs when ``cfg.drivers.mode`` is ``sim`` or ``emulated``:
+``build_sim`` builds them when ``cfg.drivers.mode`` is ``sim`` or ``emulated`` (None in
+``real`` mode):
 
-* both modes: the :class:`~curio.sim.world.World` (``app.world``), a physics loop at
+* both modes: the :class:`~curio.sim.world.World`, a physics loop at
   ``cfg.sim.physics_rate_hz`` that also publishes ``/ground_truth`` (``map``, every physics
   step, ≥ 20 Hz) and the world's events (``collision``, ``door``) on ``/events``;
-* ``sim`` mode only: :class:`SimBase` (``app.base``: ``/cmd_vel`` → kinematics → ``/servo_cmd``
+* ``sim`` mode only: :class:`SimBase` (the base: ``/cmd_vel`` → kinematics → ``/servo_cmd``
   → the world, with the 0.5 s command timeout and a halt hook) and the sensor publishers
   ``/scan`` (``cfg.sim.lidar_rate_hz``), ``/imu`` (``cfg.sim.imu_rate_hz``), ``/wheels``
   (``cfg.sim.wheel_feedback_rate_hz``) and ``/battery`` (1 Hz). In ``emulated`` mode the
@@ -16,8 +17,7 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import AsyncIterator
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
@@ -31,6 +31,7 @@ from curio.core.messages import (
     Twist,
     WheelEncoders,
 )
+from curio.core.parts import Part, Parts
 from curio.core.topics import (
     BATTERY,
     CMD_VEL,
@@ -43,21 +44,14 @@ from curio.core.topics import (
     WHEELS,
 )
 from curio.drivers.kinematics import twist_to_servo_command
+from curio.robot import RobotModel
 from curio.sim.world import World
 
-if TYPE_CHECKING:
-    from curio.app import App
-
-__all__ = ["SimBase", "Simulator", "build_sim"]
+__all__ = ["SimBase", "SimParts", "Simulator", "build_sim"]
 
 log = logging.getLogger("curio.sim")
 
 LOW_BATTERY_V = 6.6
-
-
-def _every(clock: Clock, period_s: float, phase_s: float) -> AsyncIterator[float]:
-    """``clock.every`` with a phase offset."""
-    return clock.every(period_s, phase_s=phase_s)
 
 
 class Simulator:
@@ -85,32 +79,32 @@ class Simulator:
         """Step the world at ``physics_rate_hz`` and publish ``/ground_truth``."""
         dt = 1.0 / self.cfg.sim.physics_rate_hz
         self._publish_truth(self.clock.now())
-        async for t in _every(self.clock, dt, phase_s=dt):
+        async for t in self.clock.every(dt, phase_s=dt):
             self.world.step(dt)
             self.physics_steps += 1
             self._publish_truth(t)
 
     async def run_scan(self) -> None:
         """Publish one lidar revolution per ``1 / lidar_rate_hz``."""
-        async for t in _every(self.clock, 1.0 / self.cfg.sim.lidar_rate_hz, phase_s=0.005):
+        async for t in self.clock.every(1.0 / self.cfg.sim.lidar_rate_hz, phase_s=0.005):
             self.bus.publish(SCAN, self.world.cast_scan(t))
             self.scans += 1
 
     async def run_imu(self) -> None:
         """Publish BNO055 samples at ``imu_rate_hz``."""
-        async for t in _every(self.clock, 1.0 / self.cfg.sim.imu_rate_hz, phase_s=0.001):
+        async for t in self.clock.every(1.0 / self.cfg.sim.imu_rate_hz, phase_s=0.001):
             self.bus.publish(IMU, self.world.imu_sample(t))
 
     async def run_wheels(self) -> None:
         """Publish the wheel servo positions at ``wheel_feedback_rate_hz``."""
         period = 1.0 / self.cfg.sim.wheel_feedback_rate_hz
-        async for t in _every(self.clock, period, phase_s=0.002):
+        async for t in self.clock.every(period, phase_s=0.002):
             p = self.world.wheel_positions()
             self.bus.publish(WHEELS, WheelEncoders(t, (p[0], p[1], p[2], p[3], p[4], p[5])))
 
     async def run_battery(self) -> None:
         """Publish the servo pack voltage (``sim`` mode) and the simulator's health, 1 Hz."""
-        async for t in _every(self.clock, 1.0, phase_s=0.003):
+        async for t in self.clock.every(1.0, phase_s=0.003):
             if self.publish_sensors:
                 volts = self.world.battery_voltage()
                 self.bus.publish(BATTERY, BatteryState(t, volts, low=volts < LOW_BATTERY_V))
@@ -128,8 +122,10 @@ class SimBase:
     command older than that stops the wheels; steering keeps the last command's angles.
     """
 
-    def __init__(self, cfg: Config, bus: Bus, clock: Clock, world: World) -> None:
+    def __init__(self, cfg: Config, bus: Bus, clock: Clock, world: World,
+                 robot: RobotModel) -> None:
         self.cfg = cfg
+        self.robot = robot
         self.bus = bus
         self.clock = clock
         self.world = world
@@ -155,8 +151,8 @@ class SimBase:
             now = self.clock.now()
             self.last_cmd, self.last_cmd_time, self.timed_out = msg, now, False
             try:
-                cmd = twist_to_servo_command(msg.linear_mps, msg.angular_radps,
-                                             self.cfg.robot, now)
+                cmd = twist_to_servo_command(msg.linear_mps, msg.angular_radps, self.robot,
+                                             now)
             except ValueError as exc:
                 log.warning("ignoring /cmd_vel: %s", exc)
                 continue
@@ -165,7 +161,7 @@ class SimBase:
     async def run_watchdog(self) -> None:
         """Stop the wheels when no command came for ``cmd_timeout_s``."""
         timeout = self.cfg.drivers.arduino.cmd_timeout_s
-        async for t in _every(self.clock, 0.05, phase_s=0.004):
+        async for t in self.clock.every(0.05, phase_s=0.004):
             if not self.timed_out and t - self.last_cmd_time > timeout:
                 self.timed_out = True
                 self._stop_wheels(t)
@@ -180,27 +176,33 @@ class SimBase:
         self._sub.close()
 
 
-def build_sim(app: App) -> None:
-    """Construct the world and simulator parts (``sim`` and ``emulated`` modes)."""
-    from curio.app import Part
+@dataclass(frozen=True)
+class SimParts:
+    """The simulator's objects; ``base`` only in ``sim`` mode (the emulators drive the world in
+    ``emulated`` mode)."""
 
-    cfg = app.cfg
+    world: World
+    simulator: Simulator
+    base: SimBase | None
+
+
+def build_sim(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
+              robot: RobotModel) -> SimParts | None:
+    """Construct the world and simulator parts (``sim`` and ``emulated`` modes; else None)."""
     if cfg.drivers.mode not in ("sim", "emulated"):
-        return
+        return None
     world = World.from_config(cfg)
-    app.world = world
     sim_mode = cfg.drivers.mode == "sim"
-    simulator = Simulator(cfg, app.bus, app.clock, world, publish_sensors=sim_mode)
-    app.simulator = simulator
-    app.add(Part("sim.physics", run=simulator.run_physics))
-    app.add(Part("sim.battery", run=simulator.run_battery))
+    simulator = Simulator(cfg, bus, clock, world, publish_sensors=sim_mode)
+    parts.add(Part("sim.physics", run=simulator.run_physics))
+    parts.add(Part("sim.battery", run=simulator.run_battery))
     if not sim_mode:
-        return
-    base = SimBase(cfg, app.bus, app.clock, world)
-    app.base = base
-    app.add(Part("sim.base", run=base.run, close=base.close))
-    app.add(Part("sim.base.watchdog", run=base.run_watchdog))
-    app.add_halt_hook(base.halt)
-    app.add(Part("sim.lidar", run=simulator.run_scan))
-    app.add(Part("sim.imu", run=simulator.run_imu))
-    app.add(Part("sim.wheels", run=simulator.run_wheels))
+        return SimParts(world, simulator, None)
+    base = SimBase(cfg, bus, clock, world, robot)
+    parts.add(Part("sim.base", run=base.run, close=base.close))
+    parts.add(Part("sim.base.watchdog", run=base.run_watchdog))
+    parts.add_halt_hook(base.halt)
+    parts.add(Part("sim.lidar", run=simulator.run_scan))
+    parts.add(Part("sim.imu", run=simulator.run_imu))
+    parts.add(Part("sim.wheels", run=simulator.run_wheels))
+    return SimParts(world, simulator, base)

@@ -59,9 +59,9 @@ from curio.drivers.kinematics import (
     WHEEL_SIDES,
     duty_to_servo_radps,
     steer_position_to_angle,
-    wheel_geometry,
 )
 from curio.estimation.maps import OccupancyGrid, load_map
+from curio.robot import RobotModel, wheel_geometry
 from curio.sim.objects import (
     Box,
     Door,
@@ -209,8 +209,8 @@ class World:
         self._roll_radius_m = (robot.wheel_radius_m * robot.wheel_radius_multiplier
                                * (1.0 + self.scale_error))
         # Footprint, collision samples (base_link).
-        self.footprint: list[tuple[float, float]] = [(float(x), float(y))
-                                                     for x, y in robot.footprint]
+        self.robot = RobotModel.from_config(robot)
+        self.footprint: list[tuple[float, float]] = self.robot.footprint_points
         self._fp_radius = max(math.hypot(x, y) for x, y in self.footprint)
         self._fp_samples = _footprint_samples(self.footprint, 0.5 * grid.resolution_m)
         # State.
@@ -560,8 +560,7 @@ class World:
 
     def laser_pose(self) -> Pose2D:
         """The ``laser`` frame's pose in ``map``."""
-        lx, ly, lyaw = self.cfg.robot.laser_pose
-        return self._pose @ Pose2D(lx, ly, lyaw)
+        return self._pose @ self.robot.laser_in_base
 
     def cast_scan(self, stamp: float) -> LaserScan:
         """One lidar revolution from the current pose (``laser`` frame, noisy).
@@ -631,7 +630,8 @@ class World:
             self._imu_k = 0
         n = self._imu_noise[self._imu_k]
         self._imu_k += 1
-        ix, iy, iyaw = self.cfg.robot.imu_pose
+        imu = self.robot.imu_in_base
+        ix, iy, iyaw = imu.x, imu.y, imu.yaw
         yaw = wrap_angle(self._pose.yaw + iyaw + IMU_YAW_SIGMA_RAD * n[0])
         gyro_z = self._w + self._gyro_bias + noise.gyro_sigma_radps * n[1]
         # Acceleration of the IMU point (rigid body; yaw acceleration neglected).

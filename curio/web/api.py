@@ -32,8 +32,8 @@ from typing import Any, get_args
 from aiohttp import web
 
 from curio.core.geometry import Pose2D
+from curio.core.jsonable import to_json
 from curio.core.messages import OperatorAction, OperatorCommand
-from curio.web.encode import to_json
 from curio.web.hub import CommandError, Hub, parse_json_object, path_to_json
 
 __all__ = ["ACTIONS", "build_command", "describe_path_ids", "parse_pose", "routes"]

@@ -20,9 +20,7 @@ Grids become PNGs (lossless: JPEG smears walls) with the top image row at the la
 
 from __future__ import annotations
 
-import dataclasses
 import io
-import json
 import math
 import struct
 from typing import Any
@@ -46,8 +44,6 @@ __all__ = [
     "encode_scan",
     "grid_meta",
     "grid_png",
-    "to_json",
-    "to_jsonable",
 ]
 
 FRAME_SCAN = 1
@@ -184,28 +180,3 @@ def grid_meta(grid: GridMessage) -> dict[str, Any]:
         "frame_id": grid.frame_id,
     }
 
-
-def to_jsonable(value: Any) -> Any:
-    """Convert dataclasses, poses, tuples, numpy values and non-finite floats to JSON data."""
-    if isinstance(value, Pose2D):
-        return {"x": value.x, "y": value.y, "yaw": value.yaw}
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: to_jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, dict):
-        return {str(k): to_jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple | set | frozenset):
-        return [to_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return to_jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return to_jsonable(value.item())
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if value is None or isinstance(value, str | int | bool):
-        return value
-    return str(value)
-
-
-def to_json(value: Any) -> str:
-    """Compact JSON of :func:`to_jsonable` ``(value)``."""
-    return json.dumps(to_jsonable(value), separators=(",", ":"), allow_nan=False)

@@ -40,6 +40,7 @@ from curio.core.bus import Bus, Subscription, Topic
 from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.geometry import Pose2D
+from curio.core.jsonable import to_json, to_jsonable
 from curio.core.messages import (
     BatteryState,
     BlockedState,
@@ -84,6 +85,7 @@ from curio.core.topics import (
     STATUS,
     TREE,
 )
+from curio.robot import RobotModel
 from curio.web.auth import RateLimiter
 from curio.web.encode import (
     FRAME_LOCAL_PLAN,
@@ -94,8 +96,6 @@ from curio.web.encode import (
     encode_scan,
     grid_meta,
     grid_png,
-    to_json,
-    to_jsonable,
 )
 
 __all__ = ["GRID_TOPICS", "Client", "CommandError", "Hub"]
@@ -165,8 +165,10 @@ class Hub:
         paths: the path manager (``app.paths``) or None when the behaviour tree is not built.
     """
 
-    def __init__(self, cfg: Config, clock: Clock, bus: Bus, paths: Any = None) -> None:
+    def __init__(self, cfg: Config, robot: RobotModel, clock: Clock, bus: Bus,
+                 paths: Any = None) -> None:
         self.cfg = cfg
+        self.robot = robot
         self.clock = clock
         self.bus = bus
         self.paths = paths
@@ -381,11 +383,11 @@ class Hub:
             "health": self.health_json(),
             "events": list(self.events),
             "robot": {
-                "footprint": [list(p) for p in self.cfg.robot.footprint],
-                "home": list(self.cfg.robot.home),
-                "max_speed_mps": min(self.cfg.robot.max_wheel_speed_mps,
+                "footprint": [list(p) for p in self.robot.footprint_points],
+                "home": list(self.robot.home.as_tuple()),
+                "max_speed_mps": min(self.robot.max_wheel_speed_mps,
                                      self.cfg.nav.safety.max_speed_mps),
-                "max_angular_radps": min(self.cfg.robot.max_angular_radps,
+                "max_angular_radps": min(self.robot.max_angular_radps,
                                          self.cfg.nav.safety.max_angular_radps),
                 "name": self.cfg.robot.name,
                 "tree": self.cfg.bt.tree,
@@ -484,8 +486,7 @@ class Hub:
         robot = self._robot_pose()
         if robot is None:
             return
-        lx, ly, lyaw = self.cfg.robot.laser_pose
-        laser = robot @ Pose2D(lx, ly, lyaw)
+        laser = robot @ self.robot.laser_in_base
         self._stream("scan", lambda: encode_scan(msg, laser))
 
     def _on_pose(self, msg: PoseWithCovariance) -> None:

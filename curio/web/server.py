@@ -37,6 +37,7 @@ from curio.core.bus import Bus
 from curio.core.clock import Clock, wall_perf_counter
 from curio.core.config import Config
 from curio.core.topics import HEALTH
+from curio.robot import RobotModel
 from curio.web.api import build_command, http_error, parse_pose, routes
 from curio.web.auth import RateLimiter, check_origin, request_token, token_matches
 from curio.web.hub import CLIENT_OPS, Client, CommandError, Hub, parse_json_object
@@ -57,13 +58,15 @@ class WebServices:
         clock: the injected clock.
         bus: the application bus.
         token: the control token (see :func:`curio.web.auth.load_or_create_token`).
-        paths: the path manager (``app.paths``), or None.
+        paths: the path manager, or None.
+        robot: the robot model (footprint, home, laser pose, limits).
     """
 
     cfg: Config
     clock: Clock
     bus: Bus
     token: str
+    robot: RobotModel
     paths: Any = None
 
 
@@ -150,7 +153,7 @@ def _static_version() -> str:
 def create_app(services: WebServices) -> web.Application:
     """Build the dashboard application (the hub starts and stops with it)."""
     cfg = services.cfg.web
-    hub = Hub(services.cfg, services.clock, services.bus, services.paths)
+    hub = Hub(services.cfg, services.robot, services.clock, services.bus, services.paths)
     control_limiters: dict[str, RateLimiter] = {}
 
     @web.middleware

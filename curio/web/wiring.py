@@ -1,7 +1,7 @@
-"""Web wiring: the dashboard server as a Part of the application.
+"""Web wiring: the dashboard server as a part of the application.
 
-``build_web(app)`` loads (or creates) the control token, builds the aiohttp application and
-binds its listening socket at once, so ``app.web_url`` — the ready-to-open control URL with the
+``build_web`` loads (or creates) the control token, builds the aiohttp application and binds
+its listening socket at once, so the server's ``control_url`` — the ready-to-open URL with the
 token — is known before the app starts (``web.port = 0`` picks a free port, for tests). The
 URL is logged when the server starts.
 """
@@ -11,17 +11,18 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
-from typing import TYPE_CHECKING
 
 from aiohttp import web
 
-from curio.app import Part
+from curio.bt.paths import PathManager
+from curio.core.bus import Bus
+from curio.core.clock import Clock
+from curio.core.config import Config
+from curio.core.parts import Part, Parts
+from curio.robot import RobotModel
 from curio.web.auth import load_or_create_token
 from curio.web.hub import Hub
 from curio.web.server import HUB, WebServices, create_app
-
-if TYPE_CHECKING:
-    from curio.app import App
 
 __all__ = ["WebServer", "build_web"]
 
@@ -87,12 +88,11 @@ class WebServer:
         self.sock.close()
 
 
-def build_web(app: App) -> None:
-    """Construct the dashboard from ``app.cfg.web`` and register it as a Part."""
-    cfg = app.cfg
+def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
+              paths: PathManager) -> WebServer:
+    """Construct the dashboard from ``cfg.web`` and register it as a part."""
     token = load_or_create_token(cfg.data_path(cfg.web.token_file))
-    services = WebServices(cfg=cfg, clock=app.clock, bus=app.bus, token=token, paths=app.paths)
+    services = WebServices(cfg=cfg, clock=clock, bus=bus, token=token, robot=robot, paths=paths)
     server = WebServer(services)
-    app.web = server
-    app.web_url = server.control_url
-    app.add(Part("web", run=server.run, close=server.close))
+    parts.add(Part("web", run=server.run, close=server.close))
+    return server

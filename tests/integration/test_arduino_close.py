@@ -21,6 +21,7 @@ from curio.core.messages import Twist
 from curio.core.topics import CMD_VEL, make_bus
 from curio.drivers.arduino import ArduinoBase, ArduinoEmulator
 from curio.drivers.arduino import protocol as p
+from curio.robot import RobotModel
 from tests.integration.test_arduino_emulator import FAST, make_rig
 from tests.integration.test_arduino_fakes import FakeWorld
 
@@ -40,7 +41,8 @@ async def test_close_after_abrupt_cancel_frees_the_port_at_once() -> None:
         _take_port_exclusively(rig.emu.port_path)  # at once: no "could not exclusively lock"
         assert not rig.base.connected
         # A new driver on the same port connects, configures and drives again.
-        again = ArduinoBase(FAST, RobotConfig(), rig.bus, rig.clock, port=rig.emu.port_path)
+        again = ArduinoBase(FAST, RobotModel.from_config(RobotConfig()), rig.bus, rig.clock,
+                            port=rig.emu.port_path)
         task = asyncio.ensure_future(again.run())
         try:
             await rig.until(rig.driving, 3.0)
@@ -92,7 +94,8 @@ async def test_cancel_while_the_port_opens_then_close_frees_it(
     clock = RealClock()
     emu = ArduinoEmulator(FakeWorld(), clock, boot_delay_s=0.1)
     emu.open()
-    base = ArduinoBase(FAST, RobotConfig(), make_bus(), clock, port=emu.port_path)
+    base = ArduinoBase(FAST, RobotModel.from_config(RobotConfig()), make_bus(), clock,
+                       port=emu.port_path)
     try:
         monkeypatch.setattr(serial_asyncio_fast, "open_serial_connection", slow_open)
         task = asyncio.ensure_future(base.run())
@@ -135,7 +138,8 @@ async def test_paced_driver_holds_the_sim_clock_while_the_port_opens_and_closes(
     bus.bind_loop(asyncio.get_running_loop())
     emu = ArduinoEmulator(FakeWorld(), clock, seed=1)
     emu.open()
-    base = ArduinoBase(ArduinoConfig(), RobotConfig(), bus, clock, port=emu.port_path)
+    base = ArduinoBase(ArduinoConfig(), RobotModel.from_config(RobotConfig()), bus, clock,
+                       port=emu.port_path)
     emu.pair(base)
     close_span_s: list[tuple[float, float]] = []
 

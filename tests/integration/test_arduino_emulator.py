@@ -19,6 +19,7 @@ from curio.core.messages import EStop, Twist
 from curio.core.topics import BATTERY, CMD_VEL, ESTOP, HEALTH, SERVO_CMD, WHEELS, make_bus
 from curio.drivers.arduino import ArduinoBase, ArduinoEmulator
 from curio.drivers.arduino import protocol as p
+from curio.robot import RobotModel
 from tests.integration.test_arduino_fakes import FakeWorld
 
 # Short timeouts, with margins for a loaded CI machine (the loop may stall ~100 ms).
@@ -63,7 +64,7 @@ async def make_rig(cfg: ArduinoConfig = FAST, boot_delay_s: float = 0.1) -> Asyn
     world = FakeWorld()
     emu = ArduinoEmulator(world, clock, boot_delay_s=boot_delay_s, seed=3)
     emu.open()
-    base = ArduinoBase(cfg, RobotConfig(), bus, clock, port=emu.port_path)
+    base = ArduinoBase(cfg, RobotModel.from_config(RobotConfig()), bus, clock, port=emu.port_path)
     rig = Rig(clock, bus, world, emu, base)
     tasks = [asyncio.ensure_future(emu.run()), asyncio.ensure_future(base.run()),
              asyncio.ensure_future(_commander(rig))]
@@ -240,7 +241,8 @@ async def test_halt_stops_and_disarms() -> None:
 async def test_missing_port_says_what_to_check() -> None:
     clock = RealClock()
     bus = make_bus()
-    base = ArduinoBase(FAST, RobotConfig(), bus, clock, port="/nonexistent/curio-arduino")
+    base = ArduinoBase(FAST, RobotModel.from_config(RobotConfig()), bus, clock,
+                       port="/nonexistent/curio-arduino")
     task = asyncio.ensure_future(base.run())
     try:
         await clock.wait_until(lambda: base.health().state == "error", 1.0, poll_s=0.01)
@@ -263,7 +265,8 @@ async def test_emulated_mode_on_a_simulated_clock() -> None:
     world = FakeWorld()
     emu = ArduinoEmulator(world, clock, seed=1)
     emu.open()
-    base = ArduinoBase(ArduinoConfig(), RobotConfig(), bus, clock, port=emu.port_path)
+    base = ArduinoBase(ArduinoConfig(), RobotModel.from_config(RobotConfig()), bus, clock,
+                       port=emu.port_path)
     emu.pair(base)
     wheels = bus.subscribe(WHEELS, maxsize=1000)
 
@@ -296,7 +299,7 @@ async def test_old_firmware_protocol_says_reflash() -> None:
     emu = ArduinoEmulator(FakeWorld(), clock, boot_delay_s=0.1)
     emu.firmware.proto_version = 0
     emu.open()
-    base = ArduinoBase(FAST, RobotConfig(), bus, clock, port=emu.port_path)
+    base = ArduinoBase(FAST, RobotModel.from_config(RobotConfig()), bus, clock, port=emu.port_path)
     tasks = [asyncio.ensure_future(emu.run()), asyncio.ensure_future(base.run())]
     try:
         ok = await clock.wait_until(lambda: "speaks protocol 0" in base.last_error, 3.0,
@@ -318,7 +321,8 @@ async def test_port_held_by_another_program() -> None:
     emu = ArduinoEmulator(FakeWorld(), clock, boot_delay_s=0.1)
     emu.open()
     holder = serial.Serial(emu.port_path, 115200, exclusive=True)  # e.g. a serial monitor
-    base = ArduinoBase(FAST, RobotConfig(), make_bus(), clock, port=emu.port_path)
+    base = ArduinoBase(FAST, RobotModel.from_config(RobotConfig()), make_bus(), clock,
+                       port=emu.port_path)
     task = asyncio.ensure_future(base.run())
     try:
         ok = await clock.wait_until(lambda: base.health().state == "error", 2.0, poll_s=0.01)

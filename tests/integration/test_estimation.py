@@ -13,30 +13,38 @@ from curio.core.clock import RealClock, SimClock, wall_sleep
 from curio.core.config import Config, LocalizationConfig
 from curio.core.geometry import Pose2D
 from curio.core.messages import LaserScan, Odometry
+from curio.core.parts import Part, Parts
 from curio.core.topics import LOCALIZATION, MAP, ODOM, POSE, SCAN, WHEEL_ODOM, make_bus
+from curio.estimation import wiring
 from curio.estimation.localization import Localizer, LocalizerNode
 from curio.estimation.mapping import MappingNode
 from curio.estimation.maps import OccupancyGrid
-from curio.estimation.wiring import build_estimation
+from curio.robot import RobotModel
 from curio.scenarios import get_scenario
 from curio.scenarios.base import ScenarioArgs, run_scenario
 
 
 class FakeApp:
-    """The few App attributes the estimation wiring uses."""
+    """The estimation wiring on its own, with the attributes the tests read."""
 
     def __init__(self, cfg: Config, clock: SimClock) -> None:
         self.cfg = cfg
         self.clock = clock
         self.bus = make_bus()
-        self.parts: list[Any] = []
+        self.registry = Parts()
         self.map_server: Any = None
         self.ekf: Any = None
         self.localizer: Any = None
-        self.world: Any = None
 
-    def add(self, part: Any) -> None:
-        self.parts.append(part)
+    @property
+    def parts(self) -> list[Part]:
+        return self.registry.parts
+
+
+def build_estimation(app: FakeApp) -> None:
+    est = wiring.build_estimation(app.cfg, app.bus, app.clock, app.registry,
+                                  RobotModel.from_config(app.cfg.robot))
+    app.map_server, app.ekf, app.localizer = est.map_server, est.ekf, est.localizer
 
 
 async def test_relay_publishes_map_odom_and_pose(cfg: Config, shared_maps: Path) -> None:
@@ -48,7 +56,7 @@ async def test_relay_publishes_map_odom_and_pose(cfg: Config, shared_maps: Path)
     })
     clock = SimClock()
     app = FakeApp(cfg, clock)
-    build_estimation(app)  # type: ignore[arg-type]
+    build_estimation(app)
     assert app.map_server.grid.width == 384
     assert app.bus.latest(MAP) is not None
     tasks = [asyncio.create_task(p.run()) for p in app.parts if p.run is not None]
@@ -84,7 +92,7 @@ async def test_ekf_and_localizer_track_a_drive_on_the_bus(cfg: Config) -> None:
     })
     clock = SimClock()
     app = FakeApp(cfg, clock)
-    build_estimation(app)  # type: ignore[arg-type]
+    build_estimation(app)
     assert app.ekf is not None and app.localizer is not None
     tasks = [asyncio.create_task(p.run()) for p in app.parts if p.run is not None]
     rng = np.random.default_rng(2)
@@ -134,7 +142,7 @@ async def test_initial_pose_sets_the_pose_and_a_huge_covariance_starts_a_global_
     })
     clock = SimClock()
     app = FakeApp(cfg, clock)
-    build_estimation(app)  # type: ignore[arg-type]
+    build_estimation(app)
     tasks = [asyncio.create_task(p.run()) for p in app.parts if p.run is not None]
     laser = Pose2D(*cfg.robot.laser_pose)
     truth = Pose2D(8.0, 2.0, 2.0)  # not where the config says
@@ -180,7 +188,7 @@ async def test_mapping_mode_builds_publishes_and_saves_a_map(cfg: Config) -> Non
     })
     clock = SimClock()
     app = FakeApp(cfg, clock)
-    build_estimation(app)  # type: ignore[arg-type]
+    build_estimation(app)
     assert app.map_server.grid.unknown_mask().all()
     tasks = [asyncio.create_task(p.run()) for p in app.parts if p.run is not None]
     laser = Pose2D(*cfg.robot.laser_pose)
@@ -273,7 +281,7 @@ async def test_a_slow_localiser_update_does_not_block_the_loop_on_a_real_clock()
     bus = make_bus()
     grid = OccupancyGrid(np.zeros((40, 40), dtype=np.int8), 0.1, Pose2D(-2.0, -2.0, 0.0))
     loc = Localizer(grid, LocalizationConfig())
-    node = LocalizerNode(bus, clock, loc, Pose2D(), in_thread=True)
+    node = LocalizerNode(bus, clock, loc, Pose2D())
     calls: list[float] = []
 
     def slow(scan: LaserScan, odom_pose: Pose2D) -> bool:
@@ -291,7 +299,7 @@ async def test_a_loop_closure_does_not_block_the_loop_on_a_real_clock() -> None:
     clock = RealClock()
     bus = make_bus()
     maps: list[OccupancyGrid] = []
-    node = MappingNode(bus, clock, Pose2D(), Pose2D(), maps.append, in_thread=True)
+    node = MappingNode(bus, clock, Pose2D(), Pose2D(), maps.append)
     real_add = node.mapper.add_scan
 
     def slow(*args: Any, **kwargs: Any) -> Pose2D:

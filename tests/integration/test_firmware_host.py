@@ -27,6 +27,7 @@ from curio.core.messages import Twist
 from curio.core.topics import CMD_VEL, WHEELS, make_bus
 from curio.drivers.arduino import ArduinoBase, ArduinoEmulator
 from curio.drivers.arduino import protocol as p
+from curio.robot import RobotModel
 from tests.integration.test_arduino_fakes import FakeWorld
 
 FIRMWARE = REPO_ROOT / "firmware"
@@ -89,7 +90,7 @@ async def driver(port: str) -> AsyncIterator[Rig]:
     clock = RealClock()
     bus = make_bus()
     bus.bind_loop(asyncio.get_running_loop())
-    base = ArduinoBase(FAST, RobotConfig(), bus, clock, port=port)
+    base = ArduinoBase(FAST, RobotModel.from_config(RobotConfig()), bus, clock, port=port)
 
     async def command() -> None:
         while True:

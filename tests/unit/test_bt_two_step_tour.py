@@ -12,6 +12,7 @@ from py_trees.common import Status
 from curio.bt.probe import WayProbe
 from curio.bt.speech import Speaker
 from curio.core.config import BtConfig, TourStopConfig
+from curio.robot import RobotModel
 
 from .bt_fakes import make_harness
 
@@ -261,9 +262,10 @@ async def test_espeak_ng_speaks() -> None:  # pragma: no cover - depends on the 
     await sp.close()
 
 
-def test_way_probe_on_a_real_planner() -> None:
+async def test_way_probe_on_a_real_planner() -> None:
     import numpy as np
 
+    from curio.core.clock import SimClock
     from curio.core.config import Config
     from curio.core.geometry import Pose2D
     from curio.core.messages import PoseWithCovariance
@@ -277,15 +279,15 @@ def test_way_probe_on_a_real_planner() -> None:
     data[:, 39:41] = 100  # a wall across the room...
     data[45:75, 39:41] = 0  # ... with a 1.5 m doorway
     grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0), name="t")
-    costmap = Costmap(grid, cfg.robot, cfg.nav.costmap)
+    costmap = Costmap(grid, RobotModel.from_config(cfg.robot), cfg.nav.costmap)
     bus = make_bus()
     bus.publish(POSE, PoseWithCovariance(0.0, Pose2D(1.0, 1.0, 0.0)))
-    probe = WayProbe(GlobalPlanner(cfg.nav.planner), costmap, bus, in_thread=False)
+    probe = WayProbe(GlobalPlanner(cfg.nav.planner), costmap, bus, SimClock())
     assert probe.start(Pose2D(3.0, 1.0, 0.0), 1.0)
     assert probe.poll() is not None and probe.poll().clear  # type: ignore[union-attr]
     data[45:75, 39:41] = 100  # the door closes
     closed = Costmap(OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0), name="t"),
-                     cfg.robot, cfg.nav.costmap)
+                     RobotModel.from_config(cfg.robot), cfg.nav.costmap)
     probe.costmap = closed
     probe.start(Pose2D(3.0, 1.0, 0.0), 2.0)
     result = probe.poll()

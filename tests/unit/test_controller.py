@@ -12,6 +12,7 @@ from curio.core.geometry import Pose2D, wrap_angle
 from curio.estimation.maps import OccupancyGrid
 from curio.nav.controller import ControlStatus, LocalController, ProgressChecker
 from curio.nav.costmap import Costmap
+from curio.robot import RobotModel
 
 
 def open_grid(size_m: float = 8.0, res: float = 0.05) -> OccupancyGrid:
@@ -54,9 +55,8 @@ def drive(ctrl: LocalController, pose: Pose2D, seconds: float,
 
 @pytest.fixture
 def ctrl(cfg: Config) -> LocalController:
-    cm = Costmap(open_grid(), cfg.robot, cfg.nav.costmap)
-    c = LocalController(cfg.nav.controller, cfg.robot, cm)
-    c.set_cost_scaling(cfg.nav.costmap.cost_scaling_factor)
+    cm = Costmap(open_grid(), RobotModel.from_config(cfg.robot), cfg.nav.costmap)
+    c = LocalController(cfg.nav.controller, RobotModel.from_config(cfg.robot), cm)
     return c
 
 
@@ -116,13 +116,13 @@ def test_final_heading_is_met(ctrl: LocalController, cfg: Config) -> None:
 
 def test_avoids_an_unmapped_obstacle_or_reports_blocked(cfg: Config) -> None:
     grid = open_grid()
-    cm = Costmap(grid, cfg.robot, cfg.nav.costmap)
+    cm = Costmap(grid, RobotModel.from_config(cfg.robot), cfg.nav.costmap)
     # A wall across the whole room at x = 1 (as the obstacle layer would mark it).
     blocked = grid.data.copy()
     col = int((1.0 - grid.origin.x) / grid.resolution_m)
     blocked[:, col] = 100
     cm.set_static_map(OccupancyGrid(blocked, grid.resolution_m, grid.origin))
-    ctrl = LocalController(cfg.nav.controller, cfg.robot, cm)
+    ctrl = LocalController(cfg.nav.controller, RobotModel.from_config(cfg.robot), cm)
     ctrl.set_plan(straight_plan(-2.0, 2.5), Pose2D(2.5, 0.0, 0.0))
     pose, log = drive(ctrl, Pose2D(-2.0, 0.0, 0.0), 60.0)
     assert log[-1][2].status is ControlStatus.BLOCKED
@@ -134,9 +134,10 @@ def test_avoids_an_unmapped_obstacle_or_reports_blocked(cfg: Config) -> None:
     r0 = int((0.3 - grid.origin.y) / grid.resolution_m)
     c0 = int((0.3 - grid.origin.x) / grid.resolution_m)
     box[r0:r0 + 6, c0:c0 + 6] = 100
-    cm2 = Costmap(OccupancyGrid(box, grid.resolution_m, grid.origin), cfg.robot,
+    cm2 = Costmap(OccupancyGrid(box, grid.resolution_m, grid.origin),
+                  RobotModel.from_config(cfg.robot),
                   cfg.nav.costmap)
-    ctrl2 = LocalController(cfg.nav.controller, cfg.robot, cm2)
+    ctrl2 = LocalController(cfg.nav.controller, RobotModel.from_config(cfg.robot), cm2)
     ctrl2.set_plan(straight_plan(-2.0, 2.5), Pose2D(2.5, 0.0, 0.0))
     pose, log = drive(ctrl2, Pose2D(-2.0, 0.0, 0.0), 80.0)
     poses = np.array([[p.x, p.y, p.yaw] for _, p, _ in log])
@@ -182,8 +183,9 @@ def test_backs_out_where_it_cannot_turn_in_place(cfg: Config) -> None:
     data[r_lo - 2:r_lo, c0:c1 + 2] = 100  # lower wall
     data[r_hi:r_hi + 2, c0:c1 + 2] = 100  # upper wall
     data[r_lo - 2:r_hi + 2, c1:c1 + 2] = 100  # the end
-    cm = Costmap(OccupancyGrid(data, res, grid.origin), cfg.robot, cfg.nav.costmap)
-    ctrl = LocalController(cfg.nav.controller, cfg.robot, cm)
+    cm = Costmap(OccupancyGrid(data, res, grid.origin), RobotModel.from_config(cfg.robot),
+                 cfg.nav.costmap)
+    ctrl = LocalController(cfg.nav.controller, RobotModel.from_config(cfg.robot), cm)
     start = Pose2D(0.05, 0.0, 0.0)
     assert cm.footprint_cost(start) < 254
     xs = np.arange(0.05, -2.5, -0.05)
@@ -215,9 +217,8 @@ def test_turns_in_place_sooner_before_a_narrow_passage(cfg: Config, gap_m: float
     line up with the plan; before a wide one it drives an arc."""
     c = cfg.nav.controller
     assert c.narrow_rotate_enter_rad < 0.6 < c.rotate_enter_rad
-    cm = Costmap(door_grid(gap_m), cfg.robot, cfg.nav.costmap)
-    ctrl = LocalController(c, cfg.robot, cm)
-    ctrl.set_cost_scaling(cfg.nav.costmap.cost_scaling_factor)
+    cm = Costmap(door_grid(gap_m), RobotModel.from_config(cfg.robot), cfg.nav.costmap)
+    ctrl = LocalController(c, RobotModel.from_config(cfg.robot), cm)
     ctrl.set_plan(straight_plan(0.4, 2.5), Pose2D(2.5, 0.0, 0.0))
     out = ctrl.compute(Pose2D(0.4, 0.0, 0.6), 0.0)
     if narrow:
@@ -229,9 +230,8 @@ def test_turns_in_place_sooner_before_a_narrow_passage(cfg: Config, gap_m: float
 
 def test_enters_a_narrow_door_aligned(cfg: Config) -> None:
     """Started at an angle to a door only 0.8 m wide, the rover lines up and drives through."""
-    cm = Costmap(door_grid(0.8), cfg.robot, cfg.nav.costmap)
-    ctrl = LocalController(cfg.nav.controller, cfg.robot, cm)
-    ctrl.set_cost_scaling(cfg.nav.costmap.cost_scaling_factor)
+    cm = Costmap(door_grid(0.8), RobotModel.from_config(cfg.robot), cfg.nav.costmap)
+    ctrl = LocalController(cfg.nav.controller, RobotModel.from_config(cfg.robot), cm)
     ctrl.set_plan(straight_plan(-0.5, 2.5), Pose2D(2.5, 0.0, 0.0))
     _pose, log = drive(ctrl, Pose2D(-0.5, 0.0, 0.7), 60.0)
     assert log[-1][2].status is ControlStatus.GOAL_REACHED

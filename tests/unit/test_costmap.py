@@ -15,16 +15,9 @@ from curio.core.geometry import Pose2D
 from curio.core.messages import GridMessage, LaserScan, PoseWithCovariance
 from curio.core.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
 from curio.estimation.maps import OccupancyGrid, load_map
-from curio.nav.costmap import (
-    INSCRIBED,
-    LETHAL,
-    NO_INFORMATION,
-    Costmap,
-    CostmapNode,
-    costs_to_percent,
-    footprint_radii,
-    pad_footprint,
-)
+from curio.nav.costmap import Costmap, CostmapNode, costs_to_percent
+from curio.nav.costs import INSCRIBED, LETHAL, NO_INFORMATION
+from curio.robot import RobotModel, footprint_radii, pad_footprint
 
 RES = 0.05
 
@@ -89,7 +82,7 @@ def expected_cost(d_m: float, inscribed: float = 0.32, radius: float = 0.55,
 def test_inflation_matches_hand_computed_distances() -> None:
     grid = free_grid(60)
     grid.data[30, 30] = 100
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     assert cm.inscribed_radius_m == pytest.approx(0.32)
     costs = cm.costs()
     for dr, dc in [(0, 0), (0, 1), (0, 6), (3, 4), (0, 7), (5, 5), (0, 8), (6, 6), (0, 11),
@@ -107,7 +100,7 @@ def test_inflation_honours_radius_and_scaling_settings() -> None:
     grid = free_grid(60)
     grid.data[30, 30] = 100
     cfg = CostmapConfig(inflation_radius_m=1.0, cost_scaling_factor=2.0, footprint_padding_m=0.0)
-    costs = Costmap(grid, RobotConfig(), cfg).costs()
+    costs = Costmap(grid, RobotModel.from_config(RobotConfig()), cfg).costs()
     for dc in (5, 6, 7, 10, 19, 20, 21):
         d = dc * RES
         assert costs[30, 30 + dc] == expected_cost(d, 0.31, 1.0, 2.0), dc
@@ -117,14 +110,14 @@ def test_unknown_static_cells_stay_unknown_unless_inflated_to_inscribed() -> Non
     grid = free_grid(60)
     grid.data[:, 40:] = -1
     grid.data[30, 38] = 100
-    costs = Costmap(grid, RobotConfig(), CostmapConfig()).costs()
+    costs = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig()).costs()
     assert costs[10, 50] == NO_INFORMATION
     assert costs[30, 40] == INSCRIBED  # unknown but within the inscribed radius of a wall
     assert costs[10, 10] == 0
 
 
 def test_costs_snapshot_is_read_only_and_replaced_on_change() -> None:
-    cm = Costmap(free_grid(), RobotConfig(), CostmapConfig())
+    cm = Costmap(free_grid(), RobotModel.from_config(RobotConfig()), CostmapConfig())
     before = cm.costs()
     with pytest.raises(ValueError):
         before[0, 0] = 1
@@ -141,7 +134,7 @@ def test_costs_snapshot_is_read_only_and_replaced_on_change() -> None:
 
 
 def test_obstacle_marked_within_one_scan_then_cleared_when_seen_free() -> None:
-    cm = Costmap(free_grid(), RobotConfig(), CostmapConfig())
+    cm = Costmap(free_grid(), RobotModel.from_config(RobotConfig()), CostmapConfig())
     pose = Pose2D(5.0, 5.0, 0.3)
     ranges = np.full(360, np.inf)
     i = beam_index(0.0)
@@ -162,7 +155,7 @@ def test_obstacle_marked_within_one_scan_then_cleared_when_seen_free() -> None:
 
 
 def test_longer_return_clears_the_old_mark_and_marks_the_new_end() -> None:
-    cm = Costmap(free_grid(), RobotConfig(), CostmapConfig())
+    cm = Costmap(free_grid(), RobotModel.from_config(RobotConfig()), CostmapConfig())
     pose = Pose2D(5.0, 5.0, 0.0)
     i = beam_index(0.0)
     ranges = np.full(360, np.inf)
@@ -178,7 +171,7 @@ def test_longer_return_clears_the_old_mark_and_marks_the_new_end() -> None:
 
 def test_returns_beyond_obstacle_range_are_not_marked_but_clear() -> None:
     cfg = CostmapConfig(obstacle_range_m=2.0, raytrace_range_m=3.0)
-    cm = Costmap(free_grid(), RobotConfig(), cfg)
+    cm = Costmap(free_grid(), RobotModel.from_config(RobotConfig()), cfg)
     pose = Pose2D(2.0, 5.0, 0.0)
     ranges = np.full(360, np.nan)
     ranges[beam_index(0.0)] = 2.5
@@ -188,7 +181,7 @@ def test_returns_beyond_obstacle_range_are_not_marked_but_clear() -> None:
 
 def test_raytrace_range_limits_clearing() -> None:
     cfg = CostmapConfig(obstacle_range_m=5.5, raytrace_range_m=2.0)
-    cm = Costmap(free_grid(), RobotConfig(), cfg)
+    cm = Costmap(free_grid(), RobotModel.from_config(RobotConfig()), cfg)
     pose = Pose2D(2.0, 5.0, 0.0)
     i = beam_index(0.0)
     ranges = np.full(360, np.nan)
@@ -204,13 +197,13 @@ def test_raytrace_range_limits_clearing() -> None:
 def test_rays_never_clear_the_static_map() -> None:
     grid = free_grid()
     grid.data[100, 130] = 100  # 1.5 m ahead of (5.0, 5.0) along +x, roughly
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     cm.update_from_scan(make_scan(np.full(360, np.inf)), Pose2D(5.0, 5.0, 0.0))
     assert cm.costs()[100, 130] == LETHAL
 
 
 def test_laser_mounting_offset_is_applied() -> None:
-    robot = RobotConfig(laser_pose=(0.5, 0.2, math.pi / 2))
+    robot = RobotModel.from_config(RobotConfig(laser_pose=(0.5, 0.2, math.pi / 2)))
     cm = Costmap(free_grid(), robot, CostmapConfig())
     pose = Pose2D(5.0, 5.0, math.pi / 2)
     ranges = np.full(360, np.nan)
@@ -225,7 +218,7 @@ def test_laser_mounting_offset_is_applied() -> None:
 
 def test_unknown_cells_become_free_when_a_ray_crosses_them() -> None:
     grid = OccupancyGrid(np.full((200, 200), -1, dtype=np.int8), RES)
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     assert cm.costs()[100, 120] == NO_INFORMATION
     ranges = np.full(360, np.nan)
     ranges[beam_index(0.0)] = np.inf
@@ -236,7 +229,7 @@ def test_unknown_cells_become_free_when_a_ray_crosses_them() -> None:
 
 
 def test_clear_around_removes_marks_only_within_radius() -> None:
-    cm = Costmap(free_grid(), RobotConfig(), CostmapConfig())
+    cm = Costmap(free_grid(), RobotModel.from_config(RobotConfig()), CostmapConfig())
     pose = Pose2D(5.0, 5.0, 0.0)
     ranges = np.full(360, np.nan)
     ranges[beam_index(0.0)] = 0.8
@@ -253,7 +246,7 @@ def test_clear_around_removes_marks_only_within_radius() -> None:
 def test_scan_update_is_vectorised_and_only_touches_its_window() -> None:
     grid = free_grid(1000)  # 50 m
     grid.data[900, 900] = 100
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     far_before = cm.costs()[890:910, 890:910].copy()
     ranges = np.full(720, 1.0)
     scan = LaserScan(0.0, -math.pi, 2 * math.pi / 720, 0.15, 12.0, ranges)
@@ -269,10 +262,11 @@ def test_a_return_next_to_a_mapped_wall_is_the_wall_not_a_new_obstacle() -> None
     for tolerance, offsets_marked in ((1, {1: False, 2: True}), (0, {1: True, 2: True})):
         for offset, marked in offsets_marked.items():
             grid = free_grid()
-            probe = Costmap(grid, RobotConfig(), CostmapConfig())
+            probe = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
             r, c = hit_at(probe, pose, 0.0, 1.5)
             grid.data[r, c + offset] = 100  # the mapped wall, ``offset`` cells beyond the hit
-            cm = Costmap(grid, RobotConfig(), CostmapConfig(static_mark_tolerance_cells=tolerance))
+            cm = Costmap(grid, RobotModel.from_config(RobotConfig()),
+                         CostmapConfig(static_mark_tolerance_cells=tolerance))
             ranges = np.full(360, np.nan)
             ranges[beam_index(0.0)] = 1.5
             cm.update_from_scan(make_scan(ranges), pose)
@@ -284,11 +278,11 @@ def test_returns_on_mapped_walls_do_not_reinflate_but_a_new_obstacle_does() -> N
     """Marks on cells the static map already holds change no cost: the costs snapshot (and
     its version) stays; a return in free space re-inflates at once."""
     grid = free_grid()
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     pose = Pose2D(5.0, 5.0, 0.0)
     r, c = hit_at(cm, pose, 0.0, 1.5)
     grid.data[r, c] = 100
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     ranges = np.full(360, np.nan)
     ranges[beam_index(0.0)] = 1.5
     before, version = cm.costs(), cm.version
@@ -308,7 +302,7 @@ def test_returns_on_mapped_walls_do_not_reinflate_but_a_new_obstacle_does() -> N
 def test_rolling_window_follows_the_rover() -> None:
     grid = free_grid(400)  # 20 m
     grid.data[200, 260] = 100  # (13.0, 10.0)
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     costs, origin = cm.local_window(Pose2D(11.0, 10.0, 0.7))
     assert costs.shape == (120, 120)
     assert origin.x == pytest.approx(11.0 - 3.0) and origin.y == pytest.approx(10.0 - 3.0)
@@ -325,7 +319,7 @@ def test_rolling_window_follows_the_rover() -> None:
 def test_footprint_cost_sees_the_rectangle() -> None:
     grid = free_grid(100)
     grid.data[50, 58] = 100  # cell x 2.90..2.95 m: its near edge 0.375 m ahead of (2.525, 2.525)
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     x, y = cm.cell_to_world(50, 50)
     # facing the obstacle: the footprint's front edge (0.34 m) stops just short of it
     assert cm.footprint_cost(Pose2D(x, y, 0.0)) == INSCRIBED
@@ -344,7 +338,7 @@ def test_footprint_cost_sees_the_rectangle() -> None:
 def test_is_lethal_and_cost_at() -> None:
     grid = free_grid(100)
     grid.data[50, 50] = 100
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     x, y = cm.cell_to_world(50, 50)
     assert cm.is_lethal(x, y)
     assert cm.is_lethal(x + 0.2, y)  # inscribed
@@ -362,7 +356,7 @@ def test_display_scaling() -> None:
 def test_rotated_map_origin() -> None:
     grid = free_grid(100, origin=Pose2D(1.0, 2.0, math.pi / 2))
     grid.data[10, 20] = 100
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     x, y = cm.cell_to_world(10, 20)
     # column runs along map +y, row along map -x
     assert (x, y) == pytest.approx((1.0 - 10.5 * RES, 2.0 + 20.5 * RES))
@@ -371,7 +365,7 @@ def test_rotated_map_origin() -> None:
 
 def test_real_map_loads_into_a_costmap(shared_maps) -> None:  # type: ignore[no-untyped-def]
     grid = load_map(shared_maps / "willow_garage" / "willow-full-0.05.yaml")
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     costs = cm.costs()
     assert costs.shape == grid.data.shape
     assert np.all(costs[grid.occupied_mask()] == LETHAL)
@@ -385,7 +379,7 @@ def test_real_map_loads_into_a_costmap(shared_maps) -> None:  # type: ignore[no-
 async def test_costmap_node_publishes_global_and_local_costmaps(bus: Bus) -> None:
     clock = SimClock()
     cfg = CostmapConfig(update_rate_hz=5.0, global_publish_rate_hz=100.0)
-    cm = Costmap(free_grid(), RobotConfig(), cfg)
+    cm = Costmap(free_grid(), RobotModel.from_config(RobotConfig()), cfg)
     node = CostmapNode(cm, bus, clock, cfg)
     global_sub = bus.subscribe(COSTMAP, maxsize=10)
     local_sub = bus.subscribe(LOCAL_COSTMAP, maxsize=10)
@@ -417,7 +411,7 @@ async def test_costmap_node_publishes_global_and_local_costmaps(bus: Bus) -> Non
 
 def test_updated_map_on_the_same_grid_is_applied_incrementally_keeping_marks() -> None:
     grid = free_grid(400)
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     pose = Pose2D(5.0, 5.0, 0.0)
     ranges = np.full(360, np.nan)
     ranges[beam_index(0.0)] = 2.0
@@ -427,7 +421,7 @@ def test_updated_map_on_the_same_grid_is_applied_incrementally_keeping_marks() -
     grown.data[300, 300] = 100
     grown.data[350:, :] = -1
     cm.set_static_map(grown)
-    full = Costmap(grown, RobotConfig(), CostmapConfig())
+    full = Costmap(grown, RobotModel.from_config(RobotConfig()), CostmapConfig())
     full.update_from_scan(make_scan(ranges), pose)
     assert np.array_equal(cm.obstacle_mask(), marks)  # the obstacle layer survives
     assert np.array_equal(cm.costs(), full.costs())  # same result as building from scratch
@@ -441,7 +435,7 @@ def test_updated_map_on_the_same_grid_is_applied_incrementally_keeping_marks() -
 async def test_costmap_node_places_a_scan_with_the_pose_at_its_stamp(bus: Bus) -> None:
     clock = SimClock()
     cfg = CostmapConfig()
-    cm = Costmap(free_grid(), RobotConfig(), cfg)
+    cm = Costmap(free_grid(), RobotModel.from_config(RobotConfig()), cfg)
     node = CostmapNode(cm, bus, clock, cfg)
     for k in range(11):  # driving along +x at 1 m/s, poses every 0.1 s
         bus.publish(POSE, PoseWithCovariance(k * 0.1, Pose2D(2.0 + k * 0.1, 5.0, 0.0)))
@@ -466,7 +460,8 @@ async def test_costmap_node_places_a_scan_with_the_pose_at_its_stamp(bus: Bus) -
 
 def test_scan_on_a_rotated_map_marks_the_right_place() -> None:
     grid = free_grid(200, origin=Pose2D(10.0, -2.0, math.pi / 2))  # covers x 0..10, y -2..8
-    cm = Costmap(grid, RobotConfig(laser_pose=(0.0, 0.0, 0.0)), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig(laser_pose=(0.0, 0.0, 0.0))),
+                 CostmapConfig())
     pose = Pose2D(5.0, 3.0, math.pi / 4)
     ranges = np.full(360, np.inf)
     ranges[beam_index(0.0)] = 2.0

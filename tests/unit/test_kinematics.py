@@ -17,8 +17,9 @@ from curio.drivers.kinematics import (
     steer_position_to_angle,
     twist_to_servo_command,
 )
+from curio.robot import RobotModel
 
-ROBOT = RobotConfig()
+ROBOT = RobotModel.from_config(RobotConfig())
 
 # (v, ω) -> corner angles in degrees (FL, BL, FR, BR), positions, duties (FL, ML, BL, FR, MR, BR)
 VECTORS = [
@@ -94,10 +95,11 @@ def test_properties(v: float, w: float) -> None:
     assert all(125 <= p <= 875 for p in cmd.steer_position)
     # Mid wheels are exactly differential drive: forward kinematics recovers the (limited)
     # twist, and the limiter preserves the turning radius.
-    fv, fw = forward_kinematics(speeds[1], speeds[4], ROBOT.mid_wheel_track_m)
+    fv, fw = forward_kinematics(speeds[1], speeds[4], ROBOT.wheels.mid_track_m)
     if w != 0.0 and abs(v) < 1e6 * abs(w):  # radii beyond 1e6 m drive straight (by design)
         scale = min(1.0, ROBOT.max_wheel_speed_mps / max(
-            abs(s) for s in inverse_kinematics(v, w, RobotConfig(max_wheel_speed_mps=2.0))[0]))
+            abs(s) for s in inverse_kinematics(v, w,
+                                               RobotModel.from_config(RobotConfig(max_wheel_speed_mps=2.0)))[0]))
         assert fv == pytest.approx(v * scale, abs=1e-9)
         assert fw == pytest.approx(w * scale, abs=1e-9)
     # The duties decode back to about the same twist (truncation costs < 1 duty unit).

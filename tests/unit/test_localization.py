@@ -15,7 +15,6 @@ from curio.estimation.localization import (
     Localizer,
     _kld_bound,
     scan_match,
-    scan_to_points,
 )
 from tests.unit.test_localization_helpers import cast_scan, room_grid
 
@@ -41,7 +40,7 @@ def test_scan_match_pulls_a_wrong_guess_onto_the_truth() -> None:
     field = DistanceField(grid, 2.0)
     truth = Pose2D(2.5, 1.5, 0.3)
     scan = cast_scan(grid, truth, LASER)
-    pts = scan_to_points(scan, LASER, 180)
+    pts = scan.points(LASER, max_beams=180)
     m = scan_match(field, pts, Pose2D(2.62, 1.42, 0.35), iterations=15)
     assert m.pose.distance_to(truth) < 0.01
     assert abs(m.pose.yaw - truth.yaw) < math.radians(0.3)

@@ -26,6 +26,7 @@ from curio.nav.costmap import Costmap
 from curio.nav.navigator import InvalidGoalError, NavigatorNode
 from curio.nav.planner import GlobalPlanner
 from curio.nav.recovery import Recovery
+from curio.robot import RobotModel
 
 
 def room(size_m: float = 8.0, res: float = 0.05) -> OccupancyGrid:
@@ -81,13 +82,15 @@ class Harness:
         self.cfg = cfg
         self.clock = SimClock()
         self.bus = make_bus()
-        self.costmap = Costmap(grid, cfg.robot, cfg.nav.costmap)
+        self.costmap = Costmap(grid, RobotModel.from_config(cfg.robot), cfg.nav.costmap)
         self.planner = GlobalPlanner(cfg.nav.planner)
-        self.controller = LocalController(cfg.nav.controller, cfg.robot, self.costmap)
-        self.recovery = Recovery(cfg.nav.recovery, cfg.robot, self.clock, self.bus,
+        self.controller = LocalController(cfg.nav.controller, RobotModel.from_config(cfg.robot),
+                                          self.costmap)
+        self.recovery = Recovery(cfg.nav.recovery, RobotModel.from_config(cfg.robot), self.clock,
+                                 self.bus,
                                  self.costmap) if with_recovery else None
         self.nav = NavigatorNode(cfg, self.clock, self.bus, self.costmap, self.planner,
-                                 self.controller, self.recovery, plan_in_thread=False)
+                                 self.controller, self.recovery)
         self.rover = FakeRover(self.bus, self.clock, start)
         self.events = self.bus.subscribe(EVENTS)
         self.tasks: list[asyncio.Task[None]] = []

@@ -19,6 +19,7 @@ from curio.nav.obstacles import (
     ObstacleNode,
     travel_direction,
 )
+from curio.robot import RobotModel
 
 
 def scan_from(world_pts: np.ndarray, laser: Pose2D, beams: int = 720) -> LaserScan:
@@ -77,7 +78,7 @@ def test_travel_direction_from_the_plan() -> None:
 
 
 def _det(cfg: Config) -> BlockedDetector:
-    d = BlockedDetector(cfg.nav.blocked, cfg.robot)
+    d = BlockedDetector(cfg.nav.blocked, RobotModel.from_config(cfg.robot))
     d.note_odometry(Pose2D(0.0, 0.0, 0.0), 0.0)  # a rover exactly at (0, 0) counts (21)
     return d
 
@@ -141,7 +142,8 @@ async def test_node_publishes_obstacles_blocked_and_events(cfg: Config) -> None:
     clock = SimClock()
     bus = make_bus()
     active = {"goal": True}
-    node = ObstacleNode(cfg.nav.blocked, cfg.robot, clock, bus, lambda: active["goal"])
+    node = ObstacleNode(cfg.nav.blocked, RobotModel.from_config(cfg.robot), clock, bus,
+                        lambda: active["goal"])
     events = bus.subscribe(EVENTS)
     pose = Pose2D(0.0, 0.0, 0.0)
     lx, ly, lyaw = cfg.robot.laser_pose

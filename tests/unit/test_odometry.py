@@ -13,6 +13,7 @@ from curio.core.config import Config
 from curio.core.messages import ServoCommand, WheelEncoders
 from curio.core.topics import SERVO_CMD, WHEEL_ODOM, make_bus
 from curio.drivers.odometry import EncoderFilter, MidWheelOdometry, WheelOdometry
+from curio.robot import RobotModel
 
 R = 0.060 * 1.04
 B = 0.52 * 0.96875
@@ -20,7 +21,7 @@ K = 2 * math.pi / 1500 * R  # metres per count
 
 
 def test_effective_parameters_from_config() -> None:
-    odo = WheelOdometry(Config(), make_bus(), SimClock())
+    odo = WheelOdometry(RobotModel.from_config(Config().robot), make_bus(), SimClock())
     assert odo.odom.wheel_radius_m == pytest.approx(0.0624)
     assert odo.odom.track_m == pytest.approx(0.50375)
 
@@ -131,7 +132,7 @@ def test_filter_waits_for_a_valid_first_reading() -> None:
 
 async def test_component_publishes_wheel_odom() -> None:
     bus = make_bus()
-    odo = WheelOdometry(Config(), bus, SimClock())
+    odo = WheelOdometry(RobotModel.from_config(Config().robot), bus, SimClock())
     sub = bus.subscribe(WHEEL_ODOM, maxsize=10)
     bus.publish(SERVO_CMD, ServoCommand(0.0, (500, 500, 500, -500, -500, -500), (500,) * 4))
     assert odo.handle(WheelEncoders(0.0, (0, 0, 0, 0, 0, 0))) is not None

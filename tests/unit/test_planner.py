@@ -27,6 +27,7 @@ from curio.nav.api import (
 )
 from curio.nav.costmap import Costmap
 from curio.nav.planner import GlobalPlanner, path_length_m, traversal_lut
+from curio.robot import RobotModel
 
 RES = 0.05
 ORIGIN = Pose2D()
@@ -127,7 +128,8 @@ def test_path_keeps_off_walls() -> None:
     grid.data[:10, :] = 100
     grid.data[40:, :] = 100  # free rows 10..39: 1.5 m wide
     grid.data[10:14, 100] = 100  # a small bump on the lower wall
-    costs = Costmap(grid, RobotConfig(), CostmapConfig(inflation_radius_m=1.0,
+    costs = Costmap(grid, RobotModel.from_config(RobotConfig()),
+                    CostmapConfig(inflation_radius_m=1.0,
                                                        cost_scaling_factor=3.0)).costs()
     start, goal = centre(25, 10), centre(25, 190)
     aware = GlobalPlanner(PlannerConfig(heuristic_weight=1.0)).plan(start, goal, costs, RES,
@@ -194,7 +196,7 @@ def random_map(seed: int, n: int = 200) -> OccupancyGrid:
 @pytest.mark.parametrize("seed", [3, 4])
 def test_smoothed_paths_are_collision_free_and_shorter(seed: int) -> None:
     grid = random_map(seed)
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     costs = cm.costs()
     free = costs < 253
     labels, _ = ndimage.label(free, structure=np.ones((3, 3)))
@@ -226,7 +228,7 @@ def test_smoothed_paths_are_collision_free_and_shorter(seed: int) -> None:
 def test_start_in_inscribed_zone_drives_out_but_lethal_start_is_refused() -> None:
     grid = OccupancyGrid(np.zeros((60, 60), dtype=np.int8), RES)
     grid.data[30, 20:40] = 100
-    costs = Costmap(grid, RobotConfig(), CostmapConfig()).costs()
+    costs = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig()).costs()
     assert costs[33, 30] == 253
     poses = GlobalPlanner(PlannerConfig()).plan(centre(33, 30), centre(50, 30), costs, RES,
                                                 ORIGIN)
@@ -311,7 +313,7 @@ def test_rotated_and_offset_origin() -> None:
 
 def test_concurrent_plans_in_threads_match_sequential_ones() -> None:
     grid = random_map(7)
-    costs = Costmap(grid, RobotConfig(), CostmapConfig()).costs()
+    costs = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig()).costs()
     free = np.argwhere(costs < 253)
     rng = np.random.default_rng(7)
     pairs = [tuple(free[rng.integers(0, len(free), 2)]) for _ in range(6)]
@@ -339,9 +341,10 @@ def test_concurrent_plans_in_threads_match_sequential_ones() -> None:
 
 @pytest.mark.parametrize(("name", "yaml_name"), [("tb3_sandbox", "tb3_sandbox.yaml"),
                                                  ("willow_garage", "willow-full-0.05.yaml")])
-def test_plan_on_a_real_map(shared_maps, name: str, yaml_name: str) -> None:  # type: ignore[no-untyped-def]
+def test_plan_on_a_real_map(shared_maps, name: str,
+                            yaml_name: str) -> None:  # type: ignore[no-untyped-def]
     grid = load_map(shared_maps / name / yaml_name)
-    cm = Costmap(grid, RobotConfig(), CostmapConfig())
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     costs = cm.costs()
     labels, _ = ndimage.label(costs < 253, structure=np.ones((3, 3)))
     big = np.argwhere(labels == np.argmax(np.bincount(labels.ravel())[1:]) + 1)
@@ -401,7 +404,8 @@ def _door_costmap(gap_m: float) -> Costmap:
     data[0, :] = data[-1, :] = data[:, 0] = data[:, -1] = 100
     ys = (np.arange(n) + 0.5) * res - 3.0
     data[np.abs(ys) > gap_m / 2, 57:63] = 100
-    return Costmap(OccupancyGrid(data, res, Pose2D(-3.0, -3.0, 0.0)), RobotConfig(),
+    return Costmap(OccupancyGrid(data, res, Pose2D(-3.0, -3.0, 0.0)),
+                   RobotModel.from_config(RobotConfig()),
                    CostmapConfig())
 
 

@@ -15,6 +15,7 @@ from curio.core.topics import CMD_VEL_NAV, EVENTS, SCAN
 from curio.estimation.maps import OccupancyGrid
 from curio.nav.costmap import Costmap
 from curio.nav.recovery import Recovery, points_behind_distance_m
+from curio.robot import RobotModel
 from tests.unit.test_navigator import FakeRover, room
 
 FOOTPRINT = np.array([(0.33, 0.31), (0.33, -0.31), (-0.33, -0.31), (-0.33, 0.31)])
@@ -48,9 +49,9 @@ async def run_step(cfg: Config, step: str, start: Pose2D, world_pts: np.ndarray,
 
     clock = SimClock()
     bus = make_bus()
-    costmap = Costmap(grid or room(), cfg.robot, cfg.nav.costmap)
+    costmap = Costmap(grid or room(), RobotModel.from_config(cfg.robot), cfg.nav.costmap)
     rover = FakeRover(bus, clock, start)
-    rec = Recovery(cfg.nav.recovery, cfg.robot, clock, bus, costmap)
+    rec = Recovery(cfg.nav.recovery, RobotModel.from_config(cfg.robot), clock, bus, costmap)
     tasks = [asyncio.create_task(rover.run()),
              asyncio.create_task(scan_publisher(rover, cfg, world_pts))]
     await clock.advance(0.3)
@@ -112,7 +113,7 @@ async def test_clear_costmap_forgets_marks_and_wait_waits(cfg: Config) -> None:
     clock = SimClock()
     bus = make_bus()
     grid = room()
-    costmap = Costmap(grid, cfg.robot, cfg.nav.costmap)
+    costmap = Costmap(grid, RobotModel.from_config(cfg.robot), cfg.nav.costmap)
     pose = Pose2D(0.0, 0.0, 0.0)
     scan = LaserScan(0.0, -math.pi, 2 * math.pi / 360, 0.15, 12.0,
                      np.where(np.arange(360) == 180, 1.0, np.inf).astype(np.float32))
@@ -120,7 +121,7 @@ async def test_clear_costmap_forgets_marks_and_wait_waits(cfg: Config) -> None:
     assert costmap.obstacle_mask().any()
     bus.publish(POSE, PoseWithCovariance(0.0, pose))
     events = bus.subscribe(EVENTS)
-    rec = Recovery(cfg.nav.recovery, cfg.robot, clock, bus, costmap)
+    rec = Recovery(cfg.nav.recovery, RobotModel.from_config(cfg.robot), clock, bus, costmap)
     outcome = await rec.run("clear_costmap")
     assert outcome.ok and not costmap.obstacle_mask().any()
     job = asyncio.create_task(rec.run("wait"))

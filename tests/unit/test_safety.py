@@ -11,17 +11,15 @@ import pytest
 
 from curio.core.bus import Bus
 from curio.core.clock import SimClock
-from curio.core.config import Config
+from curio.core.config import Config, RobotConfig
 from curio.core.geometry import Pose2D
 from curio.core.messages import LaserScan, OperatorCommand, Twist
 from curio.core.topics import CMD_VEL, CMD_VEL_NAV, CMD_VEL_TELEOP, ESTOP, EVENTS, OPERATOR, SCAN
-from curio.safety.stage import (
-    SafetyStage,
-    StopZone,
-    fastest_wheel_speed_mps,
-    limit_to_wheel_speed,
-    polygon_distances,
-)
+from curio.robot import RobotModel
+from curio.safety.stage import SafetyStage
+from curio.safety.stop_zone import StopZone, polygon_distances
+
+ROBOT = RobotModel.from_config(RobotConfig())
 
 FOOTPRINT = [(0.33, 0.31), (0.33, -0.31), (-0.33, -0.31), (-0.33, 0.31)]
 
@@ -47,7 +45,7 @@ def wall_ahead(x_m: float, half_width_m: float = 1.0) -> list[tuple[float, float
 
 
 def make_stage(cfg: Config, clock: SimClock, bus: Bus) -> SafetyStage:
-    stage = SafetyStage(cfg, clock, bus)
+    stage = SafetyStage(cfg.nav.safety, RobotModel.from_config(cfg.robot), clock, bus)
     stage.on_scan(scan_of_points(clock.now(), [], cfg))
     return stage
 
@@ -71,14 +69,14 @@ async def run_cycles(stage: SafetyStage, clock: SimClock, n: int,
 
 def test_fastest_wheel_matches_hardware_vectors() -> None:
     # In-place turn at 1 rad/s: the front corners are the fastest at 0.3655 m/s.
-    assert fastest_wheel_speed_mps(0.0, 1.0) == pytest.approx(0.3655, abs=1e-3)
-    assert fastest_wheel_speed_mps(0.2, 0.0) == pytest.approx(0.2)
+    assert ROBOT.fastest_wheel_speed_mps(0.0, 1.0) == pytest.approx(0.3655, abs=1e-3)
+    assert ROBOT.fastest_wheel_speed_mps(0.2, 0.0) == pytest.approx(0.2)
     # The limiter acts above 1.012 rad/s in place and keeps the radius when it scales.
-    v, w = limit_to_wheel_speed(0.0, 1.45, 0.37)
+    v, w = ROBOT.limit_to_wheel_speed(0.0, 1.45, 0.37)
     assert w == pytest.approx(0.37 / 0.3655, rel=1e-3)
-    v, w = limit_to_wheel_speed(0.4, 0.8, 0.37)
+    v, w = ROBOT.limit_to_wheel_speed(0.4, 0.8, 0.37)
     assert v / w == pytest.approx(0.5)
-    assert fastest_wheel_speed_mps(v, w) == pytest.approx(0.37)
+    assert ROBOT.fastest_wheel_speed_mps(v, w) == pytest.approx(0.37)
 
 
 def test_polygon_distance_signs() -> None:
@@ -96,7 +94,7 @@ async def test_speed_and_wheel_limits(cfg: Config, bus: Bus) -> None:
     assert outs[-1].linear_mps == pytest.approx(cfg.nav.safety.max_speed_mps)
     stage2 = make_stage(cfg, clock, bus)
     outs = await run_cycles(stage2, clock, 40, nav=(0.0, 3.0))
-    assert fastest_wheel_speed_mps(outs[-1].linear_mps, outs[-1].angular_radps) == \
+    assert ROBOT.fastest_wheel_speed_mps(outs[-1].linear_mps, outs[-1].angular_radps) == \
         pytest.approx(cfg.robot.max_wheel_speed_mps, rel=1e-6)
 
 
@@ -168,7 +166,7 @@ def test_stop_zone_lets_the_rover_through_a_tight_gap() -> None:
 
 async def test_stop_zone_stops_before_a_wall_and_publishes_event(cfg: Config, bus: Bus) -> None:
     clock = SimClock()
-    stage = SafetyStage(cfg, clock, bus)
+    stage = SafetyStage(cfg.nav.safety, RobotModel.from_config(cfg.robot), clock, bus)
     events = bus.subscribe(EVENTS)
     # Simulate: the rover drives at the commanded speed towards a wall 1.5 m ahead.
     wall_x = 1.5
@@ -193,7 +191,7 @@ async def test_stop_zone_stops_before_a_wall_and_publishes_event(cfg: Config, bu
 
 async def test_no_scan_holds_the_rover(cfg: Config, bus: Bus) -> None:
     clock = SimClock()
-    stage = SafetyStage(cfg, clock, bus)
+    stage = SafetyStage(cfg.nav.safety, RobotModel.from_config(cfg.robot), clock, bus)
     period = 1.0 / cfg.nav.safety.rate_hz
     for _ in range(40):
         await clock.advance(period)
@@ -208,7 +206,7 @@ async def test_estop_latches_through_the_bus(cfg: Config) -> None:
 
     bus = make_bus()
     clock = SimClock()
-    stage = SafetyStage(cfg, clock, bus)
+    stage = SafetyStage(cfg.nav.safety, RobotModel.from_config(cfg.robot), clock, bus)
     cmd_sub = bus.subscribe(CMD_VEL, maxsize=1000)
     estop_sub = bus.subscribe(ESTOP)
     events = bus.subscribe(EVENTS)

@@ -27,6 +27,7 @@ from curio.core.topics import (
 )
 from curio.drivers.kinematics import twist_to_servo_command
 from curio.drivers.odometry import WheelOdometry
+from curio.robot import RobotModel
 from curio.sim.wiring import SimBase, Simulator
 from curio.sim.world import World
 from tests.unit.test_sim_raycast import room
@@ -47,7 +48,7 @@ def make(cfg: Config | None = None) -> tuple[Config, Any, SimClock, World, Simul
     clock = SimClock()
     world = World(room(), cfg, Pose2D(1.0, 2.0, 0.0))
     return cfg, bus, clock, world, Simulator(cfg, bus, clock, world, True), SimBase(
-        cfg, bus, clock, world)
+        cfg, bus, clock, world, RobotModel.from_config(cfg.robot))
 
 
 async def test_sensor_rates_and_frames() -> None:
@@ -82,7 +83,7 @@ async def test_simbase_drives_and_times_out() -> None:
 
     await run_parts(clock, [sim.run_physics, base.run, base.run_watchdog, commander], 3.0)
     sent = servo.drain()
-    want = twist_to_servo_command(0.2, 0.0, cfg.robot, 0.0)
+    want = twist_to_servo_command(0.2, 0.0, RobotModel.from_config(cfg.robot), 0.0)
     assert sent[0].wheel_duty == want.wheel_duty
     assert sent[-1].wheel_duty == (0, 0, 0, 0, 0, 0)
     # The stop came 0.5 s (± one watchdog period) after the last command at t = 0.9 s.
@@ -104,7 +105,8 @@ async def test_halt_zeroes_the_wheels_and_keeps_steering() -> None:
     await run_parts(clock, [sim.run_physics, base.run, halt_later], 1.0)
     last = bus.latest(SERVO_CMD)
     assert last is not None and last.wheel_duty == (0, 0, 0, 0, 0, 0)
-    assert last.steer_position == twist_to_servo_command(0.2, 0.5, cfg.robot, 0).steer_position
+    robot = RobotModel.from_config(cfg.robot)
+    assert last.steer_position == twist_to_servo_command(0.2, 0.5, robot, 0).steer_position
     assert world.truth_twist == (0.0, 0.0)
 
 
@@ -127,7 +129,7 @@ async def test_wheel_odometry_follows_truth_without_noise() -> None:
     cfg.sim.noise.odom_scale_error = 0.0
     cfg.sim.noise.odom_heading_drift_rad_per_m = 0.0
     cfg, bus, clock, world, sim, base = make(cfg)
-    odo = WheelOdometry(cfg, bus, clock)
+    odo = WheelOdometry(RobotModel.from_config(cfg.robot), bus, clock)
 
     async def commander() -> None:
         while True:

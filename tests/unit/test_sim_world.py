@@ -15,6 +15,7 @@ from curio.core.geometry import Pose2D, quat_to_yaw
 from curio.core.messages import ServoCommand
 from curio.drivers.kinematics import twist_to_servo_command
 from curio.estimation.maps import load_map
+from curio.robot import RobotModel
 from curio.sim import worldgen
 from curio.sim.objects import Door
 from curio.sim.world import World, WorldError, WorldSpec, load_world_spec
@@ -24,7 +25,8 @@ DT = 0.02
 
 
 def drive(w: World, v: float, omega: float, seconds: float) -> None:
-    w.apply_servo_command(twist_to_servo_command(v, omega, w.cfg.robot, 0.0))
+    w.apply_servo_command(twist_to_servo_command(v, omega, RobotModel.from_config(w.cfg.robot),
+                                                 0.0))
     for _ in range(round(seconds / DT)):
         w.step(DT)
 
@@ -40,7 +42,7 @@ def test_straight_drive_speed_uses_true_wheel_radius() -> None:
     w = World(room(), no_noise(), Pose2D(1.0, 2.0, 0.0))
     drive(w, 0.2, 0.0, 5.0)
     # The duty is computed with R = 0.06; the true rolling radius is 0.06 · 1.04.
-    duty = twist_to_servo_command(0.2, 0.0, w.cfg.robot, 0.0).wheel_duty[1]
+    duty = twist_to_servo_command(0.2, 0.0, RobotModel.from_config(w.cfg.robot), 0.0).wheel_duty[1]
     v_true = duty * 2 * math.pi / 1000 * 0.06 * 1.04
     assert w.truth_twist[0] == pytest.approx(v_true, rel=1e-6)
     # Acceleration from rest costs a little distance: ramp 0 → ω at 40 rad/s².
@@ -50,7 +52,8 @@ def test_straight_drive_speed_uses_true_wheel_radius() -> None:
 
 def test_in_place_turn_needs_the_steering_to_swing_first() -> None:
     w = World(room(), no_noise(), Pose2D(3.0, 2.0, 0.0))
-    w.apply_servo_command(twist_to_servo_command(0.0, 1.0, w.cfg.robot, 0.0))
+    w.apply_servo_command(twist_to_servo_command(0.0, 1.0, RobotModel.from_config(w.cfg.robot),
+                                                 0.0))
     w.step(DT)
     # 60° per 0.16 s: after one 20 ms step the corners have moved 7.5° of their ~50°.
     assert abs(w.steer_angles_rad[0]) == pytest.approx(math.radians(7.5), abs=1e-6)

@@ -12,6 +12,7 @@ from aiohttp.test_utils import TestClient
 from curio.core.bus import Bus
 from curio.core.clock import SimClock
 from curio.core.config import Config
+from curio.robot import RobotModel
 from curio.web.hub import Hub
 from curio.web.server import HUB, WebServices, create_app
 
@@ -115,7 +116,8 @@ def make_dash(aiohttp_client: Any, cfg: Config, bus: Bus) -> MakeDash:
             setattr(cfg.web, key, value)
         clock = SimClock()
         paths = FakePaths()
-        app = create_app(WebServices(cfg=cfg, clock=clock, bus=bus, token=TOKEN, paths=paths))
+        app = create_app(WebServices(cfg=cfg, clock=clock, bus=bus, token=TOKEN,
+                                     robot=RobotModel.from_config(cfg.robot), paths=paths))
         client = await aiohttp_client(app)
         return Dash(client, app[HUB], bus, clock, paths, cfg)
 

@@ -40,11 +40,11 @@ precedence while it is fresh.
 The latched ``/estop`` is forwarded as the firmware's ESTOP (latched on the board too) and
 released with ARM.
 
-Construction (``curio/drivers/hw_wiring.py``)::
+Construction (``curio/drivers/wiring.py``)::
 
-    base = ArduinoBase(cfg.drivers.arduino, cfg.robot, app.bus, app.clock, port=port)
-    app.add(Part("arduino", run=base.run, close=base.close))
-    app.add_halt_hook(base.halt)
+    base = ArduinoBase(cfg.drivers.arduino, robot, bus, clock, port=port)
+    parts.add(Part("arduino", run=base.run, close=base.close))
+    parts.add_halt_hook(base.halt)
 
 ``port`` defaults to ``cfg.port``; in emulated mode pass ``ArduinoEmulator.port_path`` and call
 ``emulator.pair(base)`` (keeps a fast simulated clock from racing ahead of pty delivery; the
@@ -72,7 +72,7 @@ import serial_asyncio_fast
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
-from curio.core.config import ArduinoConfig, RobotConfig
+from curio.core.config import ArduinoConfig
 from curio.core.messages import (
     BatteryState,
     DriverHealth,
@@ -85,13 +85,14 @@ from curio.core.topics import BATTERY, CMD_VEL, CMD_VEL_TELEOP, ESTOP, HEALTH, S
 from curio.drivers.arduino import protocol as p
 from curio.drivers.arduino._loop import Pacer, wait_until
 from curio.drivers.kinematics import twist_to_servo_command
+from curio.robot import RobotModel
 
 __all__ = ["ArduinoBase", "CommandFn", "McuClock"]
 
 log = logging.getLogger("curio.drivers.arduino")
 
 Six = tuple[int | None, int | None, int | None, int | None, int | None, int | None]
-CommandFn = Callable[[float, float, RobotConfig, float], ServoCommand]
+CommandFn = Callable[[float, float, RobotModel, float], ServoCommand]
 HEARTBEAT_PERIOD_S = 0.2
 HEALTH_PERIOD_S = 1.0
 RECOVERED_NOTE_S = 60.0  # how long an "ok" health still mentions the last problem
@@ -141,7 +142,7 @@ class ArduinoBase:
 
     Args:
         cfg: ``cfg.drivers.arduino``.
-        robot: ``cfg.robot`` (geometry and limits for the kinematics).
+        robot: the robot model (geometry and limits for the kinematics).
         bus: the application bus.
         clock: the application clock.
         port: serial device path; defaults to ``cfg.port``.
@@ -150,7 +151,7 @@ class ArduinoBase:
 
     name = "arduino"
 
-    def __init__(self, cfg: ArduinoConfig, robot: RobotConfig, bus: Bus, clock: Clock,
+    def __init__(self, cfg: ArduinoConfig, robot: RobotModel, bus: Bus, clock: Clock,
                  port: str | None = None, *,
                  command_fn: CommandFn = twist_to_servo_command) -> None:
         self.cfg = cfg

@@ -17,15 +17,15 @@ The servo side is the simulator's world (helper H1's ``curio/sim``), through thr
 * ``world.wheel_positions()`` — six raw LX-16A wheel readings (with the dead zone);
 * ``world.battery_voltage()`` — the servo supply, volts.
 
-**Construction for emulated mode** (``curio/drivers/hw_wiring.py``)::
+**Construction for emulated mode** (``curio/drivers/wiring.py``)::
 
-    emu = ArduinoEmulator(app.world, app.clock, seed=app.cfg.sim.seed)
+    emu = ArduinoEmulator(world, clock, seed=cfg.sim.seed)
     emu.open()                       # creates the pty; emu.port_path is a stable symlink
-    base = ArduinoBase(cfg.drivers.arduino, cfg.robot, app.bus, app.clock, port=emu.port_path)
+    base = ArduinoBase(cfg.drivers.arduino, robot, bus, clock, port=emu.port_path)
     emu.pair(base)                   # SimClock: hold virtual time until pty bytes are read
-    app.add(Part("arduino-emulator", run=emu.run, close=emu.aclose))
-    app.add(Part("arduino", run=base.run, close=base.close))
-    app.add_halt_hook(base.halt)
+    parts.add(Part("arduino-emulator", run=emu.run, close=emu.aclose))
+    parts.add(Part("arduino", run=base.run, close=base.close))
+    parts.add_halt_hook(base.halt)
 
 ``port_path`` is a symlink in a private temporary directory that always points at the current
 pseudo-terminal (like the udev name ``/dev/curio-arduino``), so an unplug/replug cycle, which
