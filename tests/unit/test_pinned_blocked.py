@@ -31,6 +31,7 @@ from curio.core.geometry import Pose2D
 from curio.core.messages import LaserScan, Obstacles, Odometry, Path, PoseWithCovariance
 from curio.core.topics import BLOCKED, EVENTS, ODOM, PLAN, POSE, SCAN, make_bus
 from curio.nav.obstacles import BlockedDetector, ObstacleNode
+from curio.robot import RobotModel
 from tests.unit.test_obstacles import scan_from
 
 HERE = Pose2D(0.0, 0.0, 0.0)
@@ -50,7 +51,7 @@ def at_bearing(distance_m: float, bearing_rad: float, travel_yaw: float = 0.0) -
 
 def detector(cfg: Config) -> BlockedDetector:
     """A detector whose progress reference is the rover at the origin at t = 0."""
-    d = BlockedDetector(cfg.nav.blocked, cfg.robot)
+    d = BlockedDetector(cfg.nav.blocked, RobotModel.from_config(cfg.robot))
     d.note_odometry(HERE, 0.0)
     return d
 
@@ -183,7 +184,8 @@ class DoorScene:
         self.clock = SimClock()
         self.bus = make_bus()
         self.active = goal_active
-        self.node = ObstacleNode(cfg.nav.blocked, cfg.robot, self.clock, self.bus,
+        self.node = ObstacleNode(cfg.nav.blocked, RobotModel.from_config(cfg.robot), self.clock,
+                                 self.bus,
                                  lambda: self.active)
         self.door = np.array([[door_x_m, y] for y in np.arange(-0.5, 0.5, 0.01)])
         self.events = self.bus.subscribe(EVENTS)

@@ -30,6 +30,7 @@ from curio.core.messages import LaserScan, PoseWithCovariance
 from curio.core.topics import CMD_VEL_NAV, POSE, make_bus
 from curio.nav.costmap import Costmap
 from curio.nav.recovery import Recovery, RecoveryOutcome
+from curio.robot import RobotModel
 from tests.unit.test_navigator import FakeRover, room
 from tests.unit.test_recovery import scan_publisher
 
@@ -47,8 +48,10 @@ class Scene:
         self.bus = make_bus()
         self.rover = FakeRover(self.bus, self.clock, START)
         self.rover.frozen = frozen
-        self.costmap = Costmap(room(), cfg.robot, cfg.nav.costmap) if costmap else None
-        self.recovery = Recovery(cfg.nav.recovery, cfg.robot, self.clock, self.bus,
+        self.costmap = Costmap(room(), RobotModel.from_config(cfg.robot),
+                               cfg.nav.costmap) if costmap else None
+        self.recovery = Recovery(cfg.nav.recovery, RobotModel.from_config(cfg.robot), self.clock,
+                                 self.bus,
                                  self.costmap)
         self.world_pts = world_pts
         self.tasks: list[asyncio.Task[None]] = []
@@ -194,7 +197,7 @@ async def test_wait_holds_still_for_5_s(cfg: Config) -> None:
 async def test_clear_costmap_forgets_marks_within_1_5_m_only(cfg: Config) -> None:
     clock = SimClock()
     bus = make_bus()
-    costmap = Costmap(room(), cfg.robot, cfg.nav.costmap)
+    costmap = Costmap(room(), RobotModel.from_config(cfg.robot), cfg.nav.costmap)
     lx, ly, _ = cfg.robot.laser_pose
     # Four returns, 1.4 m (ahead, right) and 1.6 m (left, behind) from the rover's centre.
     beams: dict[int, float] = {  # degrees from straight ahead -> range from the laser
@@ -215,7 +218,7 @@ async def test_clear_costmap_forgets_marks_within_1_5_m_only(cfg: Config) -> Non
             for r, c in before}
     assert sorted(round(d, 1) for d in dist.values()) == [1.4, 1.4, 1.6, 1.6]
     bus.publish(POSE, PoseWithCovariance(0.0, START))
-    rec = Recovery(cfg.nav.recovery, cfg.robot, clock, bus, costmap)
+    rec = Recovery(cfg.nav.recovery, RobotModel.from_config(cfg.robot), clock, bus, costmap)
     outcome = await rec.run("clear_costmap")
     assert outcome.ok and "1.5 m" in outcome.detail
     after = costmap.obstacle_mask()
