@@ -419,9 +419,7 @@ class LocalController:
         v_target = cfg.max_speed_mps
         detail = ""
         # Fastest wheel on this arc (hardware.md §2.2): |v|·max hypot(x κ, 1 − y κ).
-        wheel = max(math.hypot(0.28 * kappa, 1.0 - 0.26 * abs(kappa)),
-                    math.hypot(0.28 * kappa, 1.0 + 0.26 * abs(kappa)))
-        v_target = min(v_target, self.robot.max_wheel_speed_mps / wheel)
+        v_target = min(v_target, self.robot.max_speed_on_arc_mps(kappa))
         # Angular limit on the arc.
         if abs(kappa) > 1e-9:
             v_target = min(v_target, cfg.max_angular_radps / abs(kappa))

@@ -191,7 +191,7 @@ def build_sim(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
     """Construct the world and simulator parts (``sim`` and ``emulated`` modes; else None)."""
     if cfg.drivers.mode not in ("sim", "emulated"):
         return None
-    world = World.from_config(cfg)
+    world = World.from_config(cfg, robot)
     sim_mode = cfg.drivers.mode == "sim"
     simulator = Simulator(cfg, bus, clock, world, publish_sensors=sim_mode)
     parts.add(Part("sim.physics", run=simulator.run_physics))

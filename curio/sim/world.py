@@ -191,7 +191,7 @@ class World:
     """The simulated world and rover (see the module docstring for the API)."""
 
     def __init__(self, grid: OccupancyGrid, cfg: Config, start: Pose2D | None = None,
-                 spec: WorldSpec | None = None) -> None:
+                 spec: WorldSpec | None = None, robot: RobotModel | None = None) -> None:
         self.cfg = cfg
         self.grid = grid
         self.raycaster = GridRaycaster(grid)
@@ -199,17 +199,17 @@ class World:
         seq = np.random.SeedSequence(cfg.sim.seed)
         rng_world, self._rng_lidar, self._rng_imu, self._rng_enc, self._rng_slip = (
             np.random.default_rng(s) for s in seq.spawn(5))
-        robot, noise = cfg.robot, cfg.sim.noise
+        self.robot = robot if robot is not None else RobotModel.from_config(cfg.robot)
+        rcfg, noise = cfg.robot, cfg.sim.noise
         # Per-run systematic errors (drawn once).
         self.scale_error = float(rng_world.uniform(-1.0, 1.0)) * noise.odom_scale_error
         self.drift_sign = 1.0 if rng_world.uniform() < 0.5 else -1.0
         self._gyro_bias = noise.gyro_bias_radps
         # Truth geometry: contact points pulled in by rocker-bogie flex.
-        self._geo = wheel_geometry(robot, lateral_scale=robot.mid_wheel_track_multiplier)
-        self._roll_radius_m = (robot.wheel_radius_m * robot.wheel_radius_multiplier
+        self._geo = wheel_geometry(rcfg, lateral_scale=rcfg.mid_wheel_track_multiplier)
+        self._roll_radius_m = (rcfg.wheel_radius_m * rcfg.wheel_radius_multiplier
                                * (1.0 + self.scale_error))
         # Footprint, collision samples (base_link).
-        self.robot = RobotModel.from_config(robot)
         self.footprint: list[tuple[float, float]] = self.robot.footprint_points
         self._fp_radius = max(math.hypot(x, y) for x, y in self.footprint)
         self._fp_samples = _footprint_samples(self.footprint, 0.5 * grid.resolution_m)
@@ -258,14 +258,15 @@ class World:
 
     # -- construction ------------------------------------------------------------------
     @classmethod
-    def from_config(cls, cfg: Config) -> World:
-        """Build the world of ``cfg.sim.world`` (and its ``.world.toml``, if there is one)."""
+    def from_config(cls, cfg: Config, robot: RobotModel | None = None) -> World:
+        """Build the world of ``cfg.sim.world`` (and its ``.world.toml``, if there is one) for
+        the robot model ``robot`` (default: built from ``cfg.robot``)."""
         yaml_path = cfg.resolve(cfg.sim.world)
         grid = load_map(yaml_path)
         spec_path = world_spec_path(yaml_path)
         spec = load_world_spec(spec_path) if spec_path.is_file() else None
         start = cfg.sim.start if cfg.sim.start is not None else cfg.robot.home
-        world = cls(grid, cfg, Pose2D(*start), spec)
+        world = cls(grid, cfg, Pose2D(*start), spec, robot)
         if world.collides(world.truth_pose):
             log.warning("the start pose (%.2f, %.2f, %.2f) overlaps %s in %s: the rover can only "
                         "move out of it (set sim.start or robot.home to a free pose)",
