@@ -135,6 +135,21 @@ class DistanceField:
         return val, gx, gy
 
 
+def _distinct_hypotheses(ranked: list[tuple[float, Pose2D]], max_count: int = 8
+                         ) -> list[tuple[float, Pose2D]]:
+    """The candidates ``(fine fit, pose)`` (best first) that fit within 0.05 of the best, at most
+    ``max_count``, none within 0.3 m and 0.3 rad of a better one."""
+    good = [r for r in ranked if r[0] >= ranked[0][0] - 0.05] if ranked else []
+    hyps: list[tuple[float, Pose2D]] = []
+    for frac, pose in good:
+        if all(pose.distance_to(h[1]) > 0.3
+               or abs(wrap_angle(pose.yaw - h[1].yaw)) > 0.3 for h in hyps):
+            hyps.append((frac, pose))
+        if len(hyps) >= max_count:
+            break
+    return hyps
+
+
 @dataclass(frozen=True, slots=True)
 class MatchResult:
     """Outcome of :func:`scan_match`.
@@ -723,19 +738,16 @@ class Localizer:
             d = self.field.lookup(*self._world(all_pts, pose)) - half
             ranked.append((float(np.mean(np.abs(d) <= 0.05)), pose))
         ranked.sort(key=lambda item: -item[0])
-        good = [r for r in ranked if r[0] >= ranked[0][0] - 0.05] if ranked else []
-        # Distinct hypotheses only.
-        hyps: list[tuple[float, Pose2D]] = []
-        for frac, pose in good:
-            if all(pose.distance_to(h[1]) > 0.3
-                   or abs(wrap_angle(pose.yaw - h[1].yaw)) > 0.3 for h in hyps):
-                hyps.append((frac, pose))
-            if len(hyps) >= 8:
-                break
+        hyps = _distinct_hypotheses(ranked)
         if not hyps:
             log.info("global localisation: no candidate fits; searching again")
             self._start_search()
             return
+        self._seed_hypotheses(hyps)
+
+    def _seed_hypotheses(self, hyps: list[tuple[float, Pose2D]]) -> None:
+        """Restart the particle filter around the hypotheses ``(fit, pose in map)``, best
+        first."""
         n_each = max(50, self.cfg.min_particles // len(hyps))
         parts = []
         for _, pose in hyps:

@@ -266,14 +266,25 @@ async def run_scenario(
         on_app: awaited once the app has started (``--web`` uses it to print the URL).
     """
     cfg = scenario.configure(_apply_common_args(cfg, args), args)
-    speed = args.speed
     settle = 3 if cfg.drivers.mode == "emulated" else 0
-    clock = SimClock(speed=speed, settle_polls=settle)
+    clock = SimClock(speed=args.speed, settle_polls=settle)
     wall_start = wall_perf_counter()
     app = App(cfg, clock, web=args.web)
     ctx = ScenarioContext(app, clock, args)
     metrics = _Metrics()
     duration = args.duration_s if args.duration_s is not None else scenario.default_duration_s
+    failure = await _drive(scenario, ctx, metrics, duration, on_app)
+    report = _report(scenario, ctx, metrics, failure, wall_start)
+    if report_path is not None:
+        atomic_write_json(report_path, report)
+    return report
+
+
+async def _drive(scenario: Scenario, ctx: ScenarioContext, metrics: _Metrics, duration: float,
+                 on_app: Callable[[App], Awaitable[None]] | None) -> str | None:
+    """Start the app, run the script on the simulated clock for at most ``duration`` seconds
+    while collecting ground truth, stop the app; return why the run failed (None: it did not)."""
+    app, clock = ctx.app, ctx.clock
     failure: str | None = None
     stop_collect = asyncio.Event()
     script_done = False
@@ -312,7 +323,13 @@ async def run_scenario(
         with contextlib.suppress(asyncio.CancelledError):
             await collector
         await app.stop()
+    return failure
 
+
+def _report(scenario: Scenario, ctx: ScenarioContext, metrics: _Metrics, failure: str | None,
+            wall_start: float) -> dict[str, Any]:
+    """The report of DESIGN.md's contract (see the module docstring)."""
+    cfg = ctx.cfg
     failed_checks = [c for c in ctx.checks if not c.ok]
     if failure is None and failed_checks:
         failure = "failed checks: " + ", ".join(c.name for c in failed_checks)
@@ -323,12 +340,12 @@ async def run_scenario(
         ctx.metrics.setdefault("localization_yaw_rmse_rad",
                                round(math.sqrt(metrics.sq_yaw_err_sum / metrics.err_count), 6))
         ctx.metrics.setdefault("localization_max_error_m", round(metrics.max_err_m, 6))
-    report: dict[str, Any] = {
+    return {
         "scenario": scenario.name,
         "seed": cfg.sim.seed,
         "success": failure is None,
         "failure": failure,
-        "sim_time_s": round(clock.now(), 3),
+        "sim_time_s": round(ctx.clock.now(), 3),
         "wall_time_s": round(wall_perf_counter() - wall_start, 3),
         "goals_reached": ctx.goals_reached,
         "goals_total": ctx.goals_total,
@@ -340,9 +357,6 @@ async def run_scenario(
         "metrics": to_jsonable(ctx.metrics, 6),
         "events": ctx.events,
     }
-    if report_path is not None:
-        atomic_write_json(report_path, report)
-    return report
 
 
 async def _settle_final_events(clock: SimClock) -> None:

@@ -201,21 +201,8 @@ class GridRaycaster:
                     break
             if not active.size:
                 break
-            # Dense window: the next _DENSE_SAMPLES half-cell samples of each active beam.
-            ta = t[:, None] + window[None, :]
-            c2 = code[self._index(gx0 + ta * dxa[:, None], gy0 + ta * dya[:, None])]
-            stop2 = (c2 != 0) | (ta > max_range_m)
-            any_stop = stop2.any(axis=1)
-            if any_stop.any():
-                rows = np.nonzero(any_stop)[0]
-                first = np.argmax(stop2[rows], axis=1)
-                is_hit = (c2[rows, first] == 1) & (ta[rows, first] <= max_range_m)
-                if is_hit.any():
-                    hit_beams.append(active[rows[is_hit]])
-                    hit_t.append(ta[rows[is_hit], first[is_hit]])
-                keep = ~any_stop
-                active, dxa, dya, ta = active[keep], dxa[keep], dya[keep], ta[keep]
-            t = ta[:, -1]
+            active, t, dxa, dya = self._dense_window(gx0, gy0, active, t, dxa, dya, window,
+                                                     max_range_m, hit_beams, hit_t)
         if hit_beams:
             beams = np.concatenate(hit_beams)
             th = np.concatenate(hit_t)
@@ -223,6 +210,28 @@ class GridRaycaster:
             out[beams] = self._refine(gx0, gy0, bx, by, th, gx0 + th * bx, gy0 + th * by)
         out[out > max_range_m] = np.inf
         return out
+
+    def _dense_window(self, gx0: float, gy0: float, active: npt.NDArray[np.intp], t: F64,
+                      dxa: F64, dya: F64, window: F64, max_range_m: float,
+                      hit_beams: list[npt.NDArray[np.intp]], hit_t: list[F64]
+                      ) -> tuple[npt.NDArray[np.intp], F64, F64, F64]:
+        """Sample the next ``window`` offsets (half cells) of each active beam: beams that hit
+        are appended to ``hit_beams`` / ``hit_t``, beams that stop are dropped; returns the
+        beams still going, their distance (cells' metres) and directions."""
+        ta = t[:, None] + window[None, :]
+        c2 = self._code_flat[self._index(gx0 + ta * dxa[:, None], gy0 + ta * dya[:, None])]
+        stop2 = (c2 != 0) | (ta > max_range_m)
+        any_stop = stop2.any(axis=1)
+        if any_stop.any():
+            rows = np.nonzero(any_stop)[0]
+            first = np.argmax(stop2[rows], axis=1)
+            is_hit = (c2[rows, first] == 1) & (ta[rows, first] <= max_range_m)
+            if is_hit.any():
+                hit_beams.append(active[rows[is_hit]])
+                hit_t.append(ta[rows[is_hit], first[is_hit]])
+            keep = ~any_stop
+            active, dxa, dya, ta = active[keep], dxa[keep], dya[keep], ta[keep]
+        return active, ta[:, -1], dxa, dya
 
     def _refine(self, gx0: float, gy0: float, dx: F64, dy: F64, t_hit: F64, px: F64,
                 py: F64) -> F64:
