@@ -1,4 +1,5 @@
-"""The firmware sketch compiles for the real target (ATmega2560) with Debian's AVR toolchain.
+"""The firmware sketch compiles for the real target (ATmega2560) with Debian's AVR toolchain
+(avr-gcc, avr-libc and the Arduino AVR core; firmware/avr.mk, no Arduino IDE).
 
 The host build (test_firmware_host.py) proves the behaviour; this proves the same sources
 build for the Mega and fit its 256 KiB of flash and 8 KiB of SRAM with room to spare.
@@ -16,11 +17,11 @@ import pytest
 
 from curio.core.config import REPO_ROOT
 
-ARDUINO_MK = Path("/usr/share/arduino/Arduino.mk")
+ARDUINO_CORE = Path("/usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h")
 
 pytestmark = pytest.mark.skipif(
-    not os.environ.get("CI") and (shutil.which("avr-gcc") is None or not ARDUINO_MK.is_file()),
-    reason="gcc-avr/arduino-mk not installed (scripts/test installs them)")
+    not os.environ.get("CI") and (shutil.which("avr-gcc") is None or not ARDUINO_CORE.is_file()),
+    reason="gcc-avr/arduino-core-avr not installed (scripts/test installs them)")
 
 
 def test_sketch_builds_for_the_mega(tmp_path: Path) -> None:
