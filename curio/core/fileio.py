@@ -1,4 +1,9 @@
-"""Atomic file writes: a crash or power loss leaves either the old file or the new one."""
+"""Atomic file writes: a crash or power loss leaves either the old file or the new one.
+
+Files get the mode a plain ``open()`` would give them (``0o666`` less the process umask), so a
+map made by an administrator can be read by the ``curio`` service user; only secrets (the
+dashboard tokens) are written ``private`` (``0o600``).
+"""
 
 from __future__ import annotations
 
@@ -11,12 +16,34 @@ from typing import Any
 __all__ = ["atomic_write_bytes", "atomic_write_json", "atomic_write_text"]
 
 
-def atomic_write_bytes(path: Path | str, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file, fsync and rename."""
+def _umask() -> int:
+    """The process umask, read without changing it (Linux), else by setting it back."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def atomic_write_bytes(path: Path | str, data: bytes, *, private: bool = False) -> None:
+    """Write ``data`` to ``path`` through a temporary file, fsync and rename.
+
+    Args:
+        path: the file to (re)place.
+        data: its new content.
+        private: owner-only permissions (``0o600``, for secrets) instead of the umask's.
+    """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
     try:
+        if not private:
+            os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
@@ -33,9 +60,9 @@ def atomic_write_bytes(path: Path | str, data: bytes) -> None:
         raise
 
 
-def atomic_write_text(path: Path | str, text: str) -> None:
-    """Write UTF-8 ``text`` atomically."""
-    atomic_write_bytes(path, text.encode("utf-8"))
+def atomic_write_text(path: Path | str, text: str, *, private: bool = False) -> None:
+    """Write UTF-8 ``text`` atomically (``private``: owner-only permissions)."""
+    atomic_write_bytes(path, text.encode("utf-8"), private=private)
 
 
 def atomic_write_json(path: Path | str, obj: Any) -> None:

@@ -34,8 +34,7 @@ def load_or_create_token(path: Path) -> str:
                 os.chmod(path, 0o600)
             return token
     token = secrets.token_urlsafe(_TOKEN_BYTES)
-    atomic_write_text(path, token + "\n")
-    os.chmod(path, 0o600)
+    atomic_write_text(path, token + "\n", private=True)
     return token
 
 
