@@ -9,17 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from curio.core.config import REPO_ROOT
 from curio.core.geometry import Pose2D
 from curio.estimation.carmen import LogError, RunRecorder, read_carmen, read_log, read_run
 
-MIT = REPO_ROOT.parent / "shared" / "datasets" / "mit-csail.clf"
 
-
-def test_reads_the_mit_csail_log() -> None:
+def test_reads_the_mit_csail_log(mit_csail_log: Path) -> None:
     first = None
     n = 0
-    for s in read_carmen(MIT):
+    for s in read_carmen(mit_csail_log):
         if first is None:
             first = s
         n += 1

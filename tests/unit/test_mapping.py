@@ -13,7 +13,6 @@ import pytest
 from scipy import ndimage
 
 from curio.commands.map import main as map_main
-from curio.core.config import REPO_ROOT
 from curio.core.geometry import Pose2D
 from curio.estimation.carmen import LogScan, RunRecorder
 from curio.estimation.mapping import (
@@ -160,8 +159,9 @@ def test_cli_build_info_convert(tmp_path: Path,
     assert (tmp_path / "c.png").exists()
 
 
-def test_cli_build_from_the_mit_log_head_with_progress(tmp_path: Path) -> None:
-    mit = REPO_ROOT.parent / "shared" / "datasets" / "mit-csail.clf"
+def test_cli_build_from_the_mit_log_head_with_progress(tmp_path: Path,
+                                                       mit_csail_log: Path) -> None:
+    mit = mit_csail_log
     head = tmp_path / "head.clf"
     with open(mit) as fh:
         lines = [next(fh) for _ in range(130)]
