@@ -20,6 +20,7 @@ import bisect
 import contextlib
 import logging
 import math
+import shutil
 from abc import ABC, abstractmethod
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -203,6 +204,16 @@ def _apply_common_args(cfg: Config, args: ScenarioArgs) -> Config:
     return cfg.model_copy(update=updates)
 
 
+def _fresh_data_dir(cfg: Config, name: str) -> Config:
+    """The config with an emptied data directory of its own for this scenario and seed,
+    ``<data_dir>/scenarios/<name>-seed<N>``: a run never depends on what an earlier run (or the
+    rover) left there (paths edited on the dashboard, an IMU calibration), and the same seed
+    gives the same report."""
+    directory = cfg.resolve(cfg.data_dir) / "scenarios" / f"{name}-seed{cfg.sim.seed}"
+    shutil.rmtree(directory, ignore_errors=True)
+    return cfg.model_copy(update={"data_dir": str(directory)})
+
+
 async def _collect(ctx: ScenarioContext, metrics: _Metrics, stop: asyncio.Event) -> None:
     """Gather events, the driven path length and the localisation error."""
     events_sub = ctx.bus.subscribe(EVENTS)
@@ -265,7 +276,7 @@ async def run_scenario(
         report_path: where to write the JSON report (atomically), if given.
         on_app: awaited once the app has started (``--web`` uses it to print the URL).
     """
-    cfg = scenario.configure(_apply_common_args(cfg, args), args)
+    cfg = _fresh_data_dir(scenario.configure(_apply_common_args(cfg, args), args), scenario.name)
     settle = 3 if cfg.drivers.mode == "emulated" else 0
     clock = SimClock(speed=args.speed, settle_polls=settle)
     wall_start = wall_perf_counter()

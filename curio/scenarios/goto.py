@@ -154,7 +154,9 @@ class GotoScenario(Scenario):
         })
         if not finished:
             nav.cancel("scenario time is up")
-            raise ScenarioFailed(f"the goal was not reached within {budget:.0f} s")
+            duration = ctx.args.duration_s or self.default_duration_s
+            raise ScenarioFailed(f"the goal was not reached within the scenario's {duration:g} s "
+                                 f"(--duration; {budget:.0f} s of it left to drive)")
         tol = ctx.cfg.nav.controller.xy_goal_tolerance_m + 0.1
         reached = handle.state is GoalState.SUCCEEDED and final_err <= tol
         if math.isfinite(goal.yaw) and truth is not None:

@@ -117,3 +117,8 @@ class KidnapScenario(Scenario):
             await ctx.sleep(end - ctx.now())
         ctx.goals_reached = len(ctx.events_of("waypoint.reached"))
         ctx.goals_total = max(ctx.goals_reached, len(ctx.cfg.bt.tour_stops))
+        if ctx.goals_reached < ctx.goals_total:
+            ctx.metrics["goals_note"] = (
+                f"the tour goes on after the relocalisation until {ctx.now():.0f} s and reached "
+                f"{ctx.goals_reached} of {ctx.goals_total} stops by then; success is judged on "
+                "the relocalisation (a longer --duration lets the tour finish)")
