@@ -227,8 +227,8 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
         import pyastar2d
         from skimage.graph import MCP_Geometric
     except ImportError:
-        raise SystemExit("the planner benchmark's peers are missing: "
-                         "pip install 'curio[bench]' (pyastar2d, scikit-image)") from None
+        raise SystemExit("the planner benchmark's peers are missing: pip install -e '.[bench]' "
+                         "in the repository (pyastar2d, scikit-image)") from None
     mcp_costs = np.where(traversable, cell_w, np.inf)
     py_w = np.where(traversable, cell_w, np.inf).astype(np.float32)
     hq_w = np.where(traversable, cell_w, -1.0)

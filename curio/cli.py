@@ -2,7 +2,8 @@
 
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
 ``curio emulate DEVICE``, ``curio map ...`` and ``curio bench NAME``. Exit codes: 0 success,
-1 failure (a scenario or a check failed), 2 bad arguments or bad configuration.
+1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
+can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from curio.core.config import Config, ConfigError, dump_config, load_config
+from curio.core.errors import SetupError
 
 __all__ = ["main"]
 
@@ -42,26 +44,46 @@ def _floats(text: str, counts: tuple[int, ...], what: str) -> tuple[float, ...]:
     return values
 
 
+DESCRIPTION = ("Curio: the autonomous tour-guide rover in one process. 'curio run' drives "
+               "the rover (the shipped config runs the simulator with the dashboard); 'curio "
+               "sim' runs a scripted scenario on simulated time.")
+CONFIG_HELP = ("config TOML (default: ./config.toml if there is one, else the config.toml "
+               "shipped with Curio)")
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("curio")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown (not installed)"
+
+
 def _add_config_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, help="config TOML (default: ./config.toml)")
+    parser.add_argument("--config", type=Path, help=CONFIG_HELP)
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="KEY=VALUE", help="override one config key (repeatable)")
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="curio", description=__doc__.split("\n")[0])
+    from curio.commands.bench import available_benchmarks
+    from curio.scenarios import SCENARIOS
+
+    parser = argparse.ArgumentParser(prog="curio", description=DESCRIPTION)
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--version", action="version", version=f"curio {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     run = sub.add_parser("run", help="run the robot (the shipped config runs the simulator)")
     _add_config_args(run)
 
     sim = sub.add_parser("sim", help="run a scripted scenario headless on simulated time")
-    sim.add_argument("scenario", help="square, goto, tour, operator-demo, blocked-door, kidnap")
+    sim.add_argument("scenario", help="one of: " + ", ".join(sorted(SCENARIOS)))
     sim.add_argument("--map", dest="map_yaml", help="world map YAML (default: sim.world)")
     sim.add_argument("--start", help="start pose X,Y,YAW in map (m, m, rad)")
     sim.add_argument("--goal", help="goal X,Y[,YAW] in map (m, m, rad)")
-    sim.add_argument("--seed", type=int, help="random seed (default: sim.seed)")
+    sim.add_argument("--seed", type=int, help="random seed >= 0 (default: sim.seed)")
     sim.add_argument("--speed", default=None,
                      help="N x real time, or max (default: max; 1 with --web)")
     sim.add_argument("--duration", type=float, help="time limit, simulated seconds")
@@ -83,11 +105,11 @@ def _build_parser() -> argparse.ArgumentParser:
         p.add_argument("rest", nargs=argparse.REMAINDER)
 
     bench = sub.add_parser("bench", help="run a benchmark and print its table")
-    bench.add_argument("name", help="benchmark name (see benchmarks/)")
+    bench.add_argument("name", help="one of: " + ", ".join(available_benchmarks()))
     bench.add_argument("--json", type=Path, help="write the result JSON here")
     bench.add_argument("--map", dest="map_yaml", help="map YAML for map-based benchmarks")
     bench.add_argument("--pairs", type=int, help="number of start/goal pairs or runs")
-    bench.add_argument("--seed", type=int, default=1, help="random seed")
+    bench.add_argument("--seed", type=int, default=1, help="random seed >= 0")
     bench.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                        help="benchmark-specific option (repeatable)")
     return parser
@@ -127,6 +149,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     goal = None
     if goal_values is not None:
         goal = (goal_values[0], goal_values[1], goal_values[2] if len(goal_values) == 3 else None)
+    if args.seed is not None and args.seed < 0:
+        raise UsageError(f"--seed takes a whole number >= 0, got {args.seed}")
     if args.duration is not None and not args.duration > 0:
         raise UsageError(f"--duration takes simulated seconds > 0, got {args.duration}")
     if args.map_yaml is not None and not Path(args.map_yaml).is_file():
@@ -151,13 +175,35 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         f"localisation RMSE {report['localization_rmse_m']}"
     )
     for key, value in report.get("metrics", {}).items():
-        print(f"  {key}: {value}")
+        _print_metric(key, value)
     for check in report.get("checks", []):
         mark = "ok  " if check["ok"] else "FAIL"
         print(f"  [{mark}] {check['name']} {check['detail']}")
     if args.report:
         print(f"  report: {args.report}")
     return 0 if report["success"] else 1
+
+
+def _print_metric(key: str, value: Any) -> None:
+    """One metric of a scenario report: a list of records one line each, key=value."""
+    if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+        print(f"  {key}:")
+        for item in value:
+            print("    " + ", ".join(f"{k}={v}" for k, v in item.items()))
+    else:
+        print(f"  {key}: {value}")
+
+
+def _announce(mode: str, web_url: str | None) -> None:
+    """The banner printed once the rover runs: what runs and where the dashboard is."""
+    what = {"sim": "the simulated rover", "emulated": "the rover on device emulators",
+            "real": "the rover"}.get(mode, "the rover")
+    lines = [f"Curio is running {what} (drivers.mode={mode})."]
+    if web_url:
+        view = web_url.split("?", 1)[0]
+        lines += [f"dashboard: {web_url}", f"watch only: {view}"]
+    lines.append("Ctrl-C stops the rover and exits.")
+    print("\n" + "\n".join(lines) + "\n", flush=True)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -181,10 +227,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             with contextlib.suppress(NotImplementedError):
                 loop.add_signal_handler(sig, stop.set)
         await app.start()
-        mode = cfg.drivers.mode
-        log.info("curio running (drivers.mode=%s); Ctrl-C stops the rover and exits", mode)
-        if app.web_url:
-            print(f"dashboard: {app.web_url}", flush=True)
+        _announce(cfg.drivers.mode, app.web_url)
         runner = asyncio.create_task(sim_clock.run(stop=stop.is_set)) if sim_clock else None
         waiter = asyncio.create_task(stop.wait())
         while not stop.is_set():
@@ -211,6 +254,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise UsageError(f"--set takes KEY=VALUE, got '{item}'")
         key, _, value = item.partition("=")
         extra[key.strip()] = value.strip()
+    if args.seed < 0:
+        raise UsageError(f"--seed takes a whole number >= 0, got {args.seed}")
     if args.pairs is not None and args.pairs <= 0:
         raise UsageError(f"--pairs takes a whole number > 0, got {args.pairs}")
     if args.map_yaml is not None and not Path(args.map_yaml).is_file():
@@ -277,6 +322,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except UsageError as exc:
         print(f"curio {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except SetupError as exc:
+        print(f"curio {args.command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

@@ -23,12 +23,14 @@ from pydantic import (
     model_validator,
 )
 
+from curio.core.errors import SetupError
+
 __all__ = ["Config", "ConfigError", "default_config_path", "dump_config", "load_config"]
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
-class ConfigError(Exception):
+class ConfigError(SetupError):
     """A configuration problem, phrased for the person who has to fix it."""
 
 
@@ -190,7 +192,7 @@ class SimConfig(Section):
     """The built-in simulator."""
 
     world: str = "maps/curio_building.yaml"
-    seed: int = 1
+    seed: int = Field(1, ge=0, description="random seed of the simulated world (>= 0)")
     start: tuple[float, float, float] | None = Field(
         None, description="start pose in map (x m, y m, yaw rad); default robot.home"
     )

@@ -22,6 +22,7 @@ import numpy.typing as npt
 import yaml
 from PIL import Image
 
+from curio.core.errors import SetupError
 from curio.core.fileio import atomic_write_bytes, atomic_write_text
 from curio.core.geometry import Pose2D
 
@@ -32,7 +33,7 @@ FREE = 0
 OCCUPIED = 100
 
 
-class MapError(ValueError):
+class MapError(SetupError, ValueError):
     """A map file that cannot be used, with the file, the field and the problem."""
 
 

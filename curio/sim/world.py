@@ -52,6 +52,7 @@ import numpy as np
 import numpy.typing as npt
 
 from curio.core.config import Config
+from curio.core.errors import SetupError
 from curio.core.geometry import Pose2D, wrap_angle, yaw_to_quat
 from curio.core.messages import Imu, LaserScan, ServoCommand
 from curio.drivers.kinematics import (
@@ -91,7 +92,7 @@ BATTERY_DRAIN_V_PER_H = 0.3
 BATTERY_LOAD_SAG_V = 0.25  # sag at full duty on every wheel
 
 
-class WorldError(ValueError):
+class WorldError(SetupError, ValueError):
     """A world description that cannot be used (file, field, problem)."""
 
 

@@ -18,15 +18,20 @@ from curio.bt.paths import PathManager
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
+from curio.core.errors import SetupError
 from curio.core.parts import Part, Parts
 from curio.robot import RobotModel
 from curio.web.auth import load_or_create_token
 from curio.web.hub import Hub
 from curio.web.server import HUB, WebServices, create_app
 
-__all__ = ["WebServer", "build_web"]
+__all__ = ["DashboardAddressError", "WebServer", "build_web"]
 
 log = logging.getLogger("curio.web")
+
+
+class DashboardAddressError(SetupError, OSError):
+    """The dashboard cannot listen on ``web.host:web.port`` (taken, or not a local address)."""
 
 
 class WebServer:
@@ -49,7 +54,7 @@ class WebServer:
             self.sock.bind((cfg.host, cfg.port))
         except OSError as exc:
             self.sock.close()
-            raise OSError(
+            raise DashboardAddressError(
                 f"the dashboard cannot listen on {cfg.host}:{cfg.port} ({exc.strerror}); "
                 "set web.port to a free port (or 0 for any) or web.host to a local address"
             ) from exc
@@ -70,8 +75,7 @@ class WebServer:
         site = web.SockSite(self._runner, self.sock)
         await site.start()
         cfg = self.services.cfg.web
-        log.info("dashboard: open %s to control the rover (viewing only: %s)",
-                 self.control_url, self.url)
+        log.debug("dashboard: serving %s (control URL printed by the command)", self.url)
         if cfg.host in ("0.0.0.0", "::"):
             log.info("dashboard listens on all interfaces: http://%s:%d/?token=%s",
                      socket.gethostname(), self.port, self.services.token)
