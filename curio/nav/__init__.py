@@ -1,1 +1,2 @@
-"""Navigation and state estimation: maps, EKF, localisation, mapping, costmap, planning."""
+"""Navigation: cost values, costmap, global planner, local controller, recovery, the navigator
+(goals with action semantics), obstacle and blocked-path detection."""
