@@ -26,7 +26,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
-import json
 import logging
 import math
 from collections import OrderedDict, deque
@@ -96,9 +95,10 @@ from curio.web.encode import (
     encode_scan,
     grid_meta,
     grid_png,
+    path_to_json,
 )
 
-__all__ = ["GRID_TOPICS", "Client", "CommandError", "Hub"]
+__all__ = ["GRID_TOPICS", "Client", "Hub"]
 
 log = logging.getLogger("curio.web.hub")
 
@@ -116,14 +116,6 @@ POSE_STALE_S = 2.0
 CLIENT_OPS = ("ping", "rate", "teleop", "command", "initial_pose")
 # Behaviour-tree states in which the rover is no longer waiting for help.
 HELP_OVER_STATES = frozenset({"moving", "arrived", "going_home", "idle", "tour"})
-
-
-class CommandError(ValueError):
-    """An operator command or input that cannot be accepted; the message says why."""
-
-    def __init__(self, message: str, status: int = 400) -> None:
-        super().__init__(message)
-        self.status = status
 
 
 @dataclass(eq=False)
@@ -655,27 +647,3 @@ class Hub:
 
         task.add_done_callback(done)
         return task
-
-
-def path_to_json(path: Any) -> dict[str, Any]:
-    """A path manager ``NamedPath`` as JSON data."""
-    return {
-        "id": path.id,
-        "name": path.name,
-        "waypoints": [
-            {"x_m": float(w.x_m), "y_m": float(w.y_m),
-             "yaw_rad": None if w.yaw_rad is None else float(w.yaw_rad)}
-            for w in path.waypoints
-        ],
-    }
-
-
-def parse_json_object(text: str | bytes) -> dict[str, Any]:
-    """Parse a JSON object or raise :class:`CommandError` saying what is wrong."""
-    try:
-        value = json.loads(text)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise CommandError(f"message is not valid JSON: {exc}") from None
-    if not isinstance(value, dict):
-        raise CommandError(f"message must be a JSON object, got {type(value).__name__}")
-    return value

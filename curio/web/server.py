@@ -24,7 +24,6 @@ import contextlib
 import hashlib
 import json
 import logging
-import math
 import os
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
@@ -38,9 +37,17 @@ from curio.core.clock import Clock, wall_perf_counter
 from curio.core.config import Config
 from curio.core.topics import HEALTH
 from curio.robot import RobotModel
-from curio.web.api import build_command, http_error, parse_pose, routes
+from curio.web.api import routes
 from curio.web.auth import RateLimiter, check_origin, request_token, token_matches
-from curio.web.hub import CLIENT_OPS, Client, CommandError, Hub, parse_json_object
+from curio.web.hub import CLIENT_OPS, Client, Hub
+from curio.web.inputs import (
+    CommandError,
+    build_command,
+    http_error,
+    parse_json_object,
+    parse_pose,
+    parse_teleop,
+)
 
 __all__ = ["HUB", "SERVICES", "SystemMonitor", "WebServices", "create_app"]
 
@@ -303,18 +310,11 @@ def create_app(services: WebServices) -> web.Application:
                 "viewing only: control needs the token (open the URL from the rover's "
                 "start-up log)")
         if op == "teleop":
-            lin, ang = body.get("linear_mps", 0.0), body.get("angular_radps", 0.0)
-            for key, value in (("linear_mps", lin), ("angular_radps", ang)):
-                if (isinstance(value, bool) or not isinstance(value, int | float)
-                        or not math.isfinite(value)):
-                    raise CommandError(f"teleop '{key}' must be a finite number, got {value!r}")
-            seq = body.get("seq")
-            if seq is not None and (not isinstance(seq, int) or isinstance(seq, bool)):
-                raise CommandError(f"teleop 'seq' must be an integer, got {seq!r}")
-            hub.teleop(client, float(lin), float(ang), seq)
+            lin, ang, seq = parse_teleop(body)
+            hub.teleop(client, lin, ang, seq)
             return
         if op == "command":
-            cmd = build_command(body, hub)
+            cmd = build_command(body, hub.clock, hub.paths)
             published = hub.publish_command(cmd)
             hub.reply(client, {"t": "ack", "id": msg_id, "request_id": cmd.request_id,
                                "action": cmd.action, "duplicate": not published})
