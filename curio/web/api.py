@@ -32,7 +32,6 @@ from curio.web.encode import path_to_json
 from curio.web.hub import Hub
 from curio.web.inputs import (
     CommandError,
-    build_command,
     describe_path_ids,
     http_error,
     parse_json_object,
@@ -210,10 +209,9 @@ def routes(hub_key: web.AppKey[Hub], require_control: Any) -> list[web.RouteDef]
         hub = hub_of(request)
         body = await body_of(request)
         try:
-            cmd = build_command(body, hub.clock, hub.paths)
+            cmd, published = hub.rover.command(body)
         except CommandError as exc:
             raise http_error(web.HTTPBadRequest, str(exc)) from None
-        published = hub.publish_command(cmd)
         return web.json_response(
             {"ok": True, "request_id": cmd.request_id, "duplicate": not published,
              "action": cmd.action, "path_id": cmd.path_id,
@@ -225,10 +223,9 @@ def routes(hub_key: web.AppKey[Hub], require_control: Any) -> list[web.RouteDef]
         hub = hub_of(request)
         body = await body_of(request)
         try:
-            pose = parse_pose(body)
+            pose = hub.rover.initial_pose(body)
         except CommandError as exc:
             raise http_error(web.HTTPBadRequest, str(exc)) from None
-        hub.publish_initial_pose(pose.x, pose.y, pose.yaw)
         return web.json_response({"ok": True, "pose": [pose.x, pose.y, pose.yaw]}, status=202)
 
     grid = "{name:map|costmap|local_costmap}"

@@ -1,4 +1,4 @@
-"""The WebSocket hub: bus topics out to every browser, operator input in.
+"""The WebSocket hub: bus topics out to every browser.
 
 Design (after rosboard's per-client throttling, made safe for a robot):
 
@@ -12,11 +12,10 @@ Design (after rosboard's per-client throttling, made safe for a robot):
   catches up from the state snapshot.
 * A (re)connecting client first receives a snapshot of the latched state (status, progress,
   e-stop, help state, paths, grids, tree, health, recent events marked as history) and the
-  latest binary frames. Commands are never queued or replayed: each carries a ``request_id``
-  and a duplicate id is acknowledged without being published again.
-* Teleop: ``teleop`` messages publish :data:`~curio.core.topics.CMD_VEL_TELEOP` (source ``web``); a
-  zero velocity is published when the teleop client disconnects or goes silent for
-  ``cfg.nav.safety.teleop_timeout_s`` (the safety stage also has its own watchdog).
+  latest binary frames.
+* What browsers send in (commands, the initial pose, teleop) is published by
+  :class:`~curio.web.control.RoverControl`; when a client goes, the hub tells it, so a client
+  that was driving stops the rover.
 
 Frames: see :mod:`curio.web.encode`. Times come from the injected clock.
 """
@@ -28,7 +27,7 @@ import contextlib
 import itertools
 import logging
 import math
-from collections import OrderedDict, deque
+from collections import deque
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
 from typing import Any
@@ -51,7 +50,6 @@ from curio.core.messages import (
     LocalizationStatus,
     Obstacles,
     Odometry,
-    OperatorCommand,
     Path,
     PoseWithCovariance,
     Progress,
@@ -63,20 +61,17 @@ from curio.core.topics import (
     BATTERY,
     BLOCKED,
     CMD_VEL,
-    CMD_VEL_TELEOP,
     COSTMAP,
     ESTOP,
     EVENTS,
     GROUND_TRUTH,
     HEALTH,
-    INITIAL_POSE,
     LOCAL_COSTMAP,
     LOCAL_PLAN,
     LOCALIZATION,
     MAP,
     OBSTACLES,
     ODOM,
-    OPERATOR,
     PLAN,
     POSE,
     PROGRESS,
@@ -86,6 +81,7 @@ from curio.core.topics import (
 )
 from curio.robot import RobotModel
 from curio.web.auth import RateLimiter
+from curio.web.control import RoverControl
 from curio.web.encode import (
     FRAME_LOCAL_PLAN,
     FRAME_PLAN,
@@ -148,21 +144,24 @@ class _Grid:
 
 
 class Hub:
-    """Fans bus traffic out to WebSocket clients and turns their input into bus messages.
+    """Fans bus traffic out to WebSocket clients and keeps the latched state for new ones.
 
     Args:
         cfg: the whole configuration (``cfg.web`` limits, ``cfg.robot`` geometry).
-        clock: the injected clock (rate limits, watchdogs, stamps).
+        robot: the robot model (footprint, home, limits in the snapshot; the laser pose).
+        clock: the injected clock (rates, stamps).
         bus: the application bus.
+        rover: publishes operator input; counts it for the health panel.
         paths: the path manager (``app.paths``) or None when the behaviour tree is not built.
     """
 
     def __init__(self, cfg: Config, robot: RobotModel, clock: Clock, bus: Bus,
-                 paths: Any = None) -> None:
+                 rover: RoverControl, paths: Any = None) -> None:
         self.cfg = cfg
         self.robot = robot
         self.clock = clock
         self.bus = bus
+        self.rover = rover
         self.paths = paths
         self.clients: set[Client] = set()
         self._ids = itertools.count(1)
@@ -183,14 +182,7 @@ class Hub:
         self._pose_msg: PoseWithCovariance | None = None
         self._pose_stamp_s = -math.inf
         self._odom: Odometry | None = None
-        self._recent_requests: OrderedDict[str, float] = OrderedDict()
-        self._teleop_client: int | None = None
-        self._teleop_last_s = -math.inf
-        self._teleop_moving = False
         self.system: dict[str, Any] = {}
-        self.commands_published = 0
-        self.teleop_published = 0
-        self.rejected_messages = 0
         self.slow_clients_dropped = 0
         self._paths_listened = False
         self._subs: list[tuple[Subscription[Any], Callable[[Any], None]]] = []
@@ -230,13 +222,12 @@ class Hub:
         self._subs.append((self.bus.subscribe(topic, maxsize=maxsize), handler))
 
     async def run(self) -> None:
-        """Pump every topic into the clients and run the teleop watchdog (until cancelled)."""
+        """Pump every topic into the clients (until cancelled)."""
         self.open()
         try:
             async with asyncio.TaskGroup() as tg:
                 for sub, handler in self._subs:
                     tg.create_task(self._pump(sub, handler), name=f"web.pump{sub.topic.name}")
-                tg.create_task(self._teleop_watchdog(), name="web.teleop_watchdog")
         finally:
             for sub, _ in self._subs:
                 sub.close()
@@ -290,8 +281,7 @@ class Hub:
         client.closed = True
         client.wake.set()
         self.clients.discard(client)
-        if self._teleop_client == client.id:
-            self._stop_teleop("teleop client disconnected")
+        self.rover.release_teleop(client.id, "teleop client disconnected")
 
     async def serve(self, client: Client) -> None:
         """Send ``client`` its queued messages until it closes (its own task)."""
@@ -426,8 +416,8 @@ class Hub:
                            for name, s in stats.items() if s.published or s.dropped},
             },
             "web": {"clients": len(self.clients),
-                    "commands": self.commands_published,
-                    "teleop_messages": self.teleop_published},
+                    "commands": self.rover.commands_published,
+                    "teleop_messages": self.rover.teleop_published},
         }
 
     def own_health(self) -> DriverHealth:
@@ -437,9 +427,9 @@ class Hub:
             self.clock.now(), "web", "ok",
             f"{len(self.clients)} dashboard(s) connected",
             counters={"clients": float(len(self.clients)),
-                      "commands": float(self.commands_published),
-                      "teleop_messages": float(self.teleop_published),
-                      "rejected_messages": float(self.rejected_messages),
+                      "commands": float(self.rover.commands_published),
+                      "teleop_messages": float(self.rover.teleop_published),
+                      "rejected_messages": float(self.rover.rejected_messages),
                       "slow_clients_dropped": float(self.slow_clients_dropped),
                       "frames_sent_to_connected": float(sent)})
 
@@ -568,67 +558,6 @@ class Hub:
                          lambda: to_json({"t": "grid", "grid": self.grid_info(name)}))
 
         return handle
-
-    # --- operator input -----------------------------------------------------------------------
-
-    def publish_command(self, cmd: OperatorCommand) -> bool:
-        """Publish ``cmd`` on OPERATOR unless its request id was seen; return True if published."""
-        if cmd.request_id:
-            if cmd.request_id in self._recent_requests:
-                return False
-            self._recent_requests[cmd.request_id] = cmd.stamp
-            while len(self._recent_requests) > 512:
-                self._recent_requests.popitem(last=False)
-        self.bus.publish(OPERATOR, cmd)
-        self.commands_published += 1
-        return True
-
-    def publish_initial_pose(self, x_m: float, y_m: float, yaw_rad: float) -> None:
-        """Publish an operator-set initial pose in map."""
-        self.bus.publish(INITIAL_POSE, PoseWithCovariance(self.clock.now(),
-                                                          Pose2D(x_m, y_m, yaw_rad)))
-
-    def teleop(self, client: Client, linear_mps: float, angular_radps: float,
-               seq: int | None = None) -> tuple[float, float]:
-        """Publish a teleop velocity for ``client`` (clamped to the limits); return it."""
-        if seq is not None:
-            if seq <= client.last_teleop_seq:
-                return (0.0, 0.0)
-            client.last_teleop_seq = seq
-        limits = self.snapshot_limits()
-        lin = max(-limits[0], min(limits[0], linear_mps))
-        ang = max(-limits[1], min(limits[1], angular_radps))
-        now = self.clock.now()
-        self._teleop_client = client.id
-        self._teleop_last_s = now
-        self._teleop_moving = lin != 0.0 or ang != 0.0
-        self.bus.publish(CMD_VEL_TELEOP, Twist(now, lin, ang, source="web"))
-        self.teleop_published += 1
-        return lin, ang
-
-    def snapshot_limits(self) -> tuple[float, float]:
-        """Teleop limits: (linear m/s, angular rad/s)."""
-        robot, safety = self.cfg.robot, self.cfg.nav.safety
-        return (min(robot.max_wheel_speed_mps, safety.max_speed_mps),
-                min(robot.max_angular_radps, safety.max_angular_radps))
-
-    def _stop_teleop(self, reason: str) -> None:
-        if self._teleop_moving or self._teleop_client is not None:
-            self.bus.publish(CMD_VEL_TELEOP, Twist(self.clock.now(), 0.0, 0.0, source="web"))
-            log.info("teleop stopped: %s", reason)
-        self._teleop_moving = False
-        self._teleop_client = None
-
-    async def _teleop_watchdog(self) -> None:
-        timeout_s = self.cfg.nav.safety.teleop_timeout_s
-        period_s = min(0.1, timeout_s / 4)
-        due = self.clock.now()
-        while True:
-            due += period_s
-            await self.clock.sleep_until(due)
-            now = self.clock.now()
-            if self._teleop_moving and now - self._teleop_last_s > timeout_s:
-                self._stop_teleop(f"no teleop message for {timeout_s:.1f} s")
 
     # --- helpers for the server ---------------------------------------------------------------
 

@@ -38,13 +38,12 @@ from curio.core.topics import HEALTH
 from curio.robot import RobotModel
 from curio.web.api import routes
 from curio.web.auth import RateLimiter, check_origin, request_token, token_matches
+from curio.web.control import RoverControl
 from curio.web.hub import CLIENT_OPS, Client, Hub
 from curio.web.inputs import (
     CommandError,
-    build_command,
     http_error,
     parse_json_object,
-    parse_pose,
     parse_teleop,
 )
 from curio.web.system import SystemMonitor, measure_loop_lag_ms
@@ -93,7 +92,8 @@ def _static_version() -> str:
 def create_app(services: WebServices) -> web.Application:
     """Build the dashboard application (the hub starts and stops with it)."""
     cfg = services.cfg.web
-    hub = Hub(services.cfg, services.robot, services.clock, services.bus, services.paths)
+    rover = RoverControl(services.cfg, services.clock, services.bus, services.paths)
+    hub = Hub(services.cfg, services.robot, services.clock, services.bus, rover, services.paths)
     control_limiters: dict[str, RateLimiter] = {}
 
     @web.middleware
@@ -200,7 +200,7 @@ def create_app(services: WebServices) -> web.Application:
             await client.ws.close(code=WSCloseCode.MESSAGE_TOO_BIG, message=b"message too big")
             return False
         if not client.limiter.allow(services.clock.now()):
-            hub.rejected_messages += 1
+            rover.rejected_messages += 1
             client.rejected_in_a_row += 1
             if client.rejected_in_a_row == 1:
                 hub.reply(client, {"t": "error", "code": "rate_limited",
@@ -219,7 +219,7 @@ def create_app(services: WebServices) -> web.Application:
             msg_id = body.get("id")
             _handle_op(client, body, msg_id)
         except CommandError as exc:
-            hub.rejected_messages += 1
+            rover.rejected_messages += 1
             hub.reply(client, {"t": "error", "id": msg_id, "code": "rejected",
                                "message": str(exc)})
         return True
@@ -244,17 +244,19 @@ def create_app(services: WebServices) -> web.Application:
                 "start-up log)")
         if op == "teleop":
             lin, ang, seq = parse_teleop(body)
-            hub.teleop(client, lin, ang, seq)
+            if seq is not None:
+                if seq <= client.last_teleop_seq:
+                    return
+                client.last_teleop_seq = seq
+            rover.teleop(client.id, lin, ang)
             return
         if op == "command":
-            cmd = build_command(body, hub.clock, hub.paths)
-            published = hub.publish_command(cmd)
+            cmd, published = rover.command(body)
             hub.reply(client, {"t": "ack", "id": msg_id, "request_id": cmd.request_id,
                                "action": cmd.action, "duplicate": not published})
             return
         if op == "initial_pose":
-            pose = parse_pose(body)
-            hub.publish_initial_pose(pose.x, pose.y, pose.yaw)
+            pose = rover.initial_pose(body)
             hub.reply(client, {"t": "ack", "id": msg_id, "pose": [pose.x, pose.y, pose.yaw]})
             return
 
@@ -272,7 +274,8 @@ def create_app(services: WebServices) -> web.Application:
 
         hub.open()
         tasks = [asyncio.create_task(hub.run(), name="web.hub"),
-                 asyncio.create_task(health_loop(), name="web.health")]
+                 asyncio.create_task(health_loop(), name="web.health"),
+                 asyncio.create_task(rover.watch_teleop(), name="web.teleop_watchdog")]
         yield
         await hub.close()
         for task in tasks:
