@@ -28,8 +28,8 @@ import itertools
 import logging
 import math
 from collections import deque
-from collections.abc import Callable, Coroutine
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from aiohttp import WSCloseCode, web
@@ -80,7 +80,6 @@ from curio.core.topics import (
     TREE,
 )
 from curio.robot import RobotModel
-from curio.web.auth import RateLimiter
 from curio.web.control import RoverControl
 from curio.web.encode import (
     FRAME_LOCAL_PLAN,
@@ -93,8 +92,9 @@ from curio.web.encode import (
     grid_png,
     path_to_json,
 )
+from curio.web.session import ClientSession
 
-__all__ = ["GRID_TOPICS", "Client", "Hub"]
+__all__ = ["GRID_TOPICS", "Hub"]
 
 log = logging.getLogger("curio.web.hub")
 
@@ -105,33 +105,10 @@ GRID_TOPICS: dict[str, Topic[GridMessage]] = {
 }
 MAX_BACKLOG = 2000
 RECENT_EVENTS = 50
-# Consecutive rate-limited messages after which a client is disconnected (code 1008).
-MAX_REJECTED_IN_A_ROW = 100
 # A pose from POSE is preferred; ODOM stands in when no POSE arrived for this long, seconds.
 POSE_STALE_S = 2.0
-CLIENT_OPS = ("ping", "rate", "teleop", "command", "initial_pose")
 # Behaviour-tree states in which the rover is no longer waiting for help.
 HELP_OVER_STATES = frozenset({"moving", "arrived", "going_home", "idle", "tour"})
-
-
-@dataclass(eq=False)
-class Client:
-    """One connected browser."""
-
-    id: int
-    ws: web.WebSocketResponse
-    control: bool
-    rate_hz: float
-    limiter: RateLimiter
-    remote: str = ""
-    pending: dict[str, str | bytes] = field(default_factory=dict)
-    reliable: deque[str] = field(default_factory=deque)
-    wake: asyncio.Event = field(default_factory=asyncio.Event)
-    closed: bool = False
-    rejected_in_a_row: int = 0
-    last_teleop_seq: int = -1
-    sent_frames: int = 0
-    sent_bytes: int = 0
 
 
 @dataclass
@@ -163,7 +140,7 @@ class Hub:
         self.bus = bus
         self.rover = rover
         self.paths = paths
-        self.clients: set[Client] = set()
+        self.clients: set[ClientSession] = set()
         self._ids = itertools.count(1)
         self._latest_frames: dict[str, str | bytes | Callable[[], str | bytes]] = {}
         self.status: StatusText | None = None
@@ -250,68 +227,28 @@ class Hub:
 
     # --- clients ------------------------------------------------------------------------------
 
-    def register(self, ws: web.WebSocketResponse, control: bool, remote: str = "") -> Client:
+    def register(self, ws: web.WebSocketResponse, control: bool,
+                 remote: str = "") -> ClientSession:
         """Add a connected socket; queue the state snapshot and the latest frames for it."""
         web_cfg = self.cfg.web
-        client = Client(
-            id=next(self._ids),
-            ws=ws,
-            control=control,
-            rate_hz=web_cfg.client_rate_hz,
-            limiter=RateLimiter(web_cfg.max_messages_per_s, burst=web_cfg.max_messages_per_s),
-            remote=remote,
-        )
+        client = ClientSession(next(self._ids), ws, control, web_cfg, self.rover, remote)
         self.clients.add(client)
-        client.reliable.append(
-            to_json({"t": "hello", "client": client.id, "control": control,
-                     "require_token": web_cfg.require_token, "rate_hz": client.rate_hz,
-                     "server_time": self.clock.now()})
-        )
-        client.reliable.append(to_json({"t": "state", **self.snapshot()}))
+        client.queue(to_json({"t": "hello", "client": client.id, "control": control,
+                              "require_token": web_cfg.require_token, "rate_hz": client.rate_hz,
+                              "server_time": self.clock.now()}))
+        client.queue(to_json({"t": "state", **self.snapshot()}))
         for key, frame in list(self._latest_frames.items()):
             if callable(frame):
                 frame = frame()
                 self._latest_frames[key] = frame
-            client.pending[key] = frame
-        client.wake.set()
+            client.offer(key, frame)
         return client
 
-    def unregister(self, client: Client) -> None:
+    def unregister(self, client: ClientSession) -> None:
         """Forget ``client``; if it was driving, stop the rover."""
-        client.closed = True
-        client.wake.set()
+        client.mark_closed()
         self.clients.discard(client)
         self.rover.release_teleop(client.id, "teleop client disconnected")
-
-    async def serve(self, client: Client) -> None:
-        """Send ``client`` its queued messages until it closes (its own task)."""
-        ws = client.ws
-        next_stream_s = self.clock.now()
-        while not client.closed and not ws.closed:
-            while client.reliable:
-                text = client.reliable.popleft()
-                await ws.send_str(text)
-                client.sent_frames += 1
-                client.sent_bytes += len(text)
-            if client.pending:
-                now = self.clock.now()
-                if now >= next_stream_s:
-                    frames, client.pending = client.pending, {}
-                    for frame in frames.values():
-                        if isinstance(frame, bytes):
-                            await ws.send_bytes(frame)
-                        else:
-                            await ws.send_str(frame)
-                        client.sent_frames += 1
-                        client.sent_bytes += len(frame)
-                    next_stream_s = max(now, next_stream_s) + 1.0 / client.rate_hz
-                    continue
-                await self.clock.sleep_until(next_stream_s)
-                continue
-            client.wake.clear()
-            if client.reliable or client.pending or client.closed:
-                continue
-            await client.wake.wait()
 
     def _reliable(self, payload: dict[str, Any]) -> None:
         if not self.clients:
@@ -323,8 +260,7 @@ class Hub:
                             client.id, len(client.reliable))
                 self._drop_slow(client)
                 continue
-            client.reliable.append(text)
-            client.wake.set()
+            client.queue(text)
 
     def _stream(self, key: str, make: Callable[[], str | bytes]) -> None:
         """Offer the frame ``make()`` under ``key``; nobody watching ⇒ it is made only when a
@@ -335,17 +271,12 @@ class Hub:
         frame = make()
         self._latest_frames[key] = frame
         for client in self.clients:
-            client.pending[key] = frame
-            client.wake.set()
+            client.offer(key, frame)
 
-    def _drop_slow(self, client: Client) -> None:
+    def _drop_slow(self, client: ClientSession) -> None:
         self.slow_clients_dropped += 1
         self.unregister(client)
-        task = asyncio.ensure_future(
-            client.ws.close(code=WSCloseCode.TRY_AGAIN_LATER,
-                            message=b"client too slow; reconnect to catch up")
-        )
-        task.add_done_callback(lambda t: t.exception() if not t.cancelled() else None)
+        client.close_soon(WSCloseCode.TRY_AGAIN_LATER, b"client too slow; reconnect to catch up")
 
     # --- state --------------------------------------------------------------------------------
 
@@ -558,21 +489,3 @@ class Hub:
                          lambda: to_json({"t": "grid", "grid": self.grid_info(name)}))
 
         return handle
-
-    # --- helpers for the server ---------------------------------------------------------------
-
-    def reply(self, client: Client, payload: dict[str, Any]) -> None:
-        """Queue a reliable reply to one client."""
-        client.reliable.append(to_json(payload))
-        client.wake.set()
-
-    def spawn(self, coro: Coroutine[Any, Any, None]) -> asyncio.Task[None]:
-        """Run ``coro`` as a task whose failure is logged (for per-client senders)."""
-        task = asyncio.ensure_future(coro)
-
-        def done(t: asyncio.Task[None]) -> None:
-            if not t.cancelled() and t.exception() is not None:
-                log.debug("web task ended: %r", t.exception())
-
-        task.add_done_callback(done)
-        return task

@@ -22,14 +22,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
-import json
 import logging
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from aiohttp import WSCloseCode, WSMsgType, web
+from aiohttp import web
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
@@ -39,12 +38,9 @@ from curio.robot import RobotModel
 from curio.web.api import routes
 from curio.web.auth import RateLimiter, check_origin, request_token, token_matches
 from curio.web.control import RoverControl
-from curio.web.hub import CLIENT_OPS, Client, Hub
+from curio.web.hub import Hub
 from curio.web.inputs import (
-    CommandError,
     http_error,
-    parse_json_object,
-    parse_teleop,
 )
 from curio.web.system import SystemMonitor, measure_loop_lag_ms
 
@@ -168,97 +164,8 @@ def create_app(services: WebServices) -> web.Application:
         ws = web.WebSocketResponse(max_msg_size=4 * cfg.max_message_bytes, heartbeat=20.0)
         await ws.prepare(request)
         client = hub.register(ws, control, request.remote or "")
-        sender = hub.spawn(hub.serve(client))
-        try:
-            async for msg in ws:
-                if msg.type == WSMsgType.TEXT:
-                    if not await _on_text(client, msg.data):
-                        break
-                elif msg.type == WSMsgType.BINARY:
-                    hub.reply(client, {"t": "error", "code": "bad_message",
-                                       "message": "binary messages are not accepted; send JSON"})
-                elif msg.type == WSMsgType.ERROR:
-                    break
-        finally:
-            hub.unregister(client)
-            sender.cancel()
-            with contextlib.suppress(BaseException):
-                await sender
-            if not ws.closed:
-                with contextlib.suppress(Exception):
-                    await ws.close()
+        await client.serve(hub.unregister)
         return ws
-
-    async def _on_text(client: Client, text: str) -> bool:
-        """Handle one message; return False when the socket must close."""
-        size = len(text.encode("utf-8"))
-        if size > cfg.max_message_bytes:
-            message = (f"message of {size} bytes exceeds "
-                       f"web.max_message_bytes={cfg.max_message_bytes}")
-            await client.ws.send_str(json.dumps({"t": "error", "code": "too_big",
-                                                 "message": message}))
-            await client.ws.close(code=WSCloseCode.MESSAGE_TOO_BIG, message=b"message too big")
-            return False
-        if not client.limiter.allow(services.clock.now()):
-            rover.rejected_messages += 1
-            client.rejected_in_a_row += 1
-            if client.rejected_in_a_row == 1:
-                hub.reply(client, {"t": "error", "code": "rate_limited",
-                                   "message": f"too many messages: at most "
-                                              f"{cfg.max_messages_per_s:g} per second; "
-                                              "this one was dropped"})
-            if client.rejected_in_a_row >= 100:
-                await client.ws.close(code=WSCloseCode.POLICY_VIOLATION,
-                                      message=b"too many messages per second")
-                return False
-            return True
-        client.rejected_in_a_row = 0
-        msg_id: Any = None
-        try:
-            body = parse_json_object(text)
-            msg_id = body.get("id")
-            _handle_op(client, body, msg_id)
-        except CommandError as exc:
-            rover.rejected_messages += 1
-            hub.reply(client, {"t": "error", "id": msg_id, "code": "rejected",
-                               "message": str(exc)})
-        return True
-
-    def _handle_op(client: Client, body: dict[str, Any], msg_id: Any) -> None:
-        op = body.get("op")
-        if op == "ping":
-            hub.reply(client, {"t": "pong", "id": msg_id, "server_time": services.clock.now()})
-            return
-        if op == "rate":
-            hz = body.get("hz")
-            if not isinstance(hz, int | float) or isinstance(hz, bool) or not hz > 0:
-                raise CommandError(f"rate needs 'hz' > 0, got {hz!r}")
-            client.rate_hz = min(float(hz), cfg.client_rate_hz)
-            hub.reply(client, {"t": "ack", "id": msg_id, "rate_hz": client.rate_hz})
-            return
-        if op not in CLIENT_OPS:
-            raise CommandError(f"unknown op {op!r}; allowed: {', '.join(CLIENT_OPS)}")
-        if not client.control:
-            raise CommandError(
-                "viewing only: control needs the token (open the URL from the rover's "
-                "start-up log)")
-        if op == "teleop":
-            lin, ang, seq = parse_teleop(body)
-            if seq is not None:
-                if seq <= client.last_teleop_seq:
-                    return
-                client.last_teleop_seq = seq
-            rover.teleop(client.id, lin, ang)
-            return
-        if op == "command":
-            cmd, published = rover.command(body)
-            hub.reply(client, {"t": "ack", "id": msg_id, "request_id": cmd.request_id,
-                               "action": cmd.action, "duplicate": not published})
-            return
-        if op == "initial_pose":
-            pose = rover.initial_pose(body)
-            hub.reply(client, {"t": "ack", "id": msg_id, "pose": [pose.x, pose.y, pose.yaw]})
-            return
 
     async def background(_: web.Application) -> AsyncIterator[None]:
         monitor = SystemMonitor()
