@@ -142,10 +142,6 @@ class RoverControl:
         """The deadman: stop a moving rover whose driver went silent (until cancelled)."""
         timeout_s = self.cfg.nav.safety.teleop_timeout_s
         period_s = min(0.1, timeout_s / 4)
-        due = self.clock.now()
-        while True:
-            due += period_s
-            await self.clock.sleep_until(due)
-            now = self.clock.now()
+        async for now in self.clock.every(period_s, phase_s=period_s):
             if self._teleop_moving and now - self._teleop_last_s > timeout_s:
                 self._stop_teleop(f"no teleop message for {timeout_s:.1f} s")

@@ -130,10 +130,7 @@ async def background(app: web.Application) -> AsyncIterator[None]:
 async def _health_loop(hub: Hub, services: WebServices) -> None:
     """Once a second: sample the system, publish the dashboard's health, refresh the panel."""
     monitor = SystemMonitor()
-    due = services.clock.now()
-    while True:
-        due += 1.0
-        await services.clock.sleep_until(due)
+    async for _ in services.clock.every(1.0, phase_s=1.0):
         hub.system = monitor.sample(await measure_loop_lag_ms())
         services.bus.publish(HEALTH, hub.own_health())
         hub.publish_health()
