@@ -125,8 +125,7 @@ class DriveHome(CurioBehaviour):
     def update(self) -> Status:
         """Consume the request and start the home path (unless already heading home)."""
         ctx = self.ctx
-        req = self.get("home_request")
-        self.set("home_request", None)
+        req = self.take("home_request")
         f = ctx.follower
         if f.route_id == HOME_PATH_ID and f.phase == "moving":
             ctx.accept(req, "go_home", "Already going home.")
@@ -165,8 +164,7 @@ class ChangePath(CurioBehaviour):
     def update(self) -> Status:
         """Consume ``command``."""
         ctx = self.ctx
-        req = self.get("command")
-        self.set("command", None)
+        req = self.take("command")
         if req is None:
             return Status.FAILURE
         action = req["action"]

@@ -146,3 +146,9 @@ class CurioBehaviour(py_trees.behaviour.Behaviour):
     def set(self, key: str, value: Any) -> None:
         """Write a declared key."""
         self.bb.set(key, value, overwrite=True)
+
+    def take(self, key: str) -> Any:
+        """Read a declared request key and clear it (set it to None): the request is consumed."""
+        value = self.get(key)
+        self.set(key, None)
+        return value
