@@ -4,12 +4,13 @@ Design (after rosboard's per-client throttling, made safe for a robot):
 
 * The hub holds **one** bus subscription per topic and encodes each message **once**; the frame
   is then offered to every client.
-* Each client has a conflating slot per stream key (scan, pose, plans, tree, health, ...) that
-  its own sender task flushes at most ``rate_hz`` times a second, and an ordered queue for
-  reliable messages (status, progress, events, e-stop, acks) that is never dropped. A slow
-  client only delays its own sender: the bus and the other clients never wait for it. A client
-  whose reliable backlog exceeds ``MAX_BACKLOG`` is disconnected (code 1013); it reconnects and
-  catches up from the state snapshot.
+* Each client (a :class:`~curio.web.session.ClientSession`) has a conflating slot per stream
+  key (scan, pose, plans, tree, health, ...) that its own sender task flushes at most
+  ``rate_hz`` times a second, and an ordered queue for reliable messages (status, progress,
+  events, e-stop, acks) that is never dropped. A slow client only delays its own sender: the
+  bus and the other clients never wait for it. A client whose reliable backlog exceeds
+  ``MAX_BACKLOG`` is disconnected (code 1013); it reconnects and catches up from the state
+  snapshot.
 * A (re)connecting client first receives a snapshot of the latched state (status, progress,
   e-stop, help state, paths, grids, tree, health, recent events marked as history) and the
   latest binary frames.
