@@ -27,7 +27,8 @@ from curio.core.jsonable import to_jsonable
 from curio.core.messages import Event, OperatorCommand, TreeSnapshot
 from curio.core.topics import EVENTS, TREE
 
-from .behaviours import BB_DEFAULTS, Follower2BB, Operator2BB, TreeContext
+from .context import BB_DEFAULTS, TreeContext
+from .feeds import Follower2BB, Operator2BB
 from .follower import PathFollower, StatusSink
 from .paths import PathManager
 from .probe import WayProbe

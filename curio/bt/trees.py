@@ -23,39 +23,28 @@ import operator
 
 import py_trees
 from py_trees.behaviour import Behaviour
-from py_trees.common import ComparisonExpression, ParallelPolicy
+from py_trees.common import ParallelPolicy
 
 from curio.core.geometry import Pose2D
 
-from .behaviours import (
+from .actions import (
     Ask4Help,
-    Battery2BB,
     BatteryHome,
-    Blocked2BB,
     ChangePath,
     ClearKey,
     DriveHome,
-    EStop2BB,
-    Follower2BB,
     FollowPath,
     HoldEStop,
     Idle,
-    IsBlocked,
     MoveClient,
-    Operator2BB,
     Pause,
-    TreeContext,
 )
+from .context import TreeContext
+from .feeds import Battery2BB, Blocked2BB, EStop2BB, Follower2BB, Operator2BB
 from .follower import TOUR_ROUTE_ID, Route, Stop
+from .guards import IsBlocked, check_key
 
 __all__ = ["build_root", "tour_route_from_config"]
-
-
-def _check(ctx: TreeContext, name: str, key: str, value: object,
-           op: object = operator.eq) -> Behaviour:
-    """A blackboard condition (py_trees' own CheckBlackboardVariableValue)."""
-    return py_trees.behaviours.CheckBlackboardVariableValue(
-        name=name, check=ComparisonExpression(ctx.key(key), value, op))  # type: ignore[arg-type]
 
 
 def tour_route_from_config(ctx_cfg: object) -> Route | None:
@@ -75,7 +64,7 @@ def tour_route_from_config(ctx_cfg: object) -> Route | None:
 
 def _estop_branch(ctx: TreeContext) -> Behaviour:
     return py_trees.composites.Sequence("E-stop", memory=False, children=[
-        _check(ctx, "E-stop?", "estop", True),
+        check_key(ctx, "E-stop?", "estop", True),
         HoldEStop(ctx),
     ])
 
@@ -92,16 +81,16 @@ def _follow_priorities(ctx: TreeContext, *, tour: bool) -> list[Behaviour]:
     branches: list[Behaviour] = [_estop_branch(ctx), Pause(ctx)]
     if tour:
         branches.append(py_trees.composites.Sequence("Battery", memory=False, children=[
-            _check(ctx, "Battery low?", "battery_home_pending", True),
+            check_key(ctx, "Battery low?", "battery_home_pending", True),
             BatteryHome(ctx),
         ]))
     branches += [
         py_trees.composites.Sequence("Go Home", memory=False, children=[
-            _check(ctx, "GoHome?", "home_request", None, operator.ne),
+            check_key(ctx, "GoHome?", "home_request", None, operator.ne),
             DriveHome(ctx),
         ]),
         py_trees.composites.Sequence("Change Path?", memory=False, children=[
-            _check(ctx, "Command?", "command", None, operator.ne),
+            check_key(ctx, "Command?", "command", None, operator.ne),
             ChangePath(ctx),
         ]),
         py_trees.composites.Sequence("Check Path", memory=True, children=[
@@ -124,7 +113,7 @@ def _two_step_priorities(ctx: TreeContext) -> list[Behaviour]:
         _estop_branch(ctx),
         Pause(ctx),
         py_trees.composites.Sequence("Go Home", memory=True, children=[
-            _check(ctx, "GoHome?", "home_request", None, operator.ne),
+            check_key(ctx, "GoHome?", "home_request", None, operator.ne),
             ClearKey(ctx, "home_request", None, name="Take Request"),
             MoveClient(ctx, "MoveRobot Home", home, home=True),
         ]),

@@ -1,8 +1,11 @@
-"""REST endpoints of the dashboard and the validation shared with the WebSocket.
+"""REST endpoints of the dashboard: module-level handlers and their route table, :data:`ROUTES`.
 
 Reading (``GET``) is open. Every request that moves the rover or changes its data needs the
-control token (see :mod:`curio.web.auth`). Every rejection is JSON
-``{"error": "<what was wrong and what is allowed>", "status": <code>}``.
+control token (:class:`~curio.web.auth.ControlGate`). Every rejection is JSON
+``{"error": "<what was wrong and what is allowed>", "status": <code>}``: handlers raise
+:func:`~curio.web.inputs.http_error`, and a :class:`~curio.web.inputs.CommandError` (invalid
+input) or a path manager's ``PathError`` becomes ``400`` with its message in the server's
+``json_errors`` middleware.
 
 | method | path | does |
 |---|---|---|
@@ -23,331 +26,240 @@ control token (see :mod:`curio.web.auth`). Every rejection is JSON
 from __future__ import annotations
 
 import asyncio
-import json
-import math
-import re
-import uuid
-from typing import Any, get_args
+from typing import Any
 
 from aiohttp import web
 
-from curio.core.geometry import Pose2D
 from curio.core.jsonable import to_json
-from curio.core.messages import OperatorAction, OperatorCommand
-from curio.web.hub import CommandError, Hub, parse_json_object, path_to_json
+from curio.web.encode import path_to_json
+from curio.web.hub import Hub
+from curio.web.inputs import (
+    CommandError,
+    describe_path_ids,
+    http_error,
+    parse_json_object,
+    parse_pose,
+)
+from curio.web.services import GATE, HUB, ROVER
 
-__all__ = ["ACTIONS", "build_command", "describe_path_ids", "parse_pose", "routes"]
-
-ACTIONS: tuple[str, ...] = get_args(OperatorAction)
-_REQUEST_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,64}$")
-
-
-def describe_path_ids(ids: list[int]) -> str:
-    """``[0, 1, 2, 3, 4]`` → ``"0–4"``; a non-contiguous list is comma-separated."""
-    if not ids:
-        return "none (create one first)"
-    ids = sorted(ids)
-    if len(ids) > 2 and ids == list(range(ids[0], ids[-1] + 1)):
-        return f"{ids[0]}–{ids[-1]}"
-    return ", ".join(str(i) for i in ids)
+__all__ = ["ROUTES"]
 
 
-def _number(body: dict[str, Any], key: str, *, required: bool = True) -> float | None:
-    value = body.get(key)
-    if value is None:
-        if required:
-            raise CommandError(f"'{key}' is required (a number)")
-        return None
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise CommandError(f"'{key}' must be a finite number, got {value!r}")
-    return float(value)
+# --- reading ----------------------------------------------------------------------------------
 
 
-def parse_pose(body: dict[str, Any]) -> Pose2D:
-    """``{x_m, y_m, yaw_rad?}`` → a pose in map (yaw defaults to 0)."""
-    x = _number(body, "x_m")
-    y = _number(body, "y_m")
-    yaw = _number(body, "yaw_rad", required=False)
-    assert x is not None and y is not None
-    return Pose2D(x, y, 0.0 if yaw is None else math.remainder(yaw, 2 * math.pi))
+async def state(request: web.Request) -> web.Response:
+    """The latched state snapshot, and whether this request may control the rover."""
+    snapshot = request.app[HUB].snapshot()
+    return web.json_response({**snapshot, "control": request.app[GATE].has_control(request)},
+                             dumps=to_json)
 
 
-def parse_path_number(value: Any, paths: Any) -> int:
-    """Validate a path number typed by the operator against the path manager's paths."""
-    if isinstance(value, bool):
-        raise CommandError(f"path number must be a whole number like 2, got {value!r}")
-    if isinstance(value, str):
-        text = value.strip()
-        if not text:
-            raise CommandError("type a path number first (e.g. 1), then press Enter")
-        if not re.fullmatch(r"[+-]?\d+", text):
-            raise CommandError(f"path number must be a whole number like 2, got '{text}'")
-        number = int(text)
-    elif isinstance(value, int):
-        number = value
-    elif isinstance(value, float) and value.is_integer():
-        number = int(value)
-    else:
-        raise CommandError(f"path number must be a whole number like 2, got {value!r}")
-    if paths is not None:
-        ids = [int(p.id) for p in paths.list_paths()]
-        if number not in ids:
-            raise CommandError(f"There is no path {number}; paths are {describe_path_ids(ids)}")
-    elif number < 0:
-        raise CommandError(f"There is no path {number}; path numbers start at 0")
-    return number
+async def auth(request: web.Request) -> web.Response:
+    """Whether this request may control the rover, and whether a token is needed at all."""
+    return web.json_response({"control": request.app[GATE].has_control(request),
+                              "require_token": request.app[HUB].cfg.web.require_token})
 
 
-def build_command(body: dict[str, Any], hub: Hub, source: str = "web") -> OperatorCommand:
-    """Turn ``{action, path_id?, goal?, request_id?}`` into an :class:`OperatorCommand`.
-
-    Raises:
-        CommandError: the action is unknown, a field is missing or invalid (message says which).
-    """
-    action = body.get("action")
-    if action not in ACTIONS:
-        raise CommandError(f"unknown action {action!r}; allowed: {', '.join(ACTIONS)}")
-    request_id = body.get("request_id") or uuid.uuid4().hex
-    if not isinstance(request_id, str) or not _REQUEST_ID.match(request_id):
-        raise CommandError("request_id must be 1–64 characters of letters, digits, _ . : -")
-    path_id: int | None = None
-    goal: Pose2D | None = None
-    if action == "select_path":
-        if "path_id" not in body:
-            raise CommandError("select_path needs 'path_id' (the path number)")
-        path_id = parse_path_number(body["path_id"], hub.paths)
-    elif action == "goto":
-        raw = body.get("goal")
-        if not isinstance(raw, dict):
-            raise CommandError("goto needs 'goal': {x_m, y_m, yaw_rad?} in map")
-        goal = parse_pose(raw)
-    return OperatorCommand(hub.clock.now(), action, path_id=path_id, goal=goal, source=source,
-                           request_id=request_id)
+async def grid_png(request: web.Request) -> web.Response:
+    """A grid as a PNG; cached for ever when the URL names its current version."""
+    hub = request.app[HUB]
+    name = request.match_info["name"]
+    # PNG encoding of a large grid takes milliseconds: keep it off the event loop.
+    got = await asyncio.to_thread(hub.grid_png, name)
+    if got is None:
+        raise http_error(web.HTTPNotFound, f"no {name} has been published yet")
+    png, version = got
+    asked = request.query.get("v")
+    cache = ("public, max-age=31536000, immutable" if asked == str(version)
+             else "no-cache")
+    return web.Response(body=png, content_type="image/png",
+                        headers={"Cache-Control": cache, "X-Grid-Version": str(version)})
 
 
-# --- handlers ---------------------------------------------------------------------------------
+async def grid_json(request: web.Request) -> web.Response:
+    """A grid's version and geometry."""
+    name = request.match_info["name"]
+    info = request.app[HUB].grid_info(name)
+    if info is None:
+        raise http_error(web.HTTPNotFound, f"no {name} has been published yet")
+    return web.json_response(info, dumps=to_json)
 
 
-def routes(hub_key: web.AppKey[Hub], require_control: Any) -> list[web.RouteDef]:
-    """The REST routes; ``require_control(request)`` raises when the token is missing/wrong."""
-
-    def hub_of(request: web.Request) -> Hub:
-        return request.app[hub_key]
-
-    async def body_of(request: web.Request) -> dict[str, Any]:
-        raw = await request.read()
-        if not raw:
-            return {}
-        try:
-            return parse_json_object(raw)
-        except CommandError as exc:
-            raise http_error(web.HTTPBadRequest, str(exc)) from None
-
-    def paths_or_503(hub: Hub) -> Any:
-        if hub.paths is None:
-            raise http_error(web.HTTPServiceUnavailable,
-                             "no path manager is running (the behaviour tree is not built)")
-        return hub.paths
-
-    def path_id_of(request: web.Request) -> int:
-        text = request.match_info["path_id"]
-        try:
-            return int(text)
-        except ValueError:
-            raise http_error(web.HTTPBadRequest,
-                             f"path id must be a whole number, got {text!r}") from None
-
-    async def state(request: web.Request) -> web.Response:
-        hub = hub_of(request)
-        return web.json_response({**hub.snapshot(), "control": _has_control(request)},
-                                 dumps=_dumps)
-
-    def _has_control(request: web.Request) -> bool:
-        try:
-            require_control(request)
-        except web.HTTPException:
-            return False
-        return True
-
-    async def auth(request: web.Request) -> web.Response:
-        return web.json_response({"control": _has_control(request),
-                                  "require_token": hub_of(request).cfg.web.require_token})
-
-    async def grid_png(request: web.Request) -> web.Response:
-        hub = hub_of(request)
-        name = request.match_info["name"]
-        # PNG encoding of a large grid takes milliseconds: keep it off the event loop.
-        got = await asyncio.to_thread(hub.grid_png, name)
-        if got is None:
-            raise http_error(web.HTTPNotFound, f"no {name} has been published yet")
-        png, version = got
-        asked = request.query.get("v")
-        cache = ("public, max-age=31536000, immutable" if asked == str(version)
-                 else "no-cache")
-        return web.Response(body=png, content_type="image/png",
-                            headers={"Cache-Control": cache, "X-Grid-Version": str(version)})
-
-    async def grid_json(request: web.Request) -> web.Response:
-        hub = hub_of(request)
-        name = request.match_info["name"]
-        info = hub.grid_info(name)
-        if info is None:
-            raise http_error(web.HTTPNotFound, f"no {name} has been published yet")
-        return web.json_response(info, dumps=_dumps)
-
-    async def tree(request: web.Request) -> web.Response:
-        return web.json_response(hub_of(request).tree_json(), dumps=_dumps)
-
-    async def health(request: web.Request) -> web.Response:
-        return web.json_response(hub_of(request).health_json(), dumps=_dumps)
-
-    async def list_paths(request: web.Request) -> web.Response:
-        return web.json_response(hub_of(request).paths_json(), dumps=_dumps)
-
-    async def create_path(request: web.Request) -> web.Response:
-        require_control(request)
-        hub = hub_of(request)
-        paths = paths_or_503(hub)
-        body = await body_of(request)
-        name = body.get("name", "")
-        if not isinstance(name, str):
-            raise http_error(web.HTTPBadRequest, "'name' must be text")
-        raw_wps = body.get("waypoints", [])
-        if not isinstance(raw_wps, list):
-            raise http_error(web.HTTPBadRequest,
-                             "'waypoints' must be a list of {x_m, y_m, yaw_rad?}")
-        wps = []
-        for i, raw in enumerate(raw_wps):
-            if not isinstance(raw, dict):
-                raise http_error(web.HTTPBadRequest, f"waypoint {i} must be {{x_m, y_m, yaw_rad?}}")
-            try:
-                pose = parse_pose(raw)
-            except CommandError as exc:
-                raise http_error(web.HTTPBadRequest, f"waypoint {i}: {exc}") from None
-            wps.append((pose.x, pose.y, raw.get("yaw_rad")))
-        created = paths.create(name)
-        for x, y, yaw in wps:
-            paths.add_waypoint(created.id, x, y, yaw)
-        created = paths.get(created.id)
-        hub.paths_changed()
-        return web.json_response(path_to_json(created), status=201, dumps=_dumps)
-
-    async def rename_path(request: web.Request) -> web.Response:
-        require_control(request)
-        hub = hub_of(request)
-        paths = paths_or_503(hub)
-        body = await body_of(request)
-        name = body.get("name")
-        if not isinstance(name, str):
-            raise http_error(web.HTTPBadRequest, "'name' (text) is required")
-        pid = path_id_of(request)
-        _must_exist(paths, pid)
-        paths.rename(pid, name)
-        hub.paths_changed()
-        return web.json_response(path_to_json(paths.get(pid)), dumps=_dumps)
-
-    async def delete_path(request: web.Request) -> web.Response:
-        require_control(request)
-        hub = hub_of(request)
-        paths = paths_or_503(hub)
-        pid = path_id_of(request)
-        _must_exist(paths, pid)
-        paths.delete(pid)
-        hub.paths_changed()
-        return web.json_response({"deleted": pid})
-
-    async def add_waypoint(request: web.Request) -> web.Response:
-        require_control(request)
-        hub = hub_of(request)
-        paths = paths_or_503(hub)
-        body = await body_of(request)
-        pid = path_id_of(request)
-        _must_exist(paths, pid)
-        try:
-            pose = parse_pose(body)
-        except CommandError as exc:
-            raise http_error(web.HTTPBadRequest, str(exc)) from None
-        yaw = body.get("yaw_rad")
-        paths.add_waypoint(pid, pose.x, pose.y, None if yaw is None else pose.yaw)
-        hub.paths_changed()
-        return web.json_response(path_to_json(paths.get(pid)), status=201, dumps=_dumps)
-
-    async def remove_waypoint(request: web.Request) -> web.Response:
-        require_control(request)
-        hub = hub_of(request)
-        paths = paths_or_503(hub)
-        pid = path_id_of(request)
-        _must_exist(paths, pid)
-        text = request.match_info["index"]
-        try:
-            index = int(text)
-        except ValueError:
-            raise http_error(web.HTTPBadRequest,
-                             f"waypoint index must be a whole number, got {text!r}") from None
-        paths.remove_waypoint(pid, index)
-        hub.paths_changed()
-        return web.json_response(path_to_json(paths.get(pid)), dumps=_dumps)
-
-    async def command(request: web.Request) -> web.Response:
-        require_control(request)
-        hub = hub_of(request)
-        body = await body_of(request)
-        try:
-            cmd = build_command(body, hub)
-        except CommandError as exc:
-            raise http_error(web.HTTPBadRequest, str(exc)) from None
-        published = hub.publish_command(cmd)
-        return web.json_response(
-            {"ok": True, "request_id": cmd.request_id, "duplicate": not published,
-             "action": cmd.action, "path_id": cmd.path_id,
-             "status": hub.snapshot()["status"]},
-            status=202, dumps=_dumps)
-
-    async def initial_pose(request: web.Request) -> web.Response:
-        require_control(request)
-        hub = hub_of(request)
-        body = await body_of(request)
-        try:
-            pose = parse_pose(body)
-        except CommandError as exc:
-            raise http_error(web.HTTPBadRequest, str(exc)) from None
-        hub.publish_initial_pose(pose.x, pose.y, pose.yaw)
-        return web.json_response({"ok": True, "pose": [pose.x, pose.y, pose.yaw]}, status=202)
-
-    grid = "{name:map|costmap|local_costmap}"
-    return [
-        web.get("/api/state", state),
-        web.get("/api/auth", auth),
-        web.get(f"/api/{grid}.png", grid_png),
-        web.get(f"/api/{grid}.json", grid_json),
-        web.get("/api/tree", tree),
-        web.get("/api/health", health),
-        web.get("/api/paths", list_paths),
-        web.post("/api/paths", create_path),
-        web.patch("/api/paths/{path_id}", rename_path),
-        web.delete("/api/paths/{path_id}", delete_path),
-        web.post("/api/paths/{path_id}/waypoints", add_waypoint),
-        web.delete("/api/paths/{path_id}/waypoints/{index}", remove_waypoint),
-        web.post("/api/command", command),
-        web.post("/api/initial_pose", initial_pose),
-    ]
+async def tree(request: web.Request) -> web.Response:
+    """The latest behaviour-tree snapshot."""
+    return web.json_response(request.app[HUB].tree_json(), dumps=to_json)
 
 
-def _must_exist(paths: Any, pid: int) -> None:
+async def health(request: web.Request) -> web.Response:
+    """The health panel."""
+    return web.json_response(request.app[HUB].health_json(), dumps=to_json)
+
+
+async def list_paths(request: web.Request) -> web.Response:
+    """The paths."""
+    return web.json_response(request.app[HUB].paths_json(), dumps=to_json)
+
+
+# --- editing paths ----------------------------------------------------------------------------
+
+
+async def create_path(request: web.Request) -> web.Response:
+    """``{name, waypoints?}`` → a new path (201)."""
+    hub, paths = _paths_to_edit(request)
+    body = await _body(request)
+    name = body.get("name", "")
+    if not isinstance(name, str):
+        raise http_error(web.HTTPBadRequest, "'name' must be text")
+    waypoints = _waypoints(body.get("waypoints", []))
+    created = paths.create(name)
+    for x, y, yaw in waypoints:
+        paths.add_waypoint(created.id, x, y, yaw)
+    return _path_changed(hub, paths, created.id, status=201)
+
+
+async def rename_path(request: web.Request) -> web.Response:
+    """``{name}`` → the renamed path."""
+    hub, paths = _paths_to_edit(request)
+    body = await _body(request)
+    name = body.get("name")
+    if not isinstance(name, str):
+        raise http_error(web.HTTPBadRequest, "'name' (text) is required")
+    pid = _existing_path_id(request, paths)
+    paths.rename(pid, name)
+    return _path_changed(hub, paths, pid)
+
+
+async def delete_path(request: web.Request) -> web.Response:
+    """Delete a path."""
+    hub, paths = _paths_to_edit(request)
+    pid = _existing_path_id(request, paths)
+    paths.delete(pid)
+    hub.paths_changed()
+    return web.json_response({"deleted": pid})
+
+
+async def add_waypoint(request: web.Request) -> web.Response:
+    """``{x_m, y_m, yaw_rad?}`` (map) → the path with the waypoint appended (201)."""
+    hub, paths = _paths_to_edit(request)
+    body = await _body(request)
+    pid = _existing_path_id(request, paths)
+    pose = parse_pose(body)
+    yaw = body.get("yaw_rad")
+    paths.add_waypoint(pid, pose.x, pose.y, None if yaw is None else pose.yaw)
+    return _path_changed(hub, paths, pid, status=201)
+
+
+async def remove_waypoint(request: web.Request) -> web.Response:
+    """The path without waypoint ``index``."""
+    hub, paths = _paths_to_edit(request)
+    pid = _existing_path_id(request, paths)
+    index = _whole_number(request.match_info["index"], "waypoint index")
+    paths.remove_waypoint(pid, index)
+    return _path_changed(hub, paths, pid)
+
+
+# --- moving the rover -------------------------------------------------------------------------
+
+
+async def command(request: web.Request) -> web.Response:
+    """``{action, path_id?, goal?, request_id?}`` → published (202), or a duplicate."""
+    request.app[GATE].require_control(request)
+    hub = request.app[HUB]
+    body = await _body(request)
+    cmd, published = request.app[ROVER].command(body)
+    return web.json_response(
+        {"ok": True, "request_id": cmd.request_id, "duplicate": not published,
+         "action": cmd.action, "path_id": cmd.path_id,
+         "status": hub.snapshot()["status"]},
+        status=202, dumps=to_json)
+
+
+async def initial_pose(request: web.Request) -> web.Response:
+    """``{x_m, y_m, yaw_rad}`` (map) → published as the initial pose (202)."""
+    request.app[GATE].require_control(request)
+    body = await _body(request)
+    pose = request.app[ROVER].initial_pose(body)
+    return web.json_response({"ok": True, "pose": [pose.x, pose.y, pose.yaw]}, status=202)
+
+
+# --- helpers ----------------------------------------------------------------------------------
+
+
+async def _body(request: web.Request) -> dict[str, Any]:
+    """The request's JSON object ({} when the body is empty)."""
+    raw = await request.read()
+    if not raw:
+        return {}
+    return parse_json_object(raw)
+
+
+def _paths_to_edit(request: web.Request) -> tuple[Hub, Any]:
+    """Check control, then return the hub and the path manager (503 without one)."""
+    request.app[GATE].require_control(request)
+    hub = request.app[HUB]
+    if hub.paths is None:
+        raise http_error(web.HTTPServiceUnavailable,
+                         "no path manager is running (the behaviour tree is not built)")
+    return hub, hub.paths
+
+
+def _whole_number(text: str, what: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise http_error(web.HTTPBadRequest,
+                         f"{what} must be a whole number, got {text!r}") from None
+
+
+def _existing_path_id(request: web.Request, paths: Any) -> int:
+    """The ``{path_id}`` of the URL: 400 if it is not a number, 404 if there is no such path."""
+    pid = _whole_number(request.match_info["path_id"], "path id")
     ids = [int(p.id) for p in paths.list_paths()]
     if pid not in ids:
         raise http_error(web.HTTPNotFound,
                          f"There is no path {pid}; paths are {describe_path_ids(ids)}")
+    return pid
 
 
-def _dumps(value: Any) -> str:
-    return to_json(value)
+def _waypoints(raw_wps: Any) -> list[tuple[float, float, Any]]:
+    """``[{x_m, y_m, yaw_rad?}, ...]`` → (x, y, yaw as sent) in map; 400 names the bad one."""
+    if not isinstance(raw_wps, list):
+        raise http_error(web.HTTPBadRequest,
+                         "'waypoints' must be a list of {x_m, y_m, yaw_rad?}")
+    wps = []
+    for i, raw in enumerate(raw_wps):
+        if not isinstance(raw, dict):
+            raise http_error(web.HTTPBadRequest, f"waypoint {i} must be {{x_m, y_m, yaw_rad?}}")
+        try:
+            pose = parse_pose(raw)
+        except CommandError as exc:
+            raise http_error(web.HTTPBadRequest, f"waypoint {i}: {exc}") from None
+        wps.append((pose.x, pose.y, raw.get("yaw_rad")))
+    return wps
 
 
-def http_error(cls: type[web.HTTPException], message: str) -> web.HTTPException:
-    """An aiohttp HTTP error whose body is ``{"error": message, "status": code}``."""
-    body = json.dumps({"error": message, "status": cls.status_code}, ensure_ascii=False)
-    exc = cls.__new__(cls)
-    # Bypass subclasses' own __init__ (some need extra arguments); the base sets the status.
-    web.HTTPException.__init__(exc, text=body, content_type="application/json")
-    return exc
+def _path_changed(hub: Hub, paths: Any, pid: int, status: int = 200) -> web.Response:
+    """Tell the clients the paths changed; answer with path ``pid``."""
+    hub.paths_changed()
+    return web.json_response(path_to_json(paths.get(pid)), status=status, dumps=to_json)
+
+
+_GRID = "{name:map|costmap|local_costmap}"
+
+ROUTES: list[web.RouteDef] = [
+    web.get("/api/state", state),
+    web.get("/api/auth", auth),
+    web.get(f"/api/{_GRID}.png", grid_png),
+    web.get(f"/api/{_GRID}.json", grid_json),
+    web.get("/api/tree", tree),
+    web.get("/api/health", health),
+    web.get("/api/paths", list_paths),
+    web.post("/api/paths", create_path),
+    web.patch("/api/paths/{path_id}", rename_path),
+    web.delete("/api/paths/{path_id}", delete_path),
+    web.post("/api/paths/{path_id}/waypoints", add_waypoint),
+    web.delete("/api/paths/{path_id}/waypoints/{index}", remove_waypoint),
+    web.post("/api/command", command),
+    web.post("/api/initial_pose", initial_pose),
+]

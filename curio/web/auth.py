@@ -1,6 +1,7 @@
 """Dashboard security: the control token, Origin checks and message-rate limits.
 
 Viewing is open; anything that moves the rover or changes its data needs the control token.
+:class:`ControlGate` applies these rules to a request (REST or the WebSocket upgrade).
 The token is generated with :mod:`secrets` on first start and stored (mode 0600, written
 atomically) with the rover's data; the start-up log prints a ready-to-open URL carrying it.
 """
@@ -14,9 +15,21 @@ from urllib.parse import urlsplit
 
 from aiohttp import web
 
+from curio.core.clock import Clock
+from curio.core.config import WebConfig
 from curio.core.fileio import atomic_write_text
+from curio.web.inputs import http_error
 
-__all__ = ["RateLimiter", "check_origin", "load_or_create_token", "request_token"]
+__all__ = [
+    "ControlGate",
+    "RateLimiter",
+    "check_origin",
+    "load_or_create_token",
+    "request_token",
+    "token_matches",
+]
+
+_WRONG_TOKEN = "the token is wrong: use the URL from the rover's start-up log"
 
 _TOKEN_BYTES = 24
 
@@ -104,3 +117,69 @@ class RateLimiter:
             return True
         self.rejected += 1
         return False
+
+
+class ControlGate:
+    """Who may control the rover: a request from an allowed Origin that carries the token.
+
+    Changes (anything but ``GET``) are also limited to ``web.max_messages_per_s`` per remote
+    address. Refusals are JSON HTTP errors (:func:`~curio.web.inputs.http_error`).
+
+    Args:
+        cfg: the ``[web]`` section (``require_token``, ``allowed_origins``, the rate limit).
+        token: the control token.
+        clock: the injected clock (rate limits).
+    """
+
+    def __init__(self, cfg: WebConfig, token: str, clock: Clock) -> None:
+        self.cfg = cfg
+        self.token = token
+        self.clock = clock
+        self._limiters: dict[str, RateLimiter] = {}
+
+    def require_control(self, request: web.Request) -> None:
+        """Raise 403 (foreign Origin, wrong token), 401 (no token) or 429 (too many changes)."""
+        cfg = self.cfg
+        why = check_origin(request, cfg.allowed_origins)
+        if why is not None:
+            raise http_error(web.HTTPForbidden, why)
+        if cfg.require_token:
+            presented = request_token(request)
+            if not presented:
+                raise http_error(
+                    web.HTTPUnauthorized,
+                    "control needs the token: open the URL printed in the rover's start-up log "
+                    "(http://…/?token=…) or send 'Authorization: Bearer <token>'")
+            if not token_matches(presented, self.token):
+                raise http_error(web.HTTPForbidden, _WRONG_TOKEN)
+        if request.method != "GET":
+            remote = request.remote or "?"
+            limiter = self._limiters.setdefault(
+                remote, RateLimiter(cfg.max_messages_per_s, burst=cfg.max_messages_per_s))
+            if not limiter.allow(self.clock.now()):
+                raise http_error(
+                    web.HTTPTooManyRequests,
+                    f"too many requests: at most {cfg.max_messages_per_s:g} per second")
+
+    def has_control(self, request: web.Request) -> bool:
+        """Whether :meth:`require_control` would let ``request`` through."""
+        try:
+            self.require_control(request)
+        except web.HTTPException:
+            return False
+        return True
+
+    def socket_control(self, request: web.Request) -> bool:
+        """For a WebSocket upgrade: True to control, False to view only.
+
+        Raises:
+            web.HTTPForbidden: a foreign Origin, or a token that is presented but wrong.
+        """
+        why = check_origin(request, self.cfg.allowed_origins)
+        if why is not None:
+            raise http_error(web.HTTPForbidden, why)
+        presented = request_token(request)
+        control = not self.cfg.require_token or token_matches(presented, self.token)
+        if presented and not control:
+            raise http_error(web.HTTPForbidden, _WRONG_TOKEN)
+        return control

@@ -44,6 +44,7 @@ __all__ = [
     "encode_scan",
     "grid_meta",
     "grid_png",
+    "path_to_json",
 ]
 
 FRAME_SCAN = 1
@@ -180,3 +181,15 @@ def grid_meta(grid: GridMessage) -> dict[str, Any]:
         "frame_id": grid.frame_id,
     }
 
+
+def path_to_json(path: Any) -> dict[str, Any]:
+    """A path manager ``NamedPath`` as JSON data (waypoints in map, metres and radians)."""
+    return {
+        "id": path.id,
+        "name": path.name,
+        "waypoints": [
+            {"x_m": float(w.x_m), "y_m": float(w.y_m),
+             "yaw_rad": None if w.yaw_rad is None else float(w.yaw_rad)}
+            for w in path.waypoints
+        ],
+    }

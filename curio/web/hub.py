@@ -1,22 +1,22 @@
-"""The WebSocket hub: bus topics out to every browser, operator input in.
+"""The WebSocket hub: bus topics out to every browser.
 
 Design (after rosboard's per-client throttling, made safe for a robot):
 
 * The hub holds **one** bus subscription per topic and encodes each message **once**; the frame
   is then offered to every client.
-* Each client has a conflating slot per stream key (scan, pose, plans, tree, health, ...) that
-  its own sender task flushes at most ``rate_hz`` times a second, and an ordered queue for
-  reliable messages (status, progress, events, e-stop, acks) that is never dropped. A slow
-  client only delays its own sender: the bus and the other clients never wait for it. A client
-  whose reliable backlog exceeds ``MAX_BACKLOG`` is disconnected (code 1013); it reconnects and
-  catches up from the state snapshot.
+* Each client (a :class:`~curio.web.session.ClientSession`) has a conflating slot per stream
+  key (scan, pose, plans, tree, health, ...) that its own sender task flushes at most
+  ``rate_hz`` times a second, and an ordered queue for reliable messages (status, progress,
+  events, e-stop, acks) that is never dropped. A slow client only delays its own sender: the
+  bus and the other clients never wait for it. A client whose reliable backlog exceeds
+  ``MAX_BACKLOG`` is disconnected (code 1013); it reconnects and catches up from the state
+  snapshot.
 * A (re)connecting client first receives a snapshot of the latched state (status, progress,
   e-stop, help state, paths, grids, tree, health, recent events marked as history) and the
-  latest binary frames. Commands are never queued or replayed: each carries a ``request_id``
-  and a duplicate id is acknowledged without being published again.
-* Teleop: ``teleop`` messages publish :data:`~curio.core.topics.CMD_VEL_TELEOP` (source ``web``); a
-  zero velocity is published when the teleop client disconnects or goes silent for
-  ``cfg.nav.safety.teleop_timeout_s`` (the safety stage also has its own watchdog).
+  latest binary frames.
+* What browsers send in (commands, the initial pose, teleop) is published by
+  :class:`~curio.web.control.RoverControl`; when a client goes, the hub tells it, so a client
+  that was driving stops the rover.
 
 Frames: see :mod:`curio.web.encode`. Times come from the injected clock.
 """
@@ -26,12 +26,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
-import json
 import logging
 import math
-from collections import OrderedDict, deque
-from collections.abc import Callable, Coroutine
-from dataclasses import dataclass, field
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from aiohttp import WSCloseCode, web
@@ -52,7 +51,6 @@ from curio.core.messages import (
     LocalizationStatus,
     Obstacles,
     Odometry,
-    OperatorCommand,
     Path,
     PoseWithCovariance,
     Progress,
@@ -64,20 +62,17 @@ from curio.core.topics import (
     BATTERY,
     BLOCKED,
     CMD_VEL,
-    CMD_VEL_TELEOP,
     COSTMAP,
     ESTOP,
     EVENTS,
     GROUND_TRUTH,
     HEALTH,
-    INITIAL_POSE,
     LOCAL_COSTMAP,
     LOCAL_PLAN,
     LOCALIZATION,
     MAP,
     OBSTACLES,
     ODOM,
-    OPERATOR,
     PLAN,
     POSE,
     PROGRESS,
@@ -86,7 +81,7 @@ from curio.core.topics import (
     TREE,
 )
 from curio.robot import RobotModel
-from curio.web.auth import RateLimiter
+from curio.web.control import RoverControl
 from curio.web.encode import (
     FRAME_LOCAL_PLAN,
     FRAME_PLAN,
@@ -96,9 +91,11 @@ from curio.web.encode import (
     encode_scan,
     grid_meta,
     grid_png,
+    path_to_json,
 )
+from curio.web.session import ClientSession
 
-__all__ = ["GRID_TOPICS", "Client", "CommandError", "Hub"]
+__all__ = ["GRID_TOPICS", "Hub"]
 
 log = logging.getLogger("curio.web.hub")
 
@@ -109,41 +106,10 @@ GRID_TOPICS: dict[str, Topic[GridMessage]] = {
 }
 MAX_BACKLOG = 2000
 RECENT_EVENTS = 50
-# Consecutive rate-limited messages after which a client is disconnected (code 1008).
-MAX_REJECTED_IN_A_ROW = 100
 # A pose from POSE is preferred; ODOM stands in when no POSE arrived for this long, seconds.
 POSE_STALE_S = 2.0
-CLIENT_OPS = ("ping", "rate", "teleop", "command", "initial_pose")
 # Behaviour-tree states in which the rover is no longer waiting for help.
 HELP_OVER_STATES = frozenset({"moving", "arrived", "going_home", "idle", "tour"})
-
-
-class CommandError(ValueError):
-    """An operator command or input that cannot be accepted; the message says why."""
-
-    def __init__(self, message: str, status: int = 400) -> None:
-        super().__init__(message)
-        self.status = status
-
-
-@dataclass(eq=False)
-class Client:
-    """One connected browser."""
-
-    id: int
-    ws: web.WebSocketResponse
-    control: bool
-    rate_hz: float
-    limiter: RateLimiter
-    remote: str = ""
-    pending: dict[str, str | bytes] = field(default_factory=dict)
-    reliable: deque[str] = field(default_factory=deque)
-    wake: asyncio.Event = field(default_factory=asyncio.Event)
-    closed: bool = False
-    rejected_in_a_row: int = 0
-    last_teleop_seq: int = -1
-    sent_frames: int = 0
-    sent_bytes: int = 0
 
 
 @dataclass
@@ -156,23 +122,26 @@ class _Grid:
 
 
 class Hub:
-    """Fans bus traffic out to WebSocket clients and turns their input into bus messages.
+    """Fans bus traffic out to WebSocket clients and keeps the latched state for new ones.
 
     Args:
         cfg: the whole configuration (``cfg.web`` limits, ``cfg.robot`` geometry).
-        clock: the injected clock (rate limits, watchdogs, stamps).
+        robot: the robot model (footprint, home, limits in the snapshot; the laser pose).
+        clock: the injected clock (rates, stamps).
         bus: the application bus.
+        rover: publishes operator input; counts it for the health panel.
         paths: the path manager (``app.paths``) or None when the behaviour tree is not built.
     """
 
     def __init__(self, cfg: Config, robot: RobotModel, clock: Clock, bus: Bus,
-                 paths: Any = None) -> None:
+                 rover: RoverControl, paths: Any = None) -> None:
         self.cfg = cfg
         self.robot = robot
         self.clock = clock
         self.bus = bus
+        self.rover = rover
         self.paths = paths
-        self.clients: set[Client] = set()
+        self.clients: set[ClientSession] = set()
         self._ids = itertools.count(1)
         self._latest_frames: dict[str, str | bytes | Callable[[], str | bytes]] = {}
         self.status: StatusText | None = None
@@ -191,14 +160,7 @@ class Hub:
         self._pose_msg: PoseWithCovariance | None = None
         self._pose_stamp_s = -math.inf
         self._odom: Odometry | None = None
-        self._recent_requests: OrderedDict[str, float] = OrderedDict()
-        self._teleop_client: int | None = None
-        self._teleop_last_s = -math.inf
-        self._teleop_moving = False
         self.system: dict[str, Any] = {}
-        self.commands_published = 0
-        self.teleop_published = 0
-        self.rejected_messages = 0
         self.slow_clients_dropped = 0
         self._paths_listened = False
         self._subs: list[tuple[Subscription[Any], Callable[[Any], None]]] = []
@@ -238,13 +200,12 @@ class Hub:
         self._subs.append((self.bus.subscribe(topic, maxsize=maxsize), handler))
 
     async def run(self) -> None:
-        """Pump every topic into the clients and run the teleop watchdog (until cancelled)."""
+        """Pump every topic into the clients (until cancelled)."""
         self.open()
         try:
             async with asyncio.TaskGroup() as tg:
                 for sub, handler in self._subs:
                     tg.create_task(self._pump(sub, handler), name=f"web.pump{sub.topic.name}")
-                tg.create_task(self._teleop_watchdog(), name="web.teleop_watchdog")
         finally:
             for sub, _ in self._subs:
                 sub.close()
@@ -267,69 +228,28 @@ class Hub:
 
     # --- clients ------------------------------------------------------------------------------
 
-    def register(self, ws: web.WebSocketResponse, control: bool, remote: str = "") -> Client:
+    def register(self, ws: web.WebSocketResponse, control: bool,
+                 remote: str = "") -> ClientSession:
         """Add a connected socket; queue the state snapshot and the latest frames for it."""
         web_cfg = self.cfg.web
-        client = Client(
-            id=next(self._ids),
-            ws=ws,
-            control=control,
-            rate_hz=web_cfg.client_rate_hz,
-            limiter=RateLimiter(web_cfg.max_messages_per_s, burst=web_cfg.max_messages_per_s),
-            remote=remote,
-        )
+        client = ClientSession(next(self._ids), ws, control, web_cfg, self.rover, remote)
         self.clients.add(client)
-        client.reliable.append(
-            to_json({"t": "hello", "client": client.id, "control": control,
-                     "require_token": web_cfg.require_token, "rate_hz": client.rate_hz,
-                     "server_time": self.clock.now()})
-        )
-        client.reliable.append(to_json({"t": "state", **self.snapshot()}))
+        client.queue(to_json({"t": "hello", "client": client.id, "control": control,
+                              "require_token": web_cfg.require_token, "rate_hz": client.rate_hz,
+                              "server_time": self.clock.now()}))
+        client.queue(to_json({"t": "state", **self.snapshot()}))
         for key, frame in list(self._latest_frames.items()):
             if callable(frame):
                 frame = frame()
                 self._latest_frames[key] = frame
-            client.pending[key] = frame
-        client.wake.set()
+            client.offer(key, frame)
         return client
 
-    def unregister(self, client: Client) -> None:
+    def unregister(self, client: ClientSession) -> None:
         """Forget ``client``; if it was driving, stop the rover."""
-        client.closed = True
-        client.wake.set()
+        client.mark_closed()
         self.clients.discard(client)
-        if self._teleop_client == client.id:
-            self._stop_teleop("teleop client disconnected")
-
-    async def serve(self, client: Client) -> None:
-        """Send ``client`` its queued messages until it closes (its own task)."""
-        ws = client.ws
-        next_stream_s = self.clock.now()
-        while not client.closed and not ws.closed:
-            while client.reliable:
-                text = client.reliable.popleft()
-                await ws.send_str(text)
-                client.sent_frames += 1
-                client.sent_bytes += len(text)
-            if client.pending:
-                now = self.clock.now()
-                if now >= next_stream_s:
-                    frames, client.pending = client.pending, {}
-                    for frame in frames.values():
-                        if isinstance(frame, bytes):
-                            await ws.send_bytes(frame)
-                        else:
-                            await ws.send_str(frame)
-                        client.sent_frames += 1
-                        client.sent_bytes += len(frame)
-                    next_stream_s = max(now, next_stream_s) + 1.0 / client.rate_hz
-                    continue
-                await self.clock.sleep_until(next_stream_s)
-                continue
-            client.wake.clear()
-            if client.reliable or client.pending or client.closed:
-                continue
-            await client.wake.wait()
+        self.rover.release_teleop(client.id, "teleop client disconnected")
 
     def _reliable(self, payload: dict[str, Any]) -> None:
         if not self.clients:
@@ -341,8 +261,7 @@ class Hub:
                             client.id, len(client.reliable))
                 self._drop_slow(client)
                 continue
-            client.reliable.append(text)
-            client.wake.set()
+            client.queue(text)
 
     def _stream(self, key: str, make: Callable[[], str | bytes]) -> None:
         """Offer the frame ``make()`` under ``key``; nobody watching ⇒ it is made only when a
@@ -353,17 +272,12 @@ class Hub:
         frame = make()
         self._latest_frames[key] = frame
         for client in self.clients:
-            client.pending[key] = frame
-            client.wake.set()
+            client.offer(key, frame)
 
-    def _drop_slow(self, client: Client) -> None:
+    def _drop_slow(self, client: ClientSession) -> None:
         self.slow_clients_dropped += 1
         self.unregister(client)
-        task = asyncio.ensure_future(
-            client.ws.close(code=WSCloseCode.TRY_AGAIN_LATER,
-                            message=b"client too slow; reconnect to catch up")
-        )
-        task.add_done_callback(lambda t: t.exception() if not t.cancelled() else None)
+        client.close_soon(WSCloseCode.TRY_AGAIN_LATER, b"client too slow; reconnect to catch up")
 
     # --- state --------------------------------------------------------------------------------
 
@@ -434,8 +348,8 @@ class Hub:
                            for name, s in stats.items() if s.published or s.dropped},
             },
             "web": {"clients": len(self.clients),
-                    "commands": self.commands_published,
-                    "teleop_messages": self.teleop_published},
+                    "commands": self.rover.commands_published,
+                    "teleop_messages": self.rover.teleop_published},
         }
 
     def own_health(self) -> DriverHealth:
@@ -445,9 +359,9 @@ class Hub:
             self.clock.now(), "web", "ok",
             f"{len(self.clients)} dashboard(s) connected",
             counters={"clients": float(len(self.clients)),
-                      "commands": float(self.commands_published),
-                      "teleop_messages": float(self.teleop_published),
-                      "rejected_messages": float(self.rejected_messages),
+                      "commands": float(self.rover.commands_published),
+                      "teleop_messages": float(self.rover.teleop_published),
+                      "rejected_messages": float(self.rover.rejected_messages),
                       "slow_clients_dropped": float(self.slow_clients_dropped),
                       "frames_sent_to_connected": float(sent)})
 
@@ -576,106 +490,3 @@ class Hub:
                          lambda: to_json({"t": "grid", "grid": self.grid_info(name)}))
 
         return handle
-
-    # --- operator input -----------------------------------------------------------------------
-
-    def publish_command(self, cmd: OperatorCommand) -> bool:
-        """Publish ``cmd`` on OPERATOR unless its request id was seen; return True if published."""
-        if cmd.request_id:
-            if cmd.request_id in self._recent_requests:
-                return False
-            self._recent_requests[cmd.request_id] = cmd.stamp
-            while len(self._recent_requests) > 512:
-                self._recent_requests.popitem(last=False)
-        self.bus.publish(OPERATOR, cmd)
-        self.commands_published += 1
-        return True
-
-    def publish_initial_pose(self, x_m: float, y_m: float, yaw_rad: float) -> None:
-        """Publish an operator-set initial pose in map."""
-        self.bus.publish(INITIAL_POSE, PoseWithCovariance(self.clock.now(),
-                                                          Pose2D(x_m, y_m, yaw_rad)))
-
-    def teleop(self, client: Client, linear_mps: float, angular_radps: float,
-               seq: int | None = None) -> tuple[float, float]:
-        """Publish a teleop velocity for ``client`` (clamped to the limits); return it."""
-        if seq is not None:
-            if seq <= client.last_teleop_seq:
-                return (0.0, 0.0)
-            client.last_teleop_seq = seq
-        limits = self.snapshot_limits()
-        lin = max(-limits[0], min(limits[0], linear_mps))
-        ang = max(-limits[1], min(limits[1], angular_radps))
-        now = self.clock.now()
-        self._teleop_client = client.id
-        self._teleop_last_s = now
-        self._teleop_moving = lin != 0.0 or ang != 0.0
-        self.bus.publish(CMD_VEL_TELEOP, Twist(now, lin, ang, source="web"))
-        self.teleop_published += 1
-        return lin, ang
-
-    def snapshot_limits(self) -> tuple[float, float]:
-        """Teleop limits: (linear m/s, angular rad/s)."""
-        robot, safety = self.cfg.robot, self.cfg.nav.safety
-        return (min(robot.max_wheel_speed_mps, safety.max_speed_mps),
-                min(robot.max_angular_radps, safety.max_angular_radps))
-
-    def _stop_teleop(self, reason: str) -> None:
-        if self._teleop_moving or self._teleop_client is not None:
-            self.bus.publish(CMD_VEL_TELEOP, Twist(self.clock.now(), 0.0, 0.0, source="web"))
-            log.info("teleop stopped: %s", reason)
-        self._teleop_moving = False
-        self._teleop_client = None
-
-    async def _teleop_watchdog(self) -> None:
-        timeout_s = self.cfg.nav.safety.teleop_timeout_s
-        period_s = min(0.1, timeout_s / 4)
-        due = self.clock.now()
-        while True:
-            due += period_s
-            await self.clock.sleep_until(due)
-            now = self.clock.now()
-            if self._teleop_moving and now - self._teleop_last_s > timeout_s:
-                self._stop_teleop(f"no teleop message for {timeout_s:.1f} s")
-
-    # --- helpers for the server ---------------------------------------------------------------
-
-    def reply(self, client: Client, payload: dict[str, Any]) -> None:
-        """Queue a reliable reply to one client."""
-        client.reliable.append(to_json(payload))
-        client.wake.set()
-
-    def spawn(self, coro: Coroutine[Any, Any, None]) -> asyncio.Task[None]:
-        """Run ``coro`` as a task whose failure is logged (for per-client senders)."""
-        task = asyncio.ensure_future(coro)
-
-        def done(t: asyncio.Task[None]) -> None:
-            if not t.cancelled() and t.exception() is not None:
-                log.debug("web task ended: %r", t.exception())
-
-        task.add_done_callback(done)
-        return task
-
-
-def path_to_json(path: Any) -> dict[str, Any]:
-    """A path manager ``NamedPath`` as JSON data."""
-    return {
-        "id": path.id,
-        "name": path.name,
-        "waypoints": [
-            {"x_m": float(w.x_m), "y_m": float(w.y_m),
-             "yaw_rad": None if w.yaw_rad is None else float(w.yaw_rad)}
-            for w in path.waypoints
-        ],
-    }
-
-
-def parse_json_object(text: str | bytes) -> dict[str, Any]:
-    """Parse a JSON object or raise :class:`CommandError` saying what is wrong."""
-    try:
-        value = json.loads(text)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise CommandError(f"message is not valid JSON: {exc}") from None
-    if not isinstance(value, dict):
-        raise CommandError(f"message must be a JSON object, got {type(value).__name__}")
-    return value

@@ -1,20 +1,17 @@
 """The dashboard's aiohttp application: ``create_app(services) -> web.Application``.
 
-Thin handlers over a :class:`~curio.web.hub.Hub`; everything the app needs comes in a
-:class:`WebServices` (fakes in tests, the real parts from :func:`curio.web.wiring.build_web`).
+Thin module-level handlers over the services stored on the application
+(:mod:`curio.web.services`); everything the app needs comes in a
+:class:`~curio.web.services.WebServices` (fakes in tests, the real parts from
+:func:`curio.web.wiring.build_web`).
 
 Routes: ``/`` (the page), ``/static/...`` (hand-written JS and CSS, no CDN), ``/ws`` (the
-WebSocket; ``?token=`` grants control), ``/api/...`` (REST, see :mod:`curio.web.api`).
+WebSocket; ``?token=`` grants control; the messages are described in
+:mod:`curio.web.session`), ``/api/...`` (REST, see :mod:`curio.web.api`).
 
-WebSocket messages from the browser are JSON objects with an ``op``:
-
-* ``{"op": "ping", "id"?}`` → ``{"t": "pong"}``
-* ``{"op": "rate", "hz": N}`` → lower this client's stream rate (≤ ``web.client_rate_hz``)
-* ``{"op": "teleop", "seq": n, "linear_mps": v, "angular_radps": w}`` (control)
-* ``{"op": "command", "id"?, "action": ..., "path_id"?, "goal"?, "request_id"?}`` (control)
-* ``{"op": "initial_pose", "x_m", "y_m", "yaw_rad"}`` (control)
-
-Replies: ``{"t": "ack", "id", ...}`` or ``{"t": "error", "id", "code", "message"}``.
+Background work runs in :func:`background`, the application's ``cleanup_ctx``: the hub's bus
+pumps, the health panel (once a second) and the teleop deadman start with the app and are
+cancelled when it stops, after every client has been closed.
 """
 
 from __future__ import annotations
@@ -22,123 +19,121 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
-import json
-import logging
-import math
-import os
 from collections.abc import AsyncIterator, Awaitable, Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from aiohttp import WSCloseCode, WSMsgType, web
+from aiohttp import web
 
-from curio.core.bus import Bus
-from curio.core.clock import Clock, wall_perf_counter
-from curio.core.config import Config
 from curio.core.topics import HEALTH
-from curio.robot import RobotModel
-from curio.web.api import build_command, http_error, parse_pose, routes
-from curio.web.auth import RateLimiter, check_origin, request_token, token_matches
-from curio.web.hub import CLIENT_OPS, Client, CommandError, Hub, parse_json_object
+from curio.web.api import ROUTES
+from curio.web.auth import ControlGate
+from curio.web.control import RoverControl
+from curio.web.hub import Hub
+from curio.web.inputs import http_error
+from curio.web.services import GATE, HUB, ROVER, SERVICES, STATIC_VERSION, WebServices
+from curio.web.system import SystemMonitor, measure_loop_lag_ms
 
-__all__ = ["HUB", "SERVICES", "SystemMonitor", "WebServices", "create_app"]
-
-log = logging.getLogger("curio.web")
+__all__ = ["background", "create_app", "index", "json_errors", "websocket"]
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
-@dataclass
-class WebServices:
-    """What the dashboard uses from the application.
 
-    Attributes:
-        cfg: the whole configuration.
-        clock: the injected clock.
-        bus: the application bus.
-        token: the control token (see :func:`curio.web.auth.load_or_create_token`).
-        paths: the path manager, or None.
-        robot: the robot model (footprint, home, laser pose, limits).
+def create_app(services: WebServices) -> web.Application:
+    """Build the dashboard application (the hub starts and stops with it)."""
+    cfg = services.cfg.web
+    rover = RoverControl(services.cfg, services.clock, services.bus, services.paths)
+    app = web.Application(middlewares=[json_errors], client_max_size=cfg.max_message_bytes)
+    app[SERVICES] = services
+    app[ROVER] = rover
+    app[HUB] = Hub(services.cfg, services.robot, services.clock, services.bus, rover,
+                   services.paths)
+    app[GATE] = ControlGate(cfg, services.token, services.clock)
+    app[STATIC_VERSION] = _static_version()
+    app.cleanup_ctx.append(background)
+    app.router.add_get("/", index)
+    app.router.add_get("/ws", websocket)
+    app.router.add_routes(ROUTES)
+    app.router.add_static("/static", STATIC_DIR, append_version=False)
+    return app
+
+
+@web.middleware
+async def json_errors(request: web.Request, handler: Handler) -> web.StreamResponse:
+    """Every refusal as JSON ``{"error", "status"}``, with a message that says what to do.
+
+    A body over ``web.max_message_bytes`` is refused before the handler runs; aiohttp's own
+    404/405/413 get a sentence; a ``ValueError`` from a handler (a
+    :class:`~curio.web.inputs.CommandError` for invalid input, a path manager's ``PathError``)
+    becomes 400 with its message.
     """
-
-    cfg: Config
-    clock: Clock
-    bus: Bus
-    token: str
-    robot: RobotModel
-    paths: Any = None
-
-
-HUB = web.AppKey("hub", Hub)
-SERVICES = web.AppKey("services", WebServices)
-
-
-class SystemMonitor:
-    """CPU load, temperature, process CPU share and event-loop lag for the health panel.
-
-    Reads ``/proc/stat`` and ``/sys/class/thermal`` when present (small procfs reads).
-    """
-
-    def __init__(self) -> None:
-        self._cpu_prev: tuple[int, int] | None = None
-        self._proc_prev: tuple[float, float] | None = None
-
-    @staticmethod
-    def _proc_stat() -> tuple[int, int] | None:
-        try:
-            with open("/proc/stat", encoding="ascii") as fh:
-                fields = fh.readline().split()[1:]
-        except OSError:
-            return None
-        values = [int(v) for v in fields]
-        idle = values[3] + (values[4] if len(values) > 4 else 0)
-        return sum(values), idle
-
-    @staticmethod
-    def temperature_c() -> float | None:
-        """The hottest thermal zone, °C, or None when the machine has none."""
-        base = Path("/sys/class/thermal")
-        best: float | None = None
-        with contextlib.suppress(OSError):
-            for zone in base.glob("thermal_zone*/temp"):
-                with contextlib.suppress(OSError, ValueError):
-                    value = int(zone.read_text().strip()) / 1000.0
-                    best = value if best is None else max(best, value)
-        return best
-
-    def sample(self, loop_lag_ms: float | None = None) -> dict[str, Any]:
-        """One sample of the system figures (fractions 0..1, temperatures °C)."""
-        out: dict[str, Any] = {"cpu_count": os.cpu_count() or 1}
-        now = self._proc_stat()
-        if now is not None and self._cpu_prev is not None:
-            total = now[0] - self._cpu_prev[0]
-            idle = now[1] - self._cpu_prev[1]
-            out["cpu_fraction"] = round(1.0 - idle / total, 3) if total > 0 else 0.0
-        self._cpu_prev = now
-        wall = wall_perf_counter()
-        times = os.times()
-        proc = times.user + times.system
-        if self._proc_prev is not None and wall > self._proc_prev[0]:
-            out["process_cpu_fraction"] = round(
-                (proc - self._proc_prev[1]) / (wall - self._proc_prev[0]), 3)
-        self._proc_prev = (wall, proc)
-        with contextlib.suppress(OSError):
-            out["load_avg"] = [round(v, 2) for v in os.getloadavg()]
-        out["temperature_c"] = self.temperature_c()
-        if loop_lag_ms is not None:
-            out["loop_lag_ms"] = round(loop_lag_ms, 2)
-        return out
+    max_bytes = request.app[SERVICES].cfg.web.max_message_bytes
+    length = request.content_length
+    if length is not None and length > max_bytes:
+        raise http_error(
+            web.HTTPRequestEntityTooLarge,
+            f"request body of {length} bytes exceeds web.max_message_bytes={max_bytes}")
+    try:
+        return await handler(request)
+    except web.HTTPException as exc:
+        if exc.content_type == "application/json" or exc.status < 400:
+            raise
+        message = exc.text if exc.text and not exc.text.startswith(str(exc.status)) else (
+            exc.reason or "error")
+        if exc.status == 413:
+            message = f"request body exceeds web.max_message_bytes={max_bytes}"
+        elif exc.status == 404:
+            message = f"there is no {request.path} on this rover"
+        elif exc.status == 405:
+            message = f"{request.method} is not allowed on {request.path}"
+        raise http_error(type(exc), message) from None
+    except ValueError as exc:  # CommandError, PathError: each with its own message
+        raise http_error(web.HTTPBadRequest, str(exc)) from None
 
 
-async def measure_loop_lag_ms() -> float:
-    """How long a callback queued now waits for the event loop, in milliseconds (wall)."""
-    loop = asyncio.get_running_loop()
-    fut: asyncio.Future[None] = loop.create_future()
-    t0 = wall_perf_counter()
-    loop.call_soon(fut.set_result, None)
-    await fut
-    return (wall_perf_counter() - t0) * 1000.0
+async def index(request: web.Request) -> web.Response:
+    """The page, with the static files' version in their URLs."""
+    html = (STATIC_DIR / "index.html").read_text(encoding="utf-8")
+    return web.Response(text=html.replace("{{VERSION}}", request.app[STATIC_VERSION]),
+                        content_type="text/html", headers={"Cache-Control": "no-cache"})
+
+
+async def websocket(request: web.Request) -> web.StreamResponse:
+    """One browser's WebSocket: a :class:`~curio.web.session.ClientSession` until it closes."""
+    control = request.app[GATE].socket_control(request)
+    cfg = request.app[SERVICES].cfg.web
+    ws = web.WebSocketResponse(max_msg_size=4 * cfg.max_message_bytes, heartbeat=20.0)
+    await ws.prepare(request)
+    hub = request.app[HUB]
+    client = hub.register(ws, control, request.remote or "")
+    await client.serve(hub.unregister)
+    return ws
+
+
+async def background(app: web.Application) -> AsyncIterator[None]:
+    """The app's background tasks: the hub's pumps, the health loop, the teleop deadman."""
+    hub = app[HUB]
+    hub.open()
+    tasks = [asyncio.create_task(hub.run(), name="web.hub"),
+             asyncio.create_task(_health_loop(hub, app[SERVICES]), name="web.health"),
+             asyncio.create_task(app[ROVER].watch_teleop(), name="web.teleop_watchdog")]
+    yield
+    await hub.close()
+    for task in tasks:
+        task.cancel()
+    for task in tasks:
+        with contextlib.suppress(BaseException):
+            await task
+
+
+async def _health_loop(hub: Hub, services: WebServices) -> None:
+    """Once a second: sample the system, publish the dashboard's health, refresh the panel."""
+    monitor = SystemMonitor()
+    async for _ in services.clock.every(1.0, phase_s=1.0):
+        hub.system = monitor.sample(await measure_loop_lag_ms())
+        services.bus.publish(HEALTH, hub.own_health())
+        hub.publish_health()
 
 
 def _static_version() -> str:
@@ -148,209 +143,3 @@ def _static_version() -> str:
             digest.update(path.name.encode())
             digest.update(str(path.stat().st_mtime_ns).encode())
     return digest.hexdigest()[:10]
-
-
-def create_app(services: WebServices) -> web.Application:
-    """Build the dashboard application (the hub starts and stops with it)."""
-    cfg = services.cfg.web
-    hub = Hub(services.cfg, services.robot, services.clock, services.bus, services.paths)
-    control_limiters: dict[str, RateLimiter] = {}
-
-    @web.middleware
-    async def errors(
-        request: web.Request, handler: Callable[[web.Request], Awaitable[web.StreamResponse]]
-    ) -> web.StreamResponse:
-        length = request.content_length
-        if length is not None and length > cfg.max_message_bytes:
-            raise http_error(
-                web.HTTPRequestEntityTooLarge,
-                f"request body of {length} bytes exceeds web.max_message_bytes="
-                f"{cfg.max_message_bytes}")
-        try:
-            return await handler(request)
-        except web.HTTPException as exc:
-            if exc.content_type == "application/json" or exc.status < 400:
-                raise
-            message = exc.text if exc.text and not exc.text.startswith(str(exc.status)) else (
-                exc.reason or "error")
-            if exc.status == 413:
-                message = f"request body exceeds web.max_message_bytes={cfg.max_message_bytes}"
-            elif exc.status == 404:
-                message = f"there is no {request.path} on this rover"
-            elif exc.status == 405:
-                message = f"{request.method} is not allowed on {request.path}"
-            raise http_error(type(exc), message) from None
-        except ValueError as exc:  # PathError from the path manager, with its own message
-            raise http_error(web.HTTPBadRequest, str(exc)) from None
-
-    def require_control(request: web.Request) -> None:
-        why = check_origin(request, cfg.allowed_origins)
-        if why is not None:
-            raise http_error(web.HTTPForbidden, why)
-        if cfg.require_token:
-            presented = request_token(request)
-            if not presented:
-                raise http_error(
-                    web.HTTPUnauthorized,
-                    "control needs the token: open the URL printed in the rover's start-up log "
-                    "(http://…/?token=…) or send 'Authorization: Bearer <token>'")
-            if not token_matches(presented, services.token):
-                raise http_error(web.HTTPForbidden,
-                                 "the token is wrong: use the URL from the rover's start-up log")
-        if request.method != "GET":
-            remote = request.remote or "?"
-            limiter = control_limiters.setdefault(
-                remote, RateLimiter(cfg.max_messages_per_s, burst=cfg.max_messages_per_s))
-            if not limiter.allow(services.clock.now()):
-                raise http_error(
-                    web.HTTPTooManyRequests,
-                    f"too many requests: at most {cfg.max_messages_per_s:g} per second")
-
-    app = web.Application(middlewares=[errors], client_max_size=cfg.max_message_bytes)
-    app[HUB] = hub
-    app[SERVICES] = services
-    version = _static_version()
-
-    async def index(request: web.Request) -> web.Response:
-        html = (STATIC_DIR / "index.html").read_text(encoding="utf-8")
-        return web.Response(text=html.replace("{{VERSION}}", version), content_type="text/html",
-                            headers={"Cache-Control": "no-cache"})
-
-    async def websocket(request: web.Request) -> web.StreamResponse:
-        why = check_origin(request, cfg.allowed_origins)
-        if why is not None:
-            raise http_error(web.HTTPForbidden, why)
-        presented = request_token(request)
-        control = not cfg.require_token or token_matches(presented, services.token)
-        if presented and not control:
-            raise http_error(web.HTTPForbidden,
-                             "the token is wrong: use the URL from the rover's start-up log")
-        ws = web.WebSocketResponse(max_msg_size=4 * cfg.max_message_bytes, heartbeat=20.0)
-        await ws.prepare(request)
-        client = hub.register(ws, control, request.remote or "")
-        sender = hub.spawn(hub.serve(client))
-        try:
-            async for msg in ws:
-                if msg.type == WSMsgType.TEXT:
-                    if not await _on_text(client, msg.data):
-                        break
-                elif msg.type == WSMsgType.BINARY:
-                    hub.reply(client, {"t": "error", "code": "bad_message",
-                                       "message": "binary messages are not accepted; send JSON"})
-                elif msg.type == WSMsgType.ERROR:
-                    break
-        finally:
-            hub.unregister(client)
-            sender.cancel()
-            with contextlib.suppress(BaseException):
-                await sender
-            if not ws.closed:
-                with contextlib.suppress(Exception):
-                    await ws.close()
-        return ws
-
-    async def _on_text(client: Client, text: str) -> bool:
-        """Handle one message; return False when the socket must close."""
-        size = len(text.encode("utf-8"))
-        if size > cfg.max_message_bytes:
-            message = (f"message of {size} bytes exceeds "
-                       f"web.max_message_bytes={cfg.max_message_bytes}")
-            await client.ws.send_str(json.dumps({"t": "error", "code": "too_big",
-                                                 "message": message}))
-            await client.ws.close(code=WSCloseCode.MESSAGE_TOO_BIG, message=b"message too big")
-            return False
-        if not client.limiter.allow(services.clock.now()):
-            hub.rejected_messages += 1
-            client.rejected_in_a_row += 1
-            if client.rejected_in_a_row == 1:
-                hub.reply(client, {"t": "error", "code": "rate_limited",
-                                   "message": f"too many messages: at most "
-                                              f"{cfg.max_messages_per_s:g} per second; "
-                                              "this one was dropped"})
-            if client.rejected_in_a_row >= 100:
-                await client.ws.close(code=WSCloseCode.POLICY_VIOLATION,
-                                      message=b"too many messages per second")
-                return False
-            return True
-        client.rejected_in_a_row = 0
-        msg_id: Any = None
-        try:
-            body = parse_json_object(text)
-            msg_id = body.get("id")
-            _handle_op(client, body, msg_id)
-        except CommandError as exc:
-            hub.rejected_messages += 1
-            hub.reply(client, {"t": "error", "id": msg_id, "code": "rejected",
-                               "message": str(exc)})
-        return True
-
-    def _handle_op(client: Client, body: dict[str, Any], msg_id: Any) -> None:
-        op = body.get("op")
-        if op == "ping":
-            hub.reply(client, {"t": "pong", "id": msg_id, "server_time": services.clock.now()})
-            return
-        if op == "rate":
-            hz = body.get("hz")
-            if not isinstance(hz, int | float) or isinstance(hz, bool) or not hz > 0:
-                raise CommandError(f"rate needs 'hz' > 0, got {hz!r}")
-            client.rate_hz = min(float(hz), cfg.client_rate_hz)
-            hub.reply(client, {"t": "ack", "id": msg_id, "rate_hz": client.rate_hz})
-            return
-        if op not in CLIENT_OPS:
-            raise CommandError(f"unknown op {op!r}; allowed: {', '.join(CLIENT_OPS)}")
-        if not client.control:
-            raise CommandError(
-                "viewing only: control needs the token (open the URL from the rover's "
-                "start-up log)")
-        if op == "teleop":
-            lin, ang = body.get("linear_mps", 0.0), body.get("angular_radps", 0.0)
-            for key, value in (("linear_mps", lin), ("angular_radps", ang)):
-                if (isinstance(value, bool) or not isinstance(value, int | float)
-                        or not math.isfinite(value)):
-                    raise CommandError(f"teleop '{key}' must be a finite number, got {value!r}")
-            seq = body.get("seq")
-            if seq is not None and (not isinstance(seq, int) or isinstance(seq, bool)):
-                raise CommandError(f"teleop 'seq' must be an integer, got {seq!r}")
-            hub.teleop(client, float(lin), float(ang), seq)
-            return
-        if op == "command":
-            cmd = build_command(body, hub)
-            published = hub.publish_command(cmd)
-            hub.reply(client, {"t": "ack", "id": msg_id, "request_id": cmd.request_id,
-                               "action": cmd.action, "duplicate": not published})
-            return
-        if op == "initial_pose":
-            pose = parse_pose(body)
-            hub.publish_initial_pose(pose.x, pose.y, pose.yaw)
-            hub.reply(client, {"t": "ack", "id": msg_id, "pose": [pose.x, pose.y, pose.yaw]})
-            return
-
-    async def background(_: web.Application) -> AsyncIterator[None]:
-        monitor = SystemMonitor()
-
-        async def health_loop() -> None:
-            due = services.clock.now()
-            while True:
-                due += 1.0
-                await services.clock.sleep_until(due)
-                hub.system = monitor.sample(await measure_loop_lag_ms())
-                services.bus.publish(HEALTH, hub.own_health())
-                hub.publish_health()
-
-        hub.open()
-        tasks = [asyncio.create_task(hub.run(), name="web.hub"),
-                 asyncio.create_task(health_loop(), name="web.health")]
-        yield
-        await hub.close()
-        for task in tasks:
-            task.cancel()
-        for task in tasks:
-            with contextlib.suppress(BaseException):
-                await task
-
-    app.cleanup_ctx.append(background)
-    app.router.add_get("/", index)
-    app.router.add_get("/ws", websocket)
-    app.router.add_routes(routes(HUB, require_control))
-    app.router.add_static("/static", STATIC_DIR, append_version=False)
-    return app

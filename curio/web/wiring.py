@@ -23,7 +23,8 @@ from curio.core.parts import Part, Parts
 from curio.robot import RobotModel
 from curio.web.auth import load_or_create_token
 from curio.web.hub import Hub
-from curio.web.server import HUB, WebServices, create_app
+from curio.web.server import create_app
+from curio.web.services import HUB, WebServices
 
 __all__ = ["DashboardAddressError", "WebServer", "build_web"]
 

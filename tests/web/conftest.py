@@ -14,7 +14,8 @@ from curio.core.clock import SimClock
 from curio.core.config import Config
 from curio.robot import RobotModel
 from curio.web.hub import Hub
-from curio.web.server import HUB, WebServices, create_app
+from curio.web.server import create_app
+from curio.web.services import HUB, WebServices
 
 TOKEN = "test-token-0123456789abcdef"
 

@@ -338,7 +338,7 @@ async def test_slow_client_is_dropped_without_stalling_others(
     ws = await connect(d)
     stalled = _StalledSocket()
     slow = d.hub.register(stalled, control=False)  # type: ignore[arg-type]
-    sender = d.hub.spawn(d.hub.serve(slow))
+    sender = asyncio.ensure_future(slow.send_loop())
     await spin()
     for i in range(40):  # the healthy client keeps up, the stalled one cannot
         d.bus.publish(STATUS, StatusText(float(i), f"status {i}", "moving"))

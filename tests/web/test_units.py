@@ -16,9 +16,9 @@ from curio.core.config import Config
 from curio.core.geometry import Pose2D
 from curio.core.messages import LaserScan
 from curio.core.messages import Path as PathMsg
-from curio.web.api import describe_path_ids
 from curio.web.auth import RateLimiter, load_or_create_token
 from curio.web.encode import FRAME_LOCAL_PLAN, decode_frame, encode_path, encode_scan
+from curio.web.inputs import describe_path_ids
 
 
 def test_token_is_created_private_and_reused(tmp_path: Path) -> None:
