@@ -1,35 +1,39 @@
-"""Mapping a new building: scan matching, keyframes, loop closure on a pose graph.
+"""Mapping a new building: scan-to-map matching, a pose graph of keyframes, verified loop closures.
 
 :class:`ScanMapper` is the engine (no bus, no clock), fed with scans and the odometry at each
 scan — online by :class:`MappingNode` (``SCAN`` + ``ODOM`` while the rover is driven) and offline
 by :func:`build_map_from_log` (``curio map build``).
 
-Per scan:
+Per scan (the *front end*):
 
-1. **Prediction** from odometry: the last corrected pose composed with the odometry increment.
-2. **Scan matching** (Gauss–Newton on the bilinear distance field of a window of the map around
-   the rover, first with a wide then with a tight outlier cut); the match is kept when enough
-   beams fit, else the odometry guess is used. With ``odom_prior_fraction`` > 0 the match is a
-   maximum a posteriori estimate with the prediction as a Gaussian prior (σ = 1 cm +
-   fraction × travel, 0.3° + fraction × (turn + travel / 2)), so directions a scan leaves
-   open (a corridor, the rotation while turning on the spot in front of one wall) follow the
-   odometry instead of drifting. On the mapping benchmark, seeds 1–5, 0.2 against 0 (off):
-   occupied agreement after alignment mean 98.3 % / min 96.7 % against 98.2 % / 95.7 %,
-   unaligned mean 95.9 % against 93.2 % — a modest gain; single seeds still vary by ±2 %
-   with small changes of the input.
-3. **Keyframes** every ``keyframe_d_m`` / ``keyframe_a_rad`` of motion: the scan is added to the
-   log-odds occupancy grid (free cells along each beam, an occupied cell at its end) and the
-   distance-field window is rebuilt.
-4. **Loop closure**: at a keyframe near (``loop_radius_m``) an old one that is far back along the
-   trajectory (``loop_min_travel_m``), the scan is matched against a submap built from the old
-   keyframe's neighbours — a brute-force correlative search (±``loop_search_m``,
-   ±``loop_search_rad``) followed by Gauss–Newton — and an accepted match adds a constraint to
-   the pose graph. The graph (keyframe poses; odometry/scan-match edges between consecutive
-   keyframes and the loop edges) is solved by sparse Gauss–Newton (``scipy.sparse``), and the
-   grid is rebuilt from the corrected keyframes.
+1. **Prediction** from odometry: the last pose composed with the odometry increment.
+2. **Correlative search** (:mod:`curio.estimation.scan_matching`): the scan is placed on a
+   likelihood grid of the *local map* — the points of the keyframes of the last
+   ``local_map_m`` of driving — by an exact branch-and-bound search over ``±search_xy_m`` and
+   ``±search_rad`` around the prediction (twice that when nothing fits: wheel slip, a jump of
+   the odometry). Odometry headings on real robots are often off by 10–20° after a quick turn;
+   a local refinement alone, started there, slides into the wrong basin.
+3. **Refinement**: point-to-line ICP on the local map's points and normals, as a maximum a
+   posteriori estimate with the odometry increment as a Gaussian prior (σ growing with the
+   distance and the turn). Its information matrix says which directions the scan fixed: in a
+   featureless corridor the position along the axis is left to the odometry, and the pose graph
+   is told so. A match whose inliers fall below ``min_inlier_fraction`` is not used (the
+   odometry guess is, with the odometry's information).
+4. **Keyframes** every ``keyframe_d_m`` / ``keyframe_a_rad`` of motion become pose-graph nodes,
+   linked to the previous keyframe by the matched relative pose and its information; every scan
+   keeps its pose relative to its keyframe, so it follows the keyframe when the graph moves.
 
-Frames: the map is built in the frame of the first pose (``initial`` pose, default the origin);
-odometry is ``base_link`` in ``odom``; scan points are in ``base_link``. Metres and radians.
+The *back end* (:mod:`curio.estimation.loop_closure`, :mod:`curio.estimation.pose_graph`):
+keyframes are grouped into submaps; new keyframes are matched on old submaps within a radius
+that grows with the distance driven since; matches become loop-closure edges only when several
+agree with each other (or with an estimate that a recent closure already corrected); the graph
+is optimised with robust (dynamic covariance scaling) loop edges and edges that still disagree
+afterwards are dropped. The occupancy grid (log odds) is rebuilt from the keyframes at their
+optimised poses.
+
+Frames: the map is built in the frame of the first pose (``initial`` pose, default the origin;
+the first keyframe is the graph's fixed node, so the frame does not drift); odometry is
+``base_link`` in ``odom``; scan points are in ``base_link``. Metres and radians.
 """
 
 from __future__ import annotations
@@ -44,13 +48,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-import scipy.sparse as sp
-from scipy.sparse.linalg import spsolve
 
-from curio.core.geometry import Pose2D, wrap_angle, wrap_angles
+from curio.core.geometry import Pose2D, wrap_angle
 from curio.estimation.carmen import LogScan, read_log
-from curio.estimation.localization import DistanceField, scan_match
+from curio.estimation.loop_closure import Keyframe, LoopCloser, LoopParams
 from curio.estimation.maps import OccupancyGrid, save_map
+from curio.estimation.pose_graph import PoseGraph, to_local_info
+from curio.estimation.scan_matching import (
+    LikelihoodGrid,
+    PointMap,
+    Refined,
+    refine,
+    scan_normals,
+    voxel_subsample,
+)
 
 if TYPE_CHECKING:
     from curio.app import App
@@ -58,7 +69,14 @@ if TYPE_CHECKING:
     from curio.core.clock import Clock
     from curio.core.messages import LaserScan, Odometry
 
-__all__ = ["MapperParams", "MappingNode", "ScanMapper", "build_map_from_log", "optimize_pose_graph"]
+__all__ = [
+    "Keyframe",
+    "MapperParams",
+    "MappingNode",
+    "ScanMapper",
+    "build_map_from_log",
+    "optimize_pose_graph",
+]
 
 log = logging.getLogger("curio.estimation.mapping")
 
@@ -66,46 +84,56 @@ F64 = npt.NDArray[np.float64]
 
 
 @dataclass
-class MapperParams:
-    """Tuning of :class:`ScanMapper` (defaults suit a 360° 12 m lidar or a 180° SICK)."""
+class MapperParams(LoopParams):
+    """Tuning of :class:`ScanMapper` (defaults suit a 360° 12 m lidar or a 180° SICK).
+
+    Loop-closure fields are those of :class:`curio.estimation.loop_closure.LoopParams`.
+    """
 
     resolution_m: float = 0.05
     max_range_m: float = 12.0
     no_return_clear_m: float = 3.0
-    keyframe_d_m: float = 0.25
-    keyframe_a_rad: float = 0.2
-    match_beams: int = 200
-    window_m: float = 14.0
-    min_inlier_fraction: float = 0.35
     l_occ: float = 0.9
     l_free: float = -0.4
     l_max: float = 6.0
-    loop_radius_m: float = 4.0
-    loop_min_travel_m: float = 10.0
-    loop_search_m: float = 1.2
-    loop_search_rad: float = 0.35
-    loop_min_inliers: float = 0.8
-    loop_drift_fraction: float = 0.03
-    loop_drift_rad_per_m: float = 0.003
-    loop_neighbours: int = 12
-    loop_cooldown: int = 15
-    loop_try_every: int = 3
-    odom_sigma_xy_m: float = 0.05
-    odom_sigma_yaw_rad: float = 0.02
-    loop_sigma_xy_m: float = 0.05
-    loop_sigma_yaw_rad: float = 0.02
-    odom_prior_fraction: float = 0.2  # > 0: scan matches are MAP around the odometry guess
+    keyframe_d_m: float = 0.15
+    keyframe_a_rad: float = 0.1
+    local_map_m: float = 8.0
+    local_map_keyframes: int = 40
+    match_cell_m: float = 0.05
+    search_xy_m: float = 0.4
+    search_rad: float = 0.45
+    search_step_rad: float = math.radians(0.5)
+    min_match_score: float = 0.25
+    min_inlier_fraction: float = 0.35
+    odom_sigma_xy_m: float = 0.01
+    odom_xy_per_m: float = 0.2
+    odom_sigma_yaw_rad: float = 0.005
+    odom_yaw_per_rad: float = 0.3
+    odom_yaw_per_m: float = 0.1
+    dcs_phi: float = 5.0
+    outlier_chi2: float = 30.0
 
 
-@dataclass
-class Keyframe:
-    """A scan kept for the map: its pose in the map frame, points (base_link), laser origin."""
+def optimize_pose_graph(poses: F64, edges: list[tuple[int, int, Pose2D, F64]],
+                        iterations: int = 20) -> F64:
+    """Least-squares pose graph (node 0 fixed): a thin wrapper of
+    :class:`curio.estimation.pose_graph.PoseGraph` without robust edges.
 
-    pose: Pose2D
-    points: F64
-    no_return: F64  # (M, 2) unit-range directions in base_link of beams without a return
-    laser: Pose2D
-    travel_m: float
+    Args:
+        poses: ``(N, 3)`` initial (x, y, yaw) in ``map``.
+        edges: ``(i, j, z_ij, info)``: measured pose of j in i's frame, 3×3 information.
+
+    Returns:
+        The optimised ``(N, 3)`` poses.
+    """
+    g = PoseGraph()
+    for row in poses:
+        g.add_node(Pose2D(float(row[0]), float(row[1]), float(row[2])))
+    for i, j, z, info in edges:
+        g.add_edge(i, j, z, info)
+    g.optimize(iterations)
+    return g.poses
 
 
 class LogOdds:
@@ -213,97 +241,6 @@ class LogOdds:
         return OccupancyGrid(data, res, Pose2D(self.ox + c0 * res, self.oy + r0 * res, 0.0))
 
 
-def _v(p: Pose2D) -> tuple[float, float, float]:
-    return (p.x, p.y, p.yaw)
-
-
-def optimize_pose_graph(poses: F64, edges: list[tuple[int, int, Pose2D, F64]],
-                        iterations: int = 10) -> F64:
-    """Least-squares pose graph (node 0 fixed) by sparse Gauss–Newton.
-
-    Args:
-        poses: ``(N, 3)`` initial (x, y, yaw).
-        edges: ``(i, j, z_ij, info)``: measured pose of j in i's frame, 3×3 information.
-
-    Returns:
-        The optimised ``(N, 3)`` poses.
-    """
-    x = poses.copy()
-    n = len(x)
-    if n < 2 or not edges:
-        return x
-    ii = np.array([e[0] for e in edges])
-    jj = np.array([e[1] for e in edges])
-    z = np.array([_v(e[2]) for e in edges])
-    info = np.stack([e[3] for e in edges])
-    m = len(edges)
-    for _ in range(iterations):
-        xi, xj = x[ii], x[jj]
-        ci, si = np.cos(xi[:, 2]), np.sin(xi[:, 2])
-        cz, sz = np.cos(z[:, 2]), np.sin(z[:, 2])
-        dx = xj[:, 0] - xi[:, 0]
-        dy = xj[:, 1] - xi[:, 1]
-        # d = R_i^T (t_j - t_i)
-        d0 = ci * dx + si * dy
-        d1 = -si * dx + ci * dy
-        ex = cz * (d0 - z[:, 0]) + sz * (d1 - z[:, 1])
-        ey = -sz * (d0 - z[:, 0]) + cz * (d1 - z[:, 1])
-        et = wrap_angles(xj[:, 2] - xi[:, 2] - z[:, 2])
-        e = np.stack([ex, ey, et], axis=1)
-        # Jacobians (m, 3, 3).
-        a = np.zeros((m, 3, 3))
-        b = np.zeros((m, 3, 3))
-        # R_z^T R_i^T
-        r00 = cz * ci - sz * si
-        r01 = cz * si + sz * ci
-        r10 = -sz * ci + cz * (-si)
-        r11 = -sz * si + cz * ci
-        # d/dθ_i of R_i^T (t_j - t_i) = (-si*dx + ci*dy, -ci*dx - si*dy)
-        g0 = d1
-        g1 = -d0
-        a[:, 0, 0], a[:, 0, 1] = -r00, -r01
-        a[:, 1, 0], a[:, 1, 1] = -r10, -r11
-        a[:, 0, 2] = cz * g0 + sz * g1
-        a[:, 1, 2] = -sz * g0 + cz * g1
-        a[:, 2, 2] = -1.0
-        b[:, 0, 0], b[:, 0, 1] = r00, r01
-        b[:, 1, 0], b[:, 1, 1] = r10, r11
-        b[:, 2, 2] = 1.0
-        at_o = np.einsum("mki,mkl->mil", a, info)
-        bt_o = np.einsum("mki,mkl->mil", b, info)
-        h_ii = np.einsum("mil,mlj->mij", at_o, a)
-        h_ij = np.einsum("mil,mlj->mij", at_o, b)
-        h_jj = np.einsum("mil,mlj->mij", bt_o, b)
-        g_i = np.einsum("mil,ml->mi", at_o, e)
-        g_j = np.einsum("mil,ml->mi", bt_o, e)
-        rows: list[npt.NDArray[np.int64]] = []
-        cols: list[npt.NDArray[np.int64]] = []
-        vals: list[F64] = []
-        r3 = np.arange(3)
-        for blk, bi, bj in ((h_ii, ii, ii), (h_ij, ii, jj), (h_jj, jj, jj)):
-            rr = (3 * bi)[:, None, None] + r3[None, :, None]
-            cc = (3 * bj)[:, None, None] + r3[None, None, :]
-            rows.append(np.broadcast_to(rr, blk.shape).ravel())
-            cols.append(np.broadcast_to(cc, blk.shape).ravel())
-            vals.append(blk.ravel())
-            if blk is h_ij:
-                rows.append(np.broadcast_to(cc, blk.shape).ravel())
-                cols.append(np.broadcast_to(rr, blk.shape).ravel())
-                vals.append(blk.ravel())
-        h = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(3 * n, 3 * n)).tocsr()
-        g = np.zeros(3 * n)
-        np.add.at(g, (3 * ii)[:, None] + r3[None, :], g_i)
-        np.add.at(g, (3 * jj)[:, None] + r3[None, :], g_j)
-        # Fix node 0.
-        keep = np.arange(3, 3 * n)
-        h_red = h[keep][:, keep] + sp.identity(3 * n - 3) * 1e-9
-        step = spsolve(h_red.tocsc(), -g[keep])
-        x[1:] += np.asarray(step).reshape(n - 1, 3)
-        x[:, 2] = wrap_angles(x[:, 2])
-        if float(np.max(np.abs(step))) < 1e-5:
-            break
-    return x
 
 
 class ScanMapper:
@@ -312,82 +249,196 @@ class ScanMapper:
     def __init__(self, params: MapperParams | None = None, initial: Pose2D = Pose2D()) -> None:
         self.p = params or MapperParams()
         self.grid = LogOdds(self.p.resolution_m, self.p)
+        self.graph = PoseGraph(self.p.dcs_phi)
         self.keyframes: list[Keyframe] = []
-        self.loop_edges: list[tuple[int, int, Pose2D]] = []
-        self.seq_edges: list[tuple[int, int, Pose2D]] = []
+        self.loops = LoopCloser(self.p, self.keyframes, self.graph)
         self.pose = initial
         self._initial = initial
         self._last_odom: Pose2D | None = None
-        self._field: DistanceField | None = None
+        self._since_kf = Pose2D()
         self._travel = 0.0
-        self._cooldown = 0
         self.scans = 0
         self.matched = 0
-        self.trajectory: list[tuple[float, Pose2D]] = []
-        self._kf_scan_index: list[int] = []
+        self.optimizations = 0
+        self.defer_grid = False
+        self._grid_stale = False
+        self._grid_count = 0  # keyframes integrated into ``grid``
+        self._local: tuple[PointMap, LikelihoodGrid] | None = None
+        self._local_kf = -1
+        self._traj: list[tuple[float, int, Pose2D]] = []  # stamp, keyframe, pose in its frame
+
+    # --- results -------------------------------------------------------------------------------
+    @property
+    def trajectory(self) -> list[tuple[float, Pose2D]]:
+        """Every scan's stamp and pose in ``map`` (following the optimised keyframes)."""
+        return [(t, self.keyframes[k].pose @ rel) for t, k, rel in self._traj]
+
+    @property
+    def loop_edges(self) -> list[tuple[int, int, Pose2D]]:
+        """Active loop-closure constraints ``(old keyframe, new keyframe, new in old's frame)``."""
+        g = self.graph
+        return [(g.ii[e], g.jj[e], Pose2D(*g.z[e])) for e, _ in self.loops.accepted
+                if g.active[e]]
+
+    @property
+    def _kf_scan_index(self) -> list[int]:
+        return [kf.scan_index for kf in self.keyframes]
 
     # --- per scan ------------------------------------------------------------------------------
     def add_scan(self, stamp: float, odom: Pose2D, points: F64, laser: Pose2D,
                  no_return_dirs: F64 | None = None) -> Pose2D:
-        """Process one scan (``points`` in base_link) with its odometry; return the pose."""
+        """Process one scan (``points`` in base_link, beam order) with its odometry pose
+        (``base_link`` in ``odom``); return the scan's pose in ``map``."""
         self.scans += 1
-        delta = Pose2D()
-        if self._last_odom is None:
-            guess = self.pose
-        else:
-            delta = self._last_odom.inverse() @ odom
-            self._travel += math.hypot(delta.x, delta.y)
-            guess = self.pose @ delta
+        delta = Pose2D() if self._last_odom is None else self._last_odom.inverse() @ odom
         self._last_odom = odom
-        pose = guess
-        prior: F64 | None = None
-        f = self.p.odom_prior_fraction
-        if f > 0.0 and self.scans > 1:
-            trans, rot = math.hypot(delta.x, delta.y), abs(delta.yaw)
-            sxy = 0.01 + f * trans
-            syaw = 0.005 + f * rot + 0.5 * f * trans
-            prior = np.diag([sxy**2, sxy**2, syaw**2])
-        if self._field is not None and len(points) >= 20:
-            pts = points
-            if len(pts) > self.p.match_beams:
-                pts = pts[np.linspace(0, len(pts) - 1, self.p.match_beams).astype(np.int64)]
-            m = scan_match(self._field, pts, guess, iterations=20, max_residual_m=0.4,
-                           inlier_m=0.1, surface_offset_m=0.0, prior_cov=prior)
-            m = scan_match(self._field, pts, m.pose, iterations=15, max_residual_m=0.12,
-                           inlier_m=0.08, surface_offset_m=0.0, prior_cov=prior,
-                           prior_mean=guess)
-            if m.inlier_fraction >= self.p.min_inlier_fraction and m.pose.distance_to(guess) < 0.6:
-                pose = m.pose
+        self._travel += math.hypot(delta.x, delta.y)
+        self._since_kf = self._since_kf @ delta
+        guess = self.pose @ delta
+        pose, info = guess, None
+        if self._local is not None and len(points) >= 10:
+            ref = self._match(points, guess, delta)
+            if ref is not None:
+                pose, info = ref.pose, ref.info_total
                 self.matched += 1
         self.pose = pose
-        self.trajectory.append((stamp, pose))
-        nr = no_return_dirs if no_return_dirs is not None else np.zeros((0, 2))
         last = self.keyframes[-1] if self.keyframes else None
         if last is None or self._is_keyframe(last.pose, pose):
-            self._add_keyframe(pose, points, nr, laser)
-        return pose
+            nr = no_return_dirs if no_return_dirs is not None else np.zeros((0, 2))
+            self._add_keyframe(stamp, pose, points, nr, laser, info)
+        else:
+            k = len(self.keyframes) - 1
+            self._traj.append((stamp, k, last.pose.inverse() @ pose))
+        return self.pose
 
     def _is_keyframe(self, a: Pose2D, b: Pose2D) -> bool:
         return (a.distance_to(b) >= self.p.keyframe_d_m
                 or abs(wrap_angle(a.yaw - b.yaw)) >= self.p.keyframe_a_rad)
 
-    def _add_keyframe(self, pose: Pose2D, points: F64, no_return: F64, laser: Pose2D) -> None:
-        kf = Keyframe(pose, points, no_return, laser, self._travel)
+    def _odom_info(self, delta: Pose2D) -> F64:
+        """Information (1/m², 1/rad²) of an odometry increment, isotropic in x and y."""
+        p = self.p
+        trans, rot = math.hypot(delta.x, delta.y), abs(delta.yaw)
+        sxy = p.odom_sigma_xy_m + p.odom_xy_per_m * trans
+        syaw = p.odom_sigma_yaw_rad + p.odom_yaw_per_rad * rot + p.odom_yaw_per_m * trans
+        return np.diag([1.0 / sxy**2, 1.0 / sxy**2, 1.0 / syaw**2])
+
+    def _near(self, points: F64) -> F64:
+        return points[np.hypot(points[:, 0], points[:, 1]) <= self.p.match_range_m]
+
+    def _match(self, points: F64, guess: Pose2D, delta: Pose2D) -> Refined | None:
+        """Scan-to-local-map: correlative search, then MAP point-to-line refinement."""
+        assert self._local is not None
+        pmap, lgrid = self._local
+        near = self._near(points)
+        if len(near) < 10:
+            return None
+        sub = near[voxel_subsample(near, 0.1)]
+        p = self.p
+        found = lgrid.search(sub, guess, p.search_xy_m, p.search_rad, p.search_step_rad,
+                             p.min_match_score)
+        if found is None:
+            found = lgrid.search(sub, guess, 2.0 * p.search_xy_m, 2.0 * p.search_rad,
+                                 2.0 * p.search_step_rad, p.min_match_score)
+            if found is None:
+                return None
+        ref = refine(pmap, near, found[0], sigma_m=p.match_sigma_m, prior_mean=guess,
+                     prior_info=self._odom_info(delta))
+        if ref.inlier_fraction < p.min_inlier_fraction:
+            return None
+        return ref
+
+    # --- keyframes -----------------------------------------------------------------------------
+    def _add_keyframe(self, stamp: float, pose: Pose2D, points: F64, no_return: F64,
+                      laser: Pose2D, info_map: F64 | None) -> None:
+        normals, ok = scan_normals(points)
+        kf = Keyframe(pose, points, normals, ok, no_return, laser, self._travel, len(self._traj))
+        k = self.graph.add_node(pose)
         self.keyframes.append(kf)
-        self._kf_scan_index.append(len(self.trajectory) - 1)
-        k = len(self.keyframes) - 1
+        self._traj.append((stamp, k, Pose2D()))
         if k > 0:
             prev = self.keyframes[k - 1]
-            self.seq_edges.append((k - 1, k, prev.pose.inverse() @ pose))
-        self._integrate(kf)
-        if self._cooldown > 0:
-            self._cooldown -= 1
-        elif k > 0 and k % self.p.loop_try_every == 0 and self._try_loop(k):
+            info = info_map if info_map is not None else self._odom_info(self._since_kf)
+            self.graph.add_edge(k - 1, k, prev.pose.inverse() @ pose,
+                                to_local_info(info, pose.yaw))
+        self._since_kf = Pose2D()
+        if not self.defer_grid and not self._grid_stale:
+            self._integrate(kf)
+            self._grid_count += 1
+        if self.loops.on_keyframe(lambda: self._query_cloud(k)):
             self._optimize()
-            self._cooldown = self.p.loop_cooldown
-        self._field = DistanceField(self.grid.window(self.pose.x, self.pose.y, self.p.window_m),
-                                    1.0)
+        self._rebuild_local()
 
+    def _query_cloud(self, k: int) -> F64:
+        """Points of keyframe ``k`` and its neighbours of the last ``loop_query_m``, in k's
+        ``base_link``, thinned to one per 5 cm."""
+        cur = self.keyframes[k]
+        inv = cur.pose.inverse()
+        pts = [self._near(cur.points)]
+        j = k - 1
+        while j >= 0 and cur.travel_m - self.keyframes[j].travel_m <= self.p.loop_query_m:
+            kf = self.keyframes[j]
+            pts.append((inv @ kf.pose).transform_points(self._near(kf.points)))
+            j -= 1
+        allp = np.vstack(pts)
+        return allp[voxel_subsample(allp, 0.05)]
+
+    def _rebuild_local(self) -> None:
+        """The local map: keyframes of the last ``local_map_m`` of driving, in ``map``."""
+        kfs = self.keyframes
+        last = kfs[-1]
+        pts: list[F64] = []
+        nrm: list[F64] = []
+        ok: list[npt.NDArray[np.bool_]] = []
+        for kf in reversed(kfs):
+            if (last.travel_m - kf.travel_m > self.p.local_map_m
+                    or len(pts) >= self.p.local_map_keyframes):
+                break
+            near = np.hypot(kf.points[:, 0], kf.points[:, 1]) <= self.p.match_range_m
+            pts.append(kf.pose.transform_points(kf.points[near]))
+            c, s = math.cos(kf.pose.yaw), math.sin(kf.pose.yaw)
+            n = kf.normals[near]
+            nrm.append(np.stack([c * n[:, 0] - s * n[:, 1], s * n[:, 0] + c * n[:, 1]], axis=1))
+            ok.append(kf.normal_ok[near])
+        allp = np.vstack(pts)
+        keep = voxel_subsample(allp, 0.02)
+        allp = allp[keep]
+        good = np.concatenate(ok)[keep]
+        pmap = PointMap(allp[good], np.vstack(nrm)[keep][good])
+        reach = self.p.match_range_m + 2.0 * self.p.search_xy_m
+        x, y = self.pose.x, self.pose.y
+        grid = LikelihoodGrid(allp, self.p.match_cell_m, self.p.match_cell_m, 3,
+                              bounds=(x - reach, y - reach, x + reach, y + reach))
+        self._local = (pmap, grid)
+        self._local_kf = len(kfs) - 1
+
+    # --- back end ------------------------------------------------------------------------------
+    def _optimize(self) -> None:
+        """Optimise the graph, drop loop edges that still disagree, move everything along."""
+        self.graph.optimize()
+        out = self.graph.outliers(self.p.outlier_chi2)
+        if out:
+            for e in out:
+                self.graph.deactivate(e)
+                log.info("loop closure %d -> %d dropped after optimisation (chi2 %.1f)",
+                         self.graph.ii[e], self.graph.jj[e], float(self.graph.chi2()[e]))
+            self.graph.optimize()
+        self.optimizations += 1
+        last = self.keyframes[-1]
+        rel = last.pose.inverse() @ self.pose
+        x = self.graph.poses
+        for kf, row in zip(self.keyframes, x, strict=True):
+            kf.pose = Pose2D(float(row[0]), float(row[1]), float(row[2]))
+        self.pose = last.pose @ rel
+        self.loops.invalidate()
+        self._grid_stale = True
+
+    def finish(self) -> None:
+        """After the last scan: a final optimisation if there are loop closures."""
+        if self.loop_edges:
+            self._optimize()
+
+    # --- the occupancy grid --------------------------------------------------------------------
     def _integrate(self, kf: Keyframe, grid: LogOdds | None = None) -> None:
         g = grid or self.grid
         ends = kf.pose.transform_points(kf.points)
@@ -396,116 +447,21 @@ class ScanMapper:
             kf.no_return * self.p.no_return_clear_m)) if len(kf.no_return) else np.zeros((0, 2))
         g.integrate((lo.x, lo.y), ends, clear)
 
-    # --- loop closure --------------------------------------------------------------------------
-    def _try_loop(self, k: int) -> bool:
-        cur = self.keyframes[k]
-        best_j = -1
-        best_d = self.p.loop_radius_m
-        for j in range(k):
-            kj = self.keyframes[j]
-            if cur.travel_m - kj.travel_m < self.p.loop_min_travel_m:
-                break
-            d = kj.pose.distance_to(cur.pose)
-            if d < best_d:
-                best_d, best_j = d, j
-        if best_j < 0:
-            return False
-        lo = max(0, best_j - self.p.loop_neighbours)
-        hi = min(k, best_j + self.p.loop_neighbours + 1)
-        sub = LogOdds(self.p.resolution_m, self.p)
-        for kf in self.keyframes[lo:hi]:
-            self._integrate(kf, sub)
-        occ = sub.window(cur.pose.x, cur.pose.y, self.p.window_m)
-        if not np.any(occ.data > 0):
-            return False
-        fld = DistanceField(occ, 1.0)
-        pts = cur.points
-        if len(pts) > 90:
-            pts = pts[np.linspace(0, len(pts) - 1, 90).astype(np.int64)]
-        cand = self._correlative(fld, pts, cur.pose)
-        m = scan_match(fld, cur.points, cand, iterations=15, max_residual_m=0.3, inlier_m=0.1,
-                       surface_offset_m=0.0)
-        m = scan_match(fld, cur.points, m.pose, iterations=8, max_residual_m=0.12,
-                       inlier_m=0.08, surface_offset_m=0.0)
-        if m.inlier_fraction < self.p.loop_min_inliers:
-            return False
-        # Gate: the correction must be of the size scan-matching drift can reach over the
-        # distance travelled since the old keyframe (a false match in a look-alike place jumps).
-        travel = cur.travel_m - self.keyframes[best_j].travel_m
-        shift = m.pose.distance_to(cur.pose)
-        turn = abs(wrap_angle(m.pose.yaw - cur.pose.yaw))
-        if (shift > 0.15 + self.p.loop_drift_fraction * travel
-                or turn > 0.05 + self.p.loop_drift_rad_per_m * travel):
-            log.debug("loop candidate %d -> %d rejected: shift %.2f m, turn %.3f rad", best_j, k,
-                      shift, turn)
-            return False
-        z = self.keyframes[best_j].pose.inverse() @ m.pose
-        self.loop_edges.append((best_j, k, z))
-        log.info("loop closure: keyframe %d -> %d (correction %.2f m, fit %.2f)", best_j, k,
-                 m.pose.distance_to(cur.pose), m.inlier_fraction)
-        return True
-
-    def _correlative(self, fld: DistanceField, pts: F64, guess: Pose2D) -> Pose2D:
-        """Brute-force search of the best (x, y, yaw) offset around ``guess``."""
-        step = 0.1
-        n = round(self.p.loop_search_m / step)
-        offs = np.arange(-n, n + 1) * step
-        yaws = np.arange(-self.p.loop_search_rad, self.p.loop_search_rad + 1e-9, 0.035)
-        best = (-1.0, guess)
-        for dyaw in yaws:
-            th = guess.yaw + dyaw
-            c, s = math.cos(th), math.sin(th)
-            rx = c * pts[:, 0] - s * pts[:, 1]
-            ry = s * pts[:, 0] + c * pts[:, 1]
-            gx = guess.x + offs[:, None, None] + rx[None, None, :]
-            gy = guess.y + offs[None, :, None] + ry[None, None, :]
-            gx, gy = np.broadcast_arrays(gx, gy)
-            d = fld.lookup(gx, gy)
-            score = np.mean(np.exp(-0.5 * (d / 0.15) ** 2), axis=2)
-            i, j = np.unravel_index(int(np.argmax(score)), score.shape)
-            if score[i, j] > best[0]:
-                best = (float(score[i, j]), Pose2D(guess.x + offs[i], guess.y + offs[j], th))
-        return best[1]
-
-    def _optimize(self) -> None:
-        info_odom = np.diag([1 / self.p.odom_sigma_xy_m**2, 1 / self.p.odom_sigma_xy_m**2,
-                             1 / self.p.odom_sigma_yaw_rad**2])
-        info_loop = np.diag([1 / self.p.loop_sigma_xy_m**2, 1 / self.p.loop_sigma_xy_m**2,
-                             1 / self.p.loop_sigma_yaw_rad**2])
-        edges = [(i, j, z, info_odom) for i, j, z in self.seq_edges]
-        edges += [(i, j, z, info_loop) for i, j, z in self.loop_edges]
-        x0 = np.array([_v(kf.pose) for kf in self.keyframes])
-        x = optimize_pose_graph(x0, edges)
-        last_old = self.keyframes[-1].pose
-        for kf, row in zip(self.keyframes, x, strict=True):
-            kf.pose = Pose2D(float(row[0]), float(row[1]), float(row[2]))
-        self.pose = self.keyframes[-1].pose @ (last_old.inverse() @ self.pose)
-        self._correct_trajectory(x0)
-        # Rebuilding the grid is the expensive part: skip it when nothing moved visibly.
-        shift = np.hypot(x[:, 0] - x0[:, 0], x[:, 1] - x0[:, 1]) + 3.0 * np.abs(
-            wrap_angles(x[:, 2] - x0[:, 2]))
-        if float(shift.max()) > 0.5 * self.p.resolution_m:
-            self.rebuild()
-
-    def _correct_trajectory(self, x0: F64) -> None:
-        """Move every scan pose with the keyframe it follows."""
-        idx = self._kf_scan_index
-        for n, (k_start, k_end) in enumerate(zip(idx, [*idx[1:], len(self.trajectory)],
-                                                 strict=True)):
-            old = Pose2D(*x0[n])
-            corr = self.keyframes[n].pose @ old.inverse()
-            for t in range(k_start, k_end):
-                stamp, p = self.trajectory[t]
-                self.trajectory[t] = (stamp, corr @ p)
-
     def rebuild(self) -> None:
         """Rebuild the occupancy grid from every keyframe at its current pose."""
         self.grid = LogOdds(self.p.resolution_m, self.p)
         for kf in self.keyframes:
             self._integrate(kf)
+        self._grid_stale = False
+        self._grid_count = len(self.keyframes)
 
     def occupancy(self) -> OccupancyGrid:
-        """The map so far (cropped to what was seen)."""
+        """The map so far (cropped to what was seen); rebuilt first if the graph moved."""
+        if self._grid_stale:
+            self.rebuild()
+        for kf in self.keyframes[self._grid_count:]:
+            self._integrate(kf)
+        self._grid_count = len(self.keyframes)
         return self.grid.occupancy()
 
 
@@ -522,13 +478,13 @@ def build_map_from_log(scans: Iterable[LogScan], params: MapperParams | None = N
                        initial: Pose2D = Pose2D()) -> ScanMapper:
     """Run the mapper over the scans of a log; ``progress(n)`` after each scan."""
     mapper = ScanMapper(params, initial)
+    mapper.defer_grid = True  # the grid is drawn once, from the final keyframe poses
     for n, s in enumerate(scans, start=1):
         pts, dirs = _scan_inputs(s, min(s.range_max_m, mapper.p.max_range_m))
         mapper.add_scan(s.stamp, s.odom, pts, s.laser_pose, dirs)
         if progress is not None:
             progress(n)
-    if mapper.loop_edges:
-        mapper._optimize()
+    mapper.finish()
     return mapper
 
 
@@ -630,8 +586,7 @@ class MappingNode:
             return None
 
         def final() -> OccupancyGrid:
-            if mapper.loop_edges:
-                mapper._optimize()
+            mapper.finish()
             return mapper.occupancy()
 
         return await asyncio.to_thread(final) if self.in_thread else final()
