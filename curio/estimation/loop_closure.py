@@ -172,7 +172,7 @@ class LoopCloser:
         self._grids: OrderedDict[int, LikelihoodGrid] = OrderedDict()
         self.pending: list[Hypothesis] = []
         self.accepted: list[tuple[int, Hypothesis]] = []  # (edge index, hypothesis)
-        self._connected_travel = -math.inf
+        self._connected = (-math.inf, -math.inf)  # travel of the last closure's kf and anchor
         self.tried = 0
         self.matched = 0
         self.rejected_inconsistent = 0
@@ -324,19 +324,21 @@ class LoopCloser:
 
     def _verify(self, hyp: Hypothesis) -> list[int]:
         travel = self.kfs[hyp.kf].travel_m
-        if travel - self._connected_travel <= self.p.loop_connected_m:
-            if self._chi2_estimate(hyp) <= self.p.loop_gate_chi2:
-                return self._accept([hyp])
-            self.rejected_inconsistent += 1
-            return []
+        anchor_travel = self.kfs[hyp.anchor].travel_m
+        span = self.p.loop_pending_m + 2.0 * self.p.submap_m
+        kf_t, anchor_t = self._connected
+        if (travel - kf_t <= self.p.loop_connected_m and abs(anchor_travel - anchor_t) <= span
+                and self._chi2_estimate(hyp) <= self.p.loop_gate_chi2):
+            return self._accept([hyp])
         self.pending = [h for h in self.pending
                         if travel - self.kfs[h.kf].travel_m <= self.p.loop_pending_m]
-        span = self.p.loop_pending_m + 2.0 * self.p.submap_m
         agree = [h for h in self.pending
-                 if abs(self.kfs[h.anchor].travel_m - self.kfs[hyp.anchor].travel_m) <= span
+                 if abs(self.kfs[h.anchor].travel_m - anchor_travel) <= span
                  and h.kf != hyp.kf and self._chi2_pair(hyp, h) <= self.p.loop_gate_chi2]
         self.pending.append(hyp)
         if len(agree) + 1 < self.p.loop_consistent:
+            if self.pending and len(self.pending) > 1 and not agree:
+                self.rejected_inconsistent += 1
             return []
         group = [*agree, hyp]
         self.pending = [h for h in self.pending if h not in group]
@@ -350,7 +352,8 @@ class LoopCloser:
             added.append(e)
             log.debug("loop closure: keyframe %d -> %d (score %.2f, inliers %.2f)", h.anchor,
                       h.kf, h.score, h.inliers)
-        self._connected_travel = max(self.kfs[h.kf].travel_m for h in group)
+        last = max(group, key=lambda h: self.kfs[h.kf].travel_m)
+        self._connected = (self.kfs[last.kf].travel_m, self.kfs[last.anchor].travel_m)
         return added
 
     def correction(self, hyp: Hypothesis) -> float:

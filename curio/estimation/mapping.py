@@ -414,15 +414,20 @@ class ScanMapper:
 
     # --- back end ------------------------------------------------------------------------------
     def _optimize(self) -> None:
-        """Optimise the graph, drop loop edges that still disagree, move everything along."""
+        """Optimise the graph (plain least squares, then drop the loop edges that still
+        disagree, then with the robust kernel), and move everything along."""
+        self.graph.optimize(robust=False)
+        for _ in range(5):
+            chi2 = self.graph.chi2()
+            out = self.graph.outliers(self.p.outlier_chi2)
+            if not out:
+                break
+            worst = max(out, key=lambda e: chi2[e])  # one at a time: it may explain the rest
+            self.graph.deactivate(worst)
+            log.info("loop closure %d -> %d dropped after optimisation (chi2 %.1f)",
+                     self.graph.ii[worst], self.graph.jj[worst], float(chi2[worst]))
+            self.graph.optimize(robust=False)
         self.graph.optimize()
-        out = self.graph.outliers(self.p.outlier_chi2)
-        if out:
-            for e in out:
-                self.graph.deactivate(e)
-                log.info("loop closure %d -> %d dropped after optimisation (chi2 %.1f)",
-                         self.graph.ii[e], self.graph.jj[e], float(self.graph.chi2()[e]))
-            self.graph.optimize()
         self.optimizations += 1
         last = self.keyframes[-1]
         rel = last.pose.inverse() @ self.pose

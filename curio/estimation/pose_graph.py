@@ -113,6 +113,7 @@ class PoseGraph:
         self.info: list[F64] = []
         self.robust: list[bool] = []
         self.active: list[bool] = []
+        self._robust_on = True
 
     # --- building ------------------------------------------------------------------------------
     def add_node(self, pose: Pose2D) -> int:
@@ -175,6 +176,8 @@ class PoseGraph:
         return ii, jj, z, info, rob
 
     def _weights(self, chi2: F64, rob: npt.NDArray[np.bool_]) -> F64:
+        if not self._robust_on:
+            return np.ones_like(chi2)
         s = np.minimum(1.0, 2.0 * self.dcs_phi / (self.dcs_phi + chi2))
         return np.where(rob, s * s, 1.0)
 
@@ -226,8 +229,22 @@ class PoseGraph:
         np.add.at(g, (3 * jj)[:, None] + r3[None, :], np.einsum("mil,ml->mi", bt_o, e))
         return h, g
 
-    def optimize(self, iterations: int = 20, tolerance: float = 1e-6) -> OptimizeResult:
-        """Levenberg–Marquardt on the graph (node 0 fixed); updates the node poses."""
+    def optimize(self, iterations: int = 20, tolerance: float = 1e-6,
+                 robust: bool = True) -> OptimizeResult:
+        """Levenberg–Marquardt on the graph (node 0 fixed); updates the node poses.
+
+        ``robust=False`` treats every edge as quadratic (DCS off) — for the first solve after
+        closures that must pull the graph far: DCS scales an edge by its χ² *at the current
+        estimate*, so a correct closure that has yet to undo a metre of drift would start
+        switched off.
+        """
+        self._robust_on = robust
+        try:
+            return self._optimize(iterations, tolerance)
+        finally:
+            self._robust_on = True
+
+    def _optimize(self, iterations: int, tolerance: float) -> OptimizeResult:
         x = self.poses
         n = len(x)
         ii, jj, z, info, rob = self._arrays()
