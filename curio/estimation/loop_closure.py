@@ -103,6 +103,9 @@ class LoopParams:
     loop_cell_m: float = 0.05
     loop_min_score: float = 0.5
     loop_min_inliers: float = 0.55
+    loop_ambiguity: float = 0.9
+    loop_peak_m: float = 0.3
+    loop_peak_rad: float = math.radians(3.0)
     loop_try_every: int = 2
     loop_candidates: int = 2
     loop_query_m: float = 1.5
@@ -176,6 +179,7 @@ class LoopCloser:
         self.tried = 0
         self.matched = 0
         self.rejected_inconsistent = 0
+        self.ambiguous = 0
 
     # --- submaps -------------------------------------------------------------------------------
     def _close_submaps(self) -> None:
@@ -287,12 +291,32 @@ class LoopCloser:
                             self.p.loop_min_score)
         if found is None:
             return None
+        # The runner-up outside the best peak: a match that is as good elsewhere is ambiguous
+        # (a corridor, a row of identical doors).
+        second = grid.search(sub, guess, radius, self.p.loop_search_rad, self.p.loop_step_rad,
+                             self.p.loop_ambiguity * found[1],
+                             exclude=(found[0], self.p.loop_peak_m, self.p.loop_peak_rad))
+        axis: F64 | None = None
+        if second is not None:
+            if abs(wrap_angle(second[0].yaw - found[0].yaw)) > self.p.loop_peak_rad:
+                self.ambiguous += 1
+                return None
+            axis = np.array([second[0].x - found[0].x, second[0].y - found[0].y])
         ref = refine(s.pmap, query, found[0], sigma_m=self.p.match_sigma_m)
         if ref.inlier_fraction < self.p.loop_min_inliers:
             return None
+        info = to_local_info(ref.info, ref.pose.yaw)
+        if axis is not None:
+            # Keep only what the match fixes: nothing along the line joining the two peaks.
+            c, sn = math.cos(ref.pose.yaw), math.sin(ref.pose.yaw)
+            d = np.array([c * axis[0] + sn * axis[1], -sn * axis[0] + c * axis[1]])
+            d /= max(float(np.linalg.norm(d)), 1e-9)
+            proj = np.eye(3)
+            proj[:2, :2] -= np.outer(d, d)
+            info = proj @ info @ proj
+            self.ambiguous += 1
         self.matched += 1
-        return Hypothesis(s.anchor, k, ref.pose, to_local_info(ref.info, ref.pose.yaw),
-                          found[1], ref.inlier_fraction)
+        return Hypothesis(s.anchor, k, ref.pose, info, found[1], ref.inlier_fraction)
 
     # --- verification --------------------------------------------------------------------------
     def _chi2_pair(self, a: Hypothesis, b: Hypothesis) -> float:

@@ -151,11 +151,14 @@ class LikelihoodGrid:
         return float(self.grid[r[ok], c[ok]].sum()) / len(points)
 
     def search(self, points: F64, center: Pose2D, window_m: float, window_rad: float,
-               step_rad: float, min_score: float = 0.0) -> tuple[Pose2D, float] | None:
+               step_rad: float, min_score: float = 0.0,
+               exclude: tuple[Pose2D, float, float] | None = None) -> tuple[Pose2D, float] | None:
         """The best pose of ``points`` within ``±window_m`` and ``±window_rad`` of ``center``.
 
         Translations are searched on the grid's cells, rotations every ``step_rad``; the best
-        mean grid value must reach ``min_score`` (0..1).
+        mean grid value must reach ``min_score`` (0..1). ``exclude = (pose, radius_m,
+        radius_rad)`` leaves out the solutions that close to ``pose`` (a previous result of the
+        same search): the runner-up peak.
 
         Returns:
             ``(pose, score)`` or None when nothing reaches ``min_score``.
@@ -164,10 +167,19 @@ class LikelihoodGrid:
             return None
         cells = max(0, math.ceil(window_m / self.resolution_m))
         n_rot = max(0, math.ceil(window_rad / step_rad))
+        ex_i = ex_j = ex_k = ex_rot = 0
+        ex_cells = -1
+        if exclude is not None:
+            ex_pose, ex_m, ex_rad = exclude
+            ex_j = round((ex_pose.x - center.x) / self.resolution_m)
+            ex_i = round((ex_pose.y - center.y) / self.resolution_m)
+            ex_k = round(wrap_angle(ex_pose.yaw - center.yaw) / step_rad)
+            ex_cells = math.ceil(ex_m / self.resolution_m)
+            ex_rot = math.ceil(ex_rad / step_rad)
         score, dx, dy, dth, _ = branch_and_bound(
             self.pyramid, self.ox, self.oy, self.resolution_m,
             np.ascontiguousarray(points, dtype=np.float64), center.x, center.y, center.yaw,
-            cells, n_rot, step_rad, min_score)
+            cells, n_rot, step_rad, min_score, ex_i, ex_j, ex_k, ex_cells, ex_rot)
         if score < 0.0:
             return None
         return Pose2D(center.x + dx, center.y + dy, wrap_angle(center.yaw + dth)), float(score)

@@ -118,11 +118,15 @@ def _discretise(points, ox, oy, res, cx, cy, cth, n_rot, dth):  # type: ignore[n
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
 def branch_and_bound(pyr, ox, oy, res, points, cx, cy, cth,  # type: ignore[no-untyped-def]
-                     window_cells, n_rot, dth, min_score):
+                     window_cells, n_rot, dth, min_score, ex_i=0, ex_j=0, ex_k=0,
+                     ex_cells=-1, ex_rot=0):
     """Best pose of ``points`` (``(N, 2)``, sensor frame) on the grid of ``pyr``.
 
     Candidates: rotations ``cth + k·dth`` for ``k = −n_rot … n_rot``; translations
     ``(cx + dj·res, cy + di·res)`` for integer ``di, dj`` in ``[−window_cells, window_cells]``.
+    With ``ex_cells ≥ 0`` the solutions within ``ex_cells`` cells of ``(ex_i, ex_j)`` and
+    ``ex_rot`` steps of rotation ``ex_k`` (offsets as returned, over ``res`` and ``dth``) are
+    excluded — the second-best peak, to tell a unique match from an ambiguous one.
 
     Returns:
         ``(score, dx_m, dy_m, dth_rad, visited)``: the best mean value (``−1`` if none reaches
@@ -186,6 +190,9 @@ def branch_and_bound(pyr, ox, oy, res, points, cx, cy, cth,  # type: ignore[no-u
         if s < best:
             continue
         if lev == 0:
+            if (ex_cells >= 0 and abs(di - ex_i) <= ex_cells and abs(dj - ex_j) <= ex_cells
+                    and abs(k - n_rot - ex_k) <= ex_rot):
+                continue
             best = s
             best_k = k
             best_i = di
