@@ -180,6 +180,7 @@ class LoopCloser:
         self.matched = 0
         self.rejected_inconsistent = 0
         self.ambiguous = 0
+        self.new_region = False  # the last edges closed a loop into a region not connected
 
     # --- submaps -------------------------------------------------------------------------------
     def _close_submaps(self) -> None:
@@ -244,6 +245,7 @@ class LoopCloser:
         """
         self._close_submaps()
         k = len(self.kfs) - 1
+        self.new_region = False
         if k % self.p.loop_try_every != 0 or not self.submaps:
             return []
         added: list[int] = []
@@ -366,6 +368,7 @@ class LoopCloser:
             return []
         group = [*agree, hyp]
         self.pending = [h for h in self.pending if h not in group]
+        self.new_region = True
         return self._accept(group)
 
     def _accept(self, group: list[Hypothesis]) -> list[int]:

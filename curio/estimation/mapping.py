@@ -96,8 +96,8 @@ class MapperParams(LoopParams):
     l_occ: float = 0.9
     l_free: float = -0.4
     l_max: float = 6.0
-    keyframe_d_m: float = 0.15
-    keyframe_a_rad: float = 0.1
+    keyframe_d_m: float = 0.3
+    keyframe_a_rad: float = 0.2
     local_map_m: float = 8.0
     local_map_keyframes: int = 40
     match_cell_m: float = 0.05
@@ -113,6 +113,7 @@ class MapperParams(LoopParams):
     odom_yaw_per_m: float = 0.1
     dcs_phi: float = 5.0
     outlier_chi2: float = 30.0
+    optimize_every: int = 8
 
 
 def optimize_pose_graph(poses: F64, edges: list[tuple[int, int, Pose2D, F64]],
@@ -260,6 +261,7 @@ class ScanMapper:
         self.scans = 0
         self.matched = 0
         self.optimizations = 0
+        self._unoptimized = 0
         self.defer_grid = False
         self._grid_stale = False
         self._grid_count = 0  # keyframes integrated into ``grid``
@@ -365,8 +367,13 @@ class ScanMapper:
         if not self.defer_grid and not self._grid_stale:
             self._integrate(kf)
             self._grid_count += 1
-        if self.loops.on_keyframe(lambda: self._query_cloud(k)):
-            self._optimize()
+        edges = self.loops.on_keyframe(lambda: self._query_cloud(k))
+        if edges:
+            # A loop into a new region moves the graph far: optimise at once. Further closures
+            # in a region the estimate already agrees with are batched.
+            self._unoptimized += len(edges)
+            if self.loops.new_region or self._unoptimized >= self.p.optimize_every:
+                self._optimize()
         self._rebuild_local()
 
     def _query_cloud(self, k: int) -> F64:
@@ -429,6 +436,7 @@ class ScanMapper:
             self.graph.optimize(robust=False)
         self.graph.optimize()
         self.optimizations += 1
+        self._unoptimized = 0
         last = self.keyframes[-1]
         rel = last.pose.inverse() @ self.pose
         x = self.graph.poses

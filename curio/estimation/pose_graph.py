@@ -260,7 +260,8 @@ class PoseGraph:
             accepted = False
             for _ in range(8):
                 damped = h + sp.diags(lam * np.maximum(diag, 1e-9) + 1e-9)
-                step = np.asarray(spsolve(damped.tocsc(), -g[3:]), dtype=np.float64)
+                step = np.asarray(spsolve(damped.tocsc(), -g[3:], permc_spec="MMD_AT_PLUS_A"),
+                                  dtype=np.float64)
                 xn = x.copy()
                 xn[1:] += step.reshape(n - 1, 3)
                 xn[:, 2] = wrap_angles(xn[:, 2])

@@ -127,6 +127,11 @@ class LikelihoodGrid:
                           float(points[:, 0].max()), float(points[:, 1].max()))
             else:
                 bounds = (0.0, 0.0, 0.0, 0.0)
+        if bounds is not None and len(points):  # no wider than the points need
+            bounds = (max(bounds[0], float(points[:, 0].min())),
+                      max(bounds[1], float(points[:, 1].min())),
+                      min(bounds[2], float(points[:, 0].max())),
+                      min(bounds[3], float(points[:, 1].max())))
         xmin, ymin, xmax, ymax = bounds
         self.ox = math.floor((xmin - pad) / resolution_m) * resolution_m
         self.oy = math.floor((ymin - pad) / resolution_m) * resolution_m
@@ -277,6 +282,9 @@ def refine(pmap: PointMap, points: F64, guess: Pose2D, *, sigma_m: float = 0.03,
         x += float(step[0])
         y += float(step[1])
         th = wrap_angle(th + float(step[2]))
+        if (dmax <= max_dist_m[-1] and abs(step[0]) < 1e-4 and abs(step[1]) < 1e-4
+                and abs(step[2]) < 1e-4):
+            break
     # Final residuals at the converged pose.
     pose = Pose2D(x, y, th)
     c, s = math.cos(th), math.sin(th)

@@ -1,7 +1,7 @@
 """Compiled kernels of the correlative scan matcher (numba, ``nogil``).
 
 * :func:`splat_points` draws a likelihood grid: every cell holds ``exp(−d² / 2σ²)`` of the
-  distance ``d`` from its centre to the nearest of the given points (within 3σ; the maximum
+  distance ``d`` from its centre to the nearest cell holding a point (within 3σ; the maximum
   over points, so overlapping scans do not add up).
 * :func:`max_pyramid` precomputes, for each depth ``h``, the maximum of the grid over the
   ``2^h × 2^h`` block of cells starting at each cell — the bounds that make branch and bound
@@ -32,25 +32,32 @@ __all__ = ["branch_and_bound", "max_pyramid", "splat_points"]
 def splat_points(points, ox, oy, res, sigma, out):  # type: ignore[no-untyped-def]
     """Draw ``points`` (``(M, 2)`` metres) into ``out`` (``(H, W)`` float32, in place).
 
-    Each cell within 3σ of a point becomes ``max(cell, exp(−d² / 2σ²))``.
+    Each point is snapped to the centre of its cell (at most half a cell off, far below the
+    search's resolution) and every cell within 3σ becomes ``max(cell, exp(−d² / 2σ²))``; a
+    cell hit by many points is drawn once.
     """
     h, w = out.shape
     rad = math.ceil(3.0 * sigma / res)
-    inv2s2 = 1.0 / (2.0 * sigma * sigma)
+    kern = np.empty((2 * rad + 1, 2 * rad + 1), dtype=np.float32)
+    for a in range(2 * rad + 1):
+        for b in range(2 * rad + 1):
+            d2 = ((a - rad) ** 2 + (b - rad) ** 2) * res * res
+            kern[a, b] = math.exp(-d2 / (2.0 * sigma * sigma))
+    hit = np.zeros((h, w), dtype=np.bool_)
     for n in range(points.shape[0]):
-        px = points[n, 0]
-        py = points[n, 1]
-        fc = (px - ox) / res
-        fr = (py - oy) / res
-        c0 = math.floor(fc)
-        r0 = math.floor(fr)
-        for r in range(max(0, r0 - rad), min(h, r0 + rad + 1)):
-            dy = (r + 0.5 - fr) * res
-            for c in range(max(0, c0 - rad), min(w, c0 + rad + 1)):
-                dx = (c + 0.5 - fc) * res
-                v = math.exp(-(dx * dx + dy * dy) * inv2s2)
-                if v > out[r, c]:
-                    out[r, c] = v
+        c0 = math.floor((points[n, 0] - ox) / res)
+        r0 = math.floor((points[n, 1] - oy) / res)
+        if 0 <= r0 < h and 0 <= c0 < w:
+            hit[r0, c0] = True
+    for r0 in range(h):
+        for c0 in range(w):
+            if not hit[r0, c0]:
+                continue
+            for r in range(max(0, r0 - rad), min(h, r0 + rad + 1)):
+                for c in range(max(0, c0 - rad), min(w, c0 + rad + 1)):
+                    v = kern[r - r0 + rad, c - c0 + rad]
+                    if v > out[r, c]:
+                        out[r, c] = v
 
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
