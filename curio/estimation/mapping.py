@@ -51,6 +51,7 @@ import numpy.typing as npt
 
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.estimation.carmen import LogScan, read_log
+from curio.estimation.log_odds_kernel import integrate_rays
 from curio.estimation.loop_closure import Keyframe, LoopCloser, LoopParams
 from curio.estimation.maps import OccupancyGrid, save_map
 from curio.estimation.pose_graph import PoseGraph, to_local_info
@@ -145,6 +146,8 @@ class LogOdds:
         self.p = params
         self.l: npt.NDArray[np.float32] = np.zeros((0, 0), dtype=np.float32)
         self.seen: npt.NDArray[np.bool_] = np.zeros((0, 0), dtype=bool)
+        self._mark: npt.NDArray[np.int64] = np.zeros((0, 0), dtype=np.int64)
+        self._scan_id = 0
         self.ox = 0.0
         self.oy = 0.0
 
@@ -158,6 +161,7 @@ class LogOdds:
             h = math.ceil((ymax - self.oy + pad) / res)
             self.l = np.zeros((h, w), dtype=np.float32)
             self.seen = np.zeros((h, w), dtype=bool)
+            self._mark = np.zeros((h, w), dtype=np.int64)
             return
         h, w = self.l.shape
         grow_l = max(0, math.ceil((self.ox - xmin) / res))
@@ -169,49 +173,27 @@ class LogOdds:
             gl, gb, gr, gt = (g + step if g else 0 for g in (grow_l, grow_b, grow_r, grow_t))
             self.l = np.pad(self.l, ((gb, gt), (gl, gr)))
             self.seen = np.pad(self.seen, ((gb, gt), (gl, gr)))
+            self._mark = np.pad(self._mark, ((gb, gt), (gl, gr)))
             self.ox -= gl * res
             self.oy -= gb * res
 
     def integrate(self, origin_xy: tuple[float, float], ends: F64, clear_ends: F64) -> None:
-        """One scan: rays from ``origin_xy`` to ``ends`` (hit) and to ``clear_ends`` (no hit)."""
+        """One scan: rays from ``origin_xy`` to ``ends`` (hit) and to ``clear_ends`` (no hit).
+
+        Free cells are sampled every 0.8 cell up to one cell short of a hit (to the end if
+        none); a cell that is some beam's end point in this scan is not also marked free; each
+        cell is updated at most once per scan (:mod:`curio.estimation.log_odds_kernel`).
+        """
         allp = np.vstack([ends, clear_ends, np.array([origin_xy])])
         self._ensure(float(allp[:, 0].min()), float(allp[:, 1].min()),
                      float(allp[:, 0].max()), float(allp[:, 1].max()))
-        res = self.res
-        w = self.l.shape[1]
-        targets = np.vstack([ends, clear_ends])
+        targets = np.ascontiguousarray(np.vstack([ends, clear_ends]), dtype=np.float64)
         if len(targets) == 0:
             return
-        dx = targets[:, 0] - origin_xy[0]
-        dy = targets[:, 1] - origin_xy[1]
-        length = np.hypot(dx, dy)
-        n_hit = len(ends)
-        occ = np.zeros(0, dtype=np.int64)
-        if n_hit:
-            cols = ((ends[:, 0] - self.ox) / res).astype(np.int64)
-            rows = ((ends[:, 1] - self.oy) / res).astype(np.int64)
-            occ = np.unique(rows * w + cols)
-        # Free cells: samples every 0.8 cell up to one cell short of a hit (to the end if none);
-        # a cell that is some beam's end point in this scan is not also marked free.
-        stop = length.copy()
-        stop[:n_hit] -= res
-        steps = np.arange(0.0, float(stop.max(initial=0.0)), 0.8 * res)
-        flat_l = self.l.reshape(-1)
-        flat_seen = self.seen.reshape(-1)
-        if len(steps):
-            frac = steps[None, :] / np.maximum(length[:, None], 1e-9)
-            mask = steps[None, :] < stop[:, None]
-            fx = origin_xy[0] + dx[:, None] * frac
-            fy = origin_xy[1] + dy[:, None] * frac
-            cols = ((fx[mask] - self.ox) / res).astype(np.int64)
-            rows = ((fy[mask] - self.oy) / res).astype(np.int64)
-            free = np.setdiff1d(np.unique(rows * w + cols), occ, assume_unique=True)
-            flat_l[free] += self.p.l_free
-            flat_seen[free] = True
-        if len(occ):
-            flat_l[occ] += self.p.l_occ
-            flat_seen[occ] = True
-        np.clip(self.l, -self.p.l_max, self.p.l_max, out=self.l)
+        self._scan_id += 1
+        integrate_rays(self.l, self.seen, self._mark, self._scan_id, self.ox, self.oy, self.res,
+                       float(origin_xy[0]), float(origin_xy[1]), targets, len(ends),
+                       self.p.l_free, self.p.l_occ, self.p.l_max)
 
     def occupancy(self, crop: bool = True, margin_m: float = 1.0) -> OccupancyGrid:
         """The grid as map_server occupancy (−1 unknown, 0..100), cropped to the seen area."""
