@@ -72,6 +72,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Keyframe",
+    "MapDrawer",
+    "MapSnapshot",
     "MapperParams",
     "MappingNode",
     "ScanMapper",
@@ -231,7 +233,7 @@ class ScanMapper:
 
     def __init__(self, params: MapperParams | None = None, initial: Pose2D = Pose2D()) -> None:
         self.p = params or MapperParams()
-        self.grid = LogOdds(self.p.resolution_m, self.p)
+        self.drawer = MapDrawer(self.p)
         self.graph = PoseGraph(self.p.dcs_phi)
         self.keyframes: list[Keyframe] = []
         self.loops = LoopCloser(self.p, self.keyframes, self.graph)
@@ -244,9 +246,7 @@ class ScanMapper:
         self.matched = 0
         self.optimizations = 0
         self._unoptimized = 0
-        self.defer_grid = False
-        self._grid_stale = False
-        self._grid_count = 0  # keyframes integrated into ``grid``
+        self.version = 0  # bumped whenever keyframes move (an optimisation)
         self._local: tuple[PointMap, LikelihoodGrid] | None = None
         self._local_kf = -1
         self._traj: list[tuple[float, int, Pose2D]] = []  # stamp, keyframe, pose in its frame
@@ -346,9 +346,6 @@ class ScanMapper:
             self.graph.add_edge(k - 1, k, prev.pose.inverse() @ pose,
                                 to_local_info(info, pose.yaw))
         self._since_kf = Pose2D()
-        if not self.defer_grid and not self._grid_stale:
-            self._integrate(kf)
-            self._grid_count += 1
         edges = self.loops.on_keyframe(lambda: self._query_cloud(k))
         if edges:
             # A loop into a new region moves the graph far: optimise at once. Further closures
@@ -426,7 +423,7 @@ class ScanMapper:
             kf.pose = Pose2D(float(row[0]), float(row[1]), float(row[2]))
         self.pose = last.pose @ rel
         self.loops.invalidate()
-        self._grid_stale = True
+        self.version += 1
 
     def finish(self) -> None:
         """After the last scan: a final optimisation if there are loop closures."""
@@ -434,29 +431,59 @@ class ScanMapper:
             self._optimize()
 
     # --- the occupancy grid --------------------------------------------------------------------
-    def _integrate(self, kf: Keyframe, grid: LogOdds | None = None) -> None:
-        g = grid or self.grid
-        ends = kf.pose.transform_points(kf.points)
-        lo = kf.pose @ kf.laser
-        clear = kf.pose.transform_points(kf.laser.transform_points(
-            kf.no_return * self.p.no_return_clear_m)) if len(kf.no_return) else np.zeros((0, 2))
-        g.integrate((lo.x, lo.y), ends, clear)
+    def snapshot(self) -> MapSnapshot:
+        """What the map is drawn from, as it is now (cheap; safe to draw in another thread)."""
+        return MapSnapshot(self.version, tuple((kf.pose, kf) for kf in self.keyframes))
+
+    @property
+    def grid(self) -> LogOdds:
+        """The log-odds grid as last drawn."""
+        return self.drawer.grid
 
     def rebuild(self) -> None:
-        """Rebuild the occupancy grid from every keyframe at its current pose."""
-        self.grid = LogOdds(self.p.resolution_m, self.p)
-        for kf in self.keyframes:
-            self._integrate(kf)
-        self._grid_stale = False
-        self._grid_count = len(self.keyframes)
+        """Redraw the occupancy grid from every keyframe at its current pose."""
+        self.drawer.draw(self.snapshot(), full=True)
 
     def occupancy(self) -> OccupancyGrid:
-        """The map so far (cropped to what was seen); rebuilt first if the graph moved."""
-        if self._grid_stale:
-            self.rebuild()
-        for kf in self.keyframes[self._grid_count:]:
-            self._integrate(kf)
-        self._grid_count = len(self.keyframes)
+        """The map so far (cropped to what was seen); redrawn first if the graph moved."""
+        return self.drawer.draw(self.snapshot())
+
+
+@dataclass(frozen=True)
+class MapSnapshot:
+    """The keyframes to draw, with the poses they had at ``version`` of the mapper's graph."""
+
+    version: int
+    keyframes: tuple[tuple[Pose2D, Keyframe], ...]
+
+
+class MapDrawer:
+    """Draws (and keeps) the log-odds grid of a :class:`MapSnapshot`: only the new keyframes
+    when the graph has not moved since the last drawing, all of them when it has."""
+
+    def __init__(self, params: MapperParams) -> None:
+        self.p = params
+        self.grid = LogOdds(params.resolution_m, params)
+        self._version = -1
+        self._count = 0
+
+    def _integrate(self, pose: Pose2D, kf: Keyframe) -> None:
+        ends = pose.transform_points(kf.points)
+        lo = pose @ kf.laser
+        clear = (pose.transform_points(kf.laser.transform_points(
+            kf.no_return * self.p.no_return_clear_m)) if len(kf.no_return)
+            else np.zeros((0, 2)))
+        self.grid.integrate((lo.x, lo.y), ends, clear)
+
+    def draw(self, snap: MapSnapshot, full: bool = False) -> OccupancyGrid:
+        """Bring the grid up to ``snap`` and return it as map_server occupancy."""
+        if full or snap.version != self._version or len(snap.keyframes) < self._count:
+            self.grid = LogOdds(self.p.resolution_m, self.p)
+            self._count = 0
+            self._version = snap.version
+        for pose, kf in snap.keyframes[self._count:]:
+            self._integrate(pose, kf)
+        self._count = len(snap.keyframes)
         return self.grid.occupancy()
 
 
@@ -473,7 +500,6 @@ def build_map_from_log(scans: Iterable[LogScan], params: MapperParams | None = N
                        initial: Pose2D = Pose2D()) -> ScanMapper:
     """Run the mapper over the scans of a log; ``progress(n)`` after each scan."""
     mapper = ScanMapper(params, initial)
-    mapper.defer_grid = True  # the grid is drawn once, from the final keyframe poses
     for n, s in enumerate(scans, start=1):
         pts, dirs = _scan_inputs(s, min(s.range_max_m, mapper.p.max_range_m))
         mapper.add_scan(s.stamp, s.odom, pts, s.laser_pose, dirs)
@@ -502,12 +528,14 @@ class MappingNode:
     def __init__(self, bus: Bus, clock: Clock, laser: Pose2D, start: Pose2D,
                  on_map: Callable[[OccupancyGrid], None], params: MapperParams | None = None,
                  publish_period_s: float = 2.0, *, in_thread: bool = False) -> None:
-        """``in_thread``: map each scan in a worker thread (``asyncio.to_thread``) — a loop
-        closure re-optimises the graph and rebuilds the grid, hundreds of milliseconds that must
-        not block the event loop on a real clock; on a simulated clock scans are mapped inline,
-        keeping runs deterministic."""
+        """``in_thread``: map each scan in a worker thread (``asyncio.to_thread``) and draw the
+        published map in another — a loop closure re-optimises the graph (tens of milliseconds)
+        and the map must then be redrawn from every keyframe (hundreds), neither of which may
+        block the event loop on a real clock, and the drawing must not hold up the next scan;
+        on a simulated clock both run inline, keeping runs deterministic."""
         self.in_thread = in_thread
-        self._inflight: asyncio.Future[tuple[Pose2D, OccupancyGrid | None]] | None = None
+        self._inflight: asyncio.Future[tuple[Pose2D, MapSnapshot | None]] | None = None
+        self._drawing: asyncio.Future[OccupancyGrid] | None = None
         self.bus = bus
         self.clock = clock
         self.laser = laser
@@ -544,38 +572,59 @@ class MappingNode:
             return None
         return min(self._odom[-20:], key=lambda o: abs(o.stamp - scan.stamp))
 
-    def _map_scan(self, scan: LaserScan, odom: Odometry) -> tuple[Pose2D, OccupancyGrid | None]:
+    def _map_scan(self, scan: LaserScan, odom: Odometry) -> tuple[Pose2D, MapSnapshot | None]:
         """The heavy part (thread-safe off the loop: touches the mapper only): the scan's pose
-        and, when a publication is due, the map."""
+        and, when a publication is due, what to draw."""
         r = np.asarray(scan.ranges_m, dtype=np.float64)
         s = LogScan(scan.stamp, odom.pose, self.laser, scan.angle_min_rad,
                     scan.angle_increment_rad, np.where(scan.valid_mask(), r, np.inf),
                     scan.range_max_m)
         pts, dirs = _scan_inputs(s, min(scan.range_max_m, self.mapper.p.max_range_m))
         pose = self.mapper.add_scan(scan.stamp, odom.pose, pts, self.laser, dirs)
-        grid = None
+        snap = None
         if scan.stamp - self._last_publish >= self.publish_period_s:
-            grid = self.mapper.occupancy()
-        return pose, grid
+            snap = self.mapper.snapshot()
+        return pose, snap
 
     def _after_scan(self, scan: LaserScan, odom: Odometry, pose: Pose2D,
-                    grid: OccupancyGrid | None) -> None:
-        """Publish the correction and the map (on the loop)."""
+                    snap: MapSnapshot | None) -> None:
+        """Publish the correction (on the loop) and start drawing the map if one is due."""
         from curio.core.messages import Transform
         from curio.core.topics import MAP_TO_ODOM
 
         self.map_to_odom = pose @ odom.pose.inverse()
         self.bus.publish(MAP_TO_ODOM, Transform(scan.stamp, self.map_to_odom))
-        if grid is not None:
+        if snap is not None and self._draw(snap):
             self._last_publish = scan.stamp
-            self.on_map(grid)
+
+    def _draw(self, snap: MapSnapshot) -> bool:
+        """Draw and publish ``snap``; False if the previous drawing is still running."""
+        drawer = self.mapper.drawer
+        if not self.in_thread:
+            self.on_map(drawer.draw(snap))
+            return True
+        if self._drawing is not None and not self._drawing.done():
+            return False
+        self._drawing = asyncio.ensure_future(asyncio.to_thread(drawer.draw, snap))
+        self._drawing.add_done_callback(self._drawn)
+        return True
+
+    def _drawn(self, fut: asyncio.Future[OccupancyGrid]) -> None:
+        if fut.cancelled():
+            return
+        exc = fut.exception()
+        if exc is not None:
+            log.error("drawing the map failed: %r", exc)
+            return
+        self.on_map(fut.result())
 
     async def finish(self) -> OccupancyGrid | None:
-        """After ``run`` ends: wait for a scan still being mapped, close the pending loops and
-        return the final map (None if nothing was mapped); heavy work off the loop if
-        ``in_thread``."""
-        if self._inflight is not None:
-            await asyncio.wait([self._inflight])
+        """After ``run`` ends: wait for a scan still being mapped and a map being drawn, close
+        the pending loops and return the final map (None if nothing was mapped); heavy work off
+        the loop if ``in_thread``."""
+        pending = [f for f in (self._inflight, self._drawing) if f is not None]
+        if pending:
+            await asyncio.wait(pending)
         mapper = self.mapper
         if not mapper.keyframes:
             return None
@@ -609,8 +658,8 @@ class MappingNode:
                     self._inflight = asyncio.ensure_future(
                         asyncio.to_thread(self._map_scan, s, odom))
                     # Shielded: a cancelled run leaves the thread to finish (see ``finish``).
-                    pose, grid = await asyncio.shield(self._inflight)
-                    self._after_scan(s, odom, pose, grid)
+                    pose, snap = await asyncio.shield(self._inflight)
+                    self._after_scan(s, odom, pose, snap)
 
         try:
             await asyncio.gather(odometry(), scans())
