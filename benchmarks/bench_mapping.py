@@ -13,7 +13,11 @@
    * ``free_agreement`` — built free cells that are truly free (target ≥ 0.97);
    * ``wall_recall`` — true wall-surface cells inside the mapped area with a built obstacle
      within one cell;
-   * ``coverage`` — share of the true free cells that the map knows.
+   * ``coverage`` — share of the true free cells that the map knows;
+   * ``scan_p50_ms`` / ``scan_p99_ms`` / ``scan_max_ms`` — wall time of each scan's mapping
+     (``ScanMapper.add_scan``, the work ``MappingNode`` does per scan while driving; budget: the
+     scan period, 100 ms at 10 Hz) and ``draw_ms`` — drawing the whole map once (done off the
+     per-scan path online).
 
 4. **Real data**: the MIT CSAIL CARMEN log (``../shared/datasets/mit-csail.clf``, 424 s, 1988
    SICK scans) is mapped as ``curio map build`` does and its trajectory scored with the
@@ -184,11 +188,16 @@ def sim_row(opts: BenchOptions, loops: int) -> dict[str, Any]:
     truth: list[Pose2D] = []
     scans, world, duration = record_tour(opts, loops, truth)
     start = Pose2D(*(world.cfg.sim.start or world.cfg.robot.home))
+    marks: list[float] = []
     t0 = wall_perf_counter()
     mapper = build_map_from_log(scans, MapperParams(max_range_m=world.cfg.sim.lidar_range_max_m),
-                                initial=start)
+                                lambda _n: marks.append(wall_perf_counter()), initial=start)
+    t1 = wall_perf_counter()
     built = mapper.occupancy()
-    wall = wall_perf_counter() - t0
+    t2 = wall_perf_counter()
+    wall = t2 - t0
+    # Per scan: the work MappingNode does for each scan while driving (the same add_scan).
+    per_scan = np.diff(np.array([t0, *marks])) * 1000.0
     # The map's frame is the first pose's estimate: also compare up to a rigid transform,
     # fitted on the trajectory (``occupied_agreement``); unaligned is the figure that counts.
     est = [p for _, p in mapper.trajectory]
@@ -211,6 +220,10 @@ def sim_row(opts: BenchOptions, loops: int) -> dict[str, Any]:
         "trajectory_max_m": round(float(err.max()), 4),
         "loop_closures": len(mapper.loop_edges),
         "keyframes": len(mapper.keyframes),
+        "scan_p50_ms": round(float(np.median(per_scan)), 2),
+        "scan_p99_ms": round(float(np.percentile(per_scan, 99)), 1),
+        "scan_max_ms": round(float(per_scan.max()), 1),
+        "draw_ms": round((t2 - t1) * 1000.0, 1),
     }
 
 
