@@ -95,13 +95,26 @@ def max_pyramid(grid, depth):  # type: ignore[no-untyped-def]
 
 @njit(cache=True, nogil=True, inline="always")  # type: ignore[misc]
 def _score(pyr, lev, rows, cols, k, di, dj):  # type: ignore[no-untyped-def]
+    """Mean of level ``lev`` under the points of rotation ``k`` shifted by ``(di, dj)``: an upper
+    bound of the score of every offset in the block ``[di, di+2^lev) × [dj, dj+2^lev)``."""
     _, h, w = pyr.shape
+    size = 1 << lev
     n = rows.shape[1]
     s = 0.0
     for p in range(n):
         r = rows[k, p] + di
         c = cols[k, p] + dj
-        if 0 <= r < h and 0 <= c < w:
+        # A block that starts before the grid but reaches into it is bounded by the block at
+        # the edge (which covers the part inside); one entirely outside reads 0.
+        if r < 0:
+            if r + size <= 0:
+                continue
+            r = 0
+        if c < 0:
+            if c + size <= 0:
+                continue
+            c = 0
+        if r < h and c < w:
             s += pyr[lev, r, c]
     return s / n
 
