@@ -97,7 +97,7 @@ class LoopParams:
     loop_min_travel_m: float = 10.0
     loop_radius_m: float = 2.0
     loop_radius_per_m: float = 0.03
-    loop_max_radius_m: float = 6.0
+    loop_max_radius_m: float = 8.0
     loop_search_rad: float = 0.5
     loop_step_rad: float = math.radians(0.5)
     loop_cell_m: float = 0.05
