@@ -99,7 +99,7 @@ class LoopParams:
     loop_radius_per_m: float = 0.03
     loop_max_radius_m: float = 8.0
     loop_search_rad: float = 0.5
-    loop_step_rad: float = math.radians(0.5)
+    loop_step_rad: float = math.radians(1.0)
     loop_cell_m: float = 0.05
     loop_min_score: float = 0.5
     loop_min_inliers: float = 0.55
