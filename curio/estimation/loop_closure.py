@@ -17,7 +17,11 @@ search, in our own terms):
    branch-and-bound correlative search over the whole radius and ``±loop_search_rad``, then
    refined by point-to-line ICP; the match must reach ``loop_min_score`` and
    ``loop_min_inliers``. The ICP information matrix is the constraint's information: a
-   corridor match constrains across the corridor and the heading, hardly along it.
+   corridor match constrains across the corridor and the heading, hardly along it. A second
+   search for the runner-up outside the best peak (``loop_peak_m``, ``loop_peak_rad``) tells
+   a unique match from an ambiguous one: a runner-up scoring ``loop_ambiguity`` of the best at
+   another heading rejects the match; at the same heading (a corridor, a row of identical
+   doors) the constraint keeps no information along the line joining the two peaks.
 4. **Verification.** A match is a *hypothesis*, not yet a constraint:
 
    * closing a loop into a region not recently connected needs ``loop_consistent``

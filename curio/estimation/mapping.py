@@ -226,8 +226,6 @@ class LogOdds:
         return OccupancyGrid(data, res, Pose2D(self.ox + c0 * res, self.oy + r0 * res, 0.0))
 
 
-
-
 class ScanMapper:
     """Incremental mapper (see the module docstring)."""
 
@@ -238,7 +236,6 @@ class ScanMapper:
         self.keyframes: list[Keyframe] = []
         self.loops = LoopCloser(self.p, self.keyframes, self.graph)
         self.pose = initial
-        self._initial = initial
         self._last_odom: Pose2D | None = None
         self._since_kf = Pose2D()
         self._travel = 0.0
@@ -248,7 +245,6 @@ class ScanMapper:
         self._unoptimized = 0
         self.version = 0  # bumped whenever keyframes move (an optimisation)
         self._local: tuple[PointMap, LikelihoodGrid] | None = None
-        self._local_kf = -1
         self._traj: list[tuple[float, int, Pose2D]] = []  # stamp, keyframe, pose in its frame
 
     # --- results -------------------------------------------------------------------------------
@@ -396,7 +392,6 @@ class ScanMapper:
         grid = LikelihoodGrid(allp, self.p.match_cell_m, self.p.match_cell_m, 3,
                               bounds=(x - reach, y - reach, x + reach, y + reach))
         self._local = (pmap, grid)
-        self._local_kf = len(kfs) - 1
 
     # --- back end ------------------------------------------------------------------------------
     def _optimize(self) -> None:
