@@ -5,6 +5,7 @@ Commands::
     curio map build --log FILE --out MAP.yaml [--trajectory T.csv] [--resolution M]
                     [--max-range M] [--format pgm|png] [--quiet]
     curio map info MAP.yaml
+    curio map score TRAJ.csv RELATIONS [--max-dt S] [--json PATH]
     curio map convert IN.yaml OUT.yaml [--format pgm|png] [--mode trinary|scale|raw]
     curio map record --out RUN.jsonl [--duration S] [--config PATH] [--set KEY=VALUE]...
 
@@ -17,12 +18,18 @@ odometry message (and, in the simulator, the ground truth) to a Curio run log un
 MIT logs) or a Curio run log (``.jsonl``, see :mod:`curio.estimation.carmen`). The trajectory
 CSV has the header ``t,x,y,yaw`` (seconds, metres, metres, radians; the corrected pose of every
 scan in the map frame). Exit codes: 0 success, 1 failure, 2 bad arguments or unreadable input.
+
+``score`` rates such a trajectory with the ground-truth relations of the Freiburg SLAM benchmark
+(Kümmerle et al. 2009; see :mod:`curio.estimation.relations` for the metric and the formats):
+mean ± std of the translational (m) and rotational (deg) relative-relation error, the worst
+relation and the number of relations matched. It exits 1 when no relation matched a pose.
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import math
 import sys
 from pathlib import Path
 from typing import TextIO
@@ -157,6 +164,49 @@ def _convert(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     return 0
 
 
+def _fmt_time(t: float) -> str:
+    return f"{t:.5f}"
+
+
+def _score(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    from curio.core.fileio import atomic_write_json
+    from curio.estimation.relations import (
+        RelationError,
+        read_relations,
+        read_trajectory,
+        score_trajectory,
+    )
+
+    if not (args.max_dt > 0 and math.isfinite(args.max_dt)):
+        err.write(f"curio map score: --max-dt must be a positive number of seconds, got "
+                  f"{args.max_dt}\n")
+        return 2
+    try:
+        traj = read_trajectory(args.trajectory)
+        rels = read_relations(args.relations)
+    except RelationError as exc:
+        err.write(f"curio map score: {exc}\n")
+        return 2
+    sc = score_trajectory(traj, rels, args.max_dt)
+    out.write(f"{args.trajectory}: {len(traj)} poses; {args.relations}: {sc.relations} "
+              f"relations, {sc.matched} matched (timestamps within {args.max_dt:g} s)\n")
+    if sc.matched == 0:
+        err.write(f"curio map score: no relation matched the trajectory's timestamps within "
+                  f"{args.max_dt:g} s (wrong log, or try a larger --max-dt)\n")
+        return 1
+    wt, wr = sc.worst_trans, sc.worst_rot
+    assert wt is not None and wr is not None
+    out.write(f"  translational error  {sc.trans_mean_m:.3f} ± {sc.trans_std_m:.3f} m, "
+              f"max {sc.trans_max_m:.3f} m ({_fmt_time(wt.t1_s)} -> {_fmt_time(wt.t2_s)})\n")
+    out.write(f"  rotational error     {sc.rot_mean_deg:.2f} ± {sc.rot_std_deg:.2f} deg, "
+              f"max {sc.rot_max_deg:.2f} deg ({_fmt_time(wr.t1_s)} -> {_fmt_time(wr.t2_s)})\n")
+    if args.json:
+        atomic_write_json(Path(args.json), {"trajectory": str(args.trajectory),
+                                             "relations_file": str(args.relations),
+                                             "max_dt_s": args.max_dt, **sc.as_dict()})
+    return 0
+
+
 def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     import asyncio
     import contextlib
@@ -250,6 +300,13 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     i = sub.add_parser("info", help="size, resolution, origin and content of a map")
     i.add_argument("map", help="map YAML")
+    s = sub.add_parser("score", help="score a trajectory with ground-truth relations "
+                       "(Freiburg SLAM benchmark metric)")
+    s.add_argument("trajectory", help="trajectory CSV t,x,y,yaw (curio map build --trajectory)")
+    s.add_argument("relations", help="relations file: t1 t2 x y z roll pitch yaw per line")
+    s.add_argument("--max-dt", type=float, default=1e-3,
+                   help="largest timestamp gap of a match, seconds (0.001)")
+    s.add_argument("--json", help="also write the figures to this JSON file")
     c = sub.add_parser("convert", help="rewrite a map (pgm <-> png, another mode)")
     c.add_argument("src", help="input map YAML")
     c.add_argument("dst", help="output map YAML")
@@ -279,4 +336,6 @@ def main(argv: list[str] | None = None, out: TextIO | None = None,
         return _info(args, out, err)
     if args.cmd == "record":
         return _record(args, out, err)
+    if args.cmd == "score":
+        return _score(args, out, err)
     return _convert(args, out, err)

@@ -1,35 +1,39 @@
-"""Mapping a new building: scan matching, keyframes, loop closure on a pose graph.
+"""Mapping a new building: scan-to-map matching, a pose graph of keyframes, verified loop closures.
 
 :class:`ScanMapper` is the engine (no bus, no clock), fed with scans and the odometry at each
 scan — online by :class:`MappingNode` (``SCAN`` + ``ODOM`` while the rover is driven) and offline
 by :func:`build_map_from_log` (``curio map build``).
 
-Per scan:
+Per scan (the *front end*):
 
-1. **Prediction** from odometry: the last corrected pose composed with the odometry increment.
-2. **Scan matching** (Gauss–Newton on the bilinear distance field of a window of the map around
-   the rover, first with a wide then with a tight outlier cut); the match is kept when enough
-   beams fit, else the odometry guess is used. With ``odom_prior_fraction`` > 0 the match is a
-   maximum a posteriori estimate with the prediction as a Gaussian prior (σ = 1 cm +
-   fraction × travel, 0.3° + fraction × (turn + travel / 2)), so directions a scan leaves
-   open (a corridor, the rotation while turning on the spot in front of one wall) follow the
-   odometry instead of drifting. On the mapping benchmark, seeds 1–5, 0.2 against 0 (off):
-   occupied agreement after alignment mean 98.3 % / min 96.7 % against 98.2 % / 95.7 %,
-   unaligned mean 95.9 % against 93.2 % — a modest gain; single seeds still vary by ±2 %
-   with small changes of the input.
-3. **Keyframes** every ``keyframe_d_m`` / ``keyframe_a_rad`` of motion: the scan is added to the
-   log-odds occupancy grid (free cells along each beam, an occupied cell at its end) and the
-   distance-field window is rebuilt.
-4. **Loop closure**: at a keyframe near (``loop_radius_m``) an old one that is far back along the
-   trajectory (``loop_min_travel_m``), the scan is matched against a submap built from the old
-   keyframe's neighbours — a brute-force correlative search (±``loop_search_m``,
-   ±``loop_search_rad``) followed by Gauss–Newton — and an accepted match adds a constraint to
-   the pose graph. The graph (keyframe poses; odometry/scan-match edges between consecutive
-   keyframes and the loop edges) is solved by sparse Gauss–Newton (``scipy.sparse``), and the
-   grid is rebuilt from the corrected keyframes.
+1. **Prediction** from odometry: the last pose composed with the odometry increment.
+2. **Correlative search** (:mod:`curio.estimation.scan_matching`): the scan is placed on a
+   likelihood grid of the *local map* — the points of the keyframes of the last
+   ``local_map_m`` of driving — by an exact branch-and-bound search over ``±search_xy_m`` and
+   ``±search_rad`` around the prediction (twice that when nothing fits: wheel slip, a jump of
+   the odometry). Odometry headings on real robots are often off by 10–20° after a quick turn;
+   a local refinement alone, started there, slides into the wrong basin.
+3. **Refinement**: point-to-line ICP on the local map's points and normals, as a maximum a
+   posteriori estimate with the odometry increment as a Gaussian prior (σ growing with the
+   distance and the turn). Its information matrix says which directions the scan fixed: in a
+   featureless corridor the position along the axis is left to the odometry, and the pose graph
+   is told so. A match whose inliers fall below ``min_inlier_fraction`` is not used (the
+   odometry guess is, with the odometry's information).
+4. **Keyframes** every ``keyframe_d_m`` / ``keyframe_a_rad`` of motion become pose-graph nodes,
+   linked to the previous keyframe by the matched relative pose and its information; every scan
+   keeps its pose relative to its keyframe, so it follows the keyframe when the graph moves.
 
-Frames: the map is built in the frame of the first pose (``initial`` pose, default the origin);
-odometry is ``base_link`` in ``odom``; scan points are in ``base_link``. Metres and radians.
+The *back end* (:mod:`curio.estimation.loop_closure`, :mod:`curio.estimation.pose_graph`):
+keyframes are grouped into submaps; new keyframes are matched on old submaps within a radius
+that grows with the distance driven since; matches become loop-closure edges only when several
+agree with each other (or with an estimate that a recent closure already corrected); the graph
+is optimised with robust (dynamic covariance scaling) loop edges and edges that still disagree
+afterwards are dropped. The occupancy grid (log odds) is rebuilt from the keyframes at their
+optimised poses.
+
+Frames: the map is built in the frame of the first pose (``initial`` pose, default the origin;
+the first keyframe is the graph's fixed node, so the frame does not drift); odometry is
+``base_link`` in ``odom``; scan points are in ``base_link``. Metres and radians.
 """
 
 from __future__ import annotations
@@ -43,20 +47,37 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-import scipy.sparse as sp
-from scipy.sparse.linalg import spsolve
 
-from curio.core.geometry import Pose2D, wrap_angle, wrap_angles
+from curio.core.geometry import Pose2D, wrap_angle
 from curio.estimation.carmen import LogScan
-from curio.estimation.localization import DistanceField, scan_match
+from curio.estimation.log_odds_kernel import integrate_rays
+from curio.estimation.loop_closure import Keyframe, LoopCloser, LoopParams
 from curio.estimation.maps import OccupancyGrid
+from curio.estimation.pose_graph import PoseGraph, to_local_info
+from curio.estimation.scan_matching import (
+    LikelihoodGrid,
+    PointMap,
+    Refined,
+    refine,
+    scan_normals,
+    voxel_subsample,
+)
 
 if TYPE_CHECKING:
     from curio.core.bus import Bus
     from curio.core.clock import Clock
     from curio.core.messages import LaserScan, Odometry
 
-__all__ = ["MapperParams", "MappingNode", "ScanMapper", "build_map_from_log", "optimize_pose_graph"]
+__all__ = [
+    "Keyframe",
+    "MapDrawer",
+    "MapSnapshot",
+    "MapperParams",
+    "MappingNode",
+    "ScanMapper",
+    "build_map_from_log",
+    "optimize_pose_graph",
+]
 
 log = logging.getLogger("curio.estimation.mapping")
 
@@ -64,46 +85,57 @@ F64 = npt.NDArray[np.float64]
 
 
 @dataclass
-class MapperParams:
-    """Tuning of :class:`ScanMapper` (defaults suit a 360° 12 m lidar or a 180° SICK)."""
+class MapperParams(LoopParams):
+    """Tuning of :class:`ScanMapper` (defaults suit a 360° 12 m lidar or a 180° SICK).
+
+    Loop-closure fields are those of :class:`curio.estimation.loop_closure.LoopParams`.
+    """
 
     resolution_m: float = 0.05
     max_range_m: float = 12.0
     no_return_clear_m: float = 3.0
-    keyframe_d_m: float = 0.25
-    keyframe_a_rad: float = 0.2
-    match_beams: int = 200
-    window_m: float = 14.0
-    min_inlier_fraction: float = 0.35
     l_occ: float = 0.9
     l_free: float = -0.4
     l_max: float = 6.0
-    loop_radius_m: float = 4.0
-    loop_min_travel_m: float = 10.0
-    loop_search_m: float = 1.2
-    loop_search_rad: float = 0.35
-    loop_min_inliers: float = 0.8
-    loop_drift_fraction: float = 0.03
-    loop_drift_rad_per_m: float = 0.003
-    loop_neighbours: int = 12
-    loop_cooldown: int = 15
-    loop_try_every: int = 3
-    odom_sigma_xy_m: float = 0.05
-    odom_sigma_yaw_rad: float = 0.02
-    loop_sigma_xy_m: float = 0.05
-    loop_sigma_yaw_rad: float = 0.02
-    odom_prior_fraction: float = 0.2  # > 0: scan matches are MAP around the odometry guess
+    keyframe_d_m: float = 0.3
+    keyframe_a_rad: float = 0.2
+    local_map_m: float = 8.0
+    local_map_keyframes: int = 40
+    match_cell_m: float = 0.05
+    search_xy_m: float = 0.4
+    search_rad: float = 0.45
+    search_step_rad: float = math.radians(0.5)
+    min_match_score: float = 0.25
+    min_inlier_fraction: float = 0.35
+    odom_sigma_xy_m: float = 0.01
+    odom_xy_per_m: float = 0.2
+    odom_sigma_yaw_rad: float = 0.005
+    odom_yaw_per_rad: float = 0.3
+    odom_yaw_per_m: float = 0.1
+    dcs_phi: float = 5.0
+    outlier_chi2: float = 30.0
+    optimize_every: int = 8
 
 
-@dataclass
-class Keyframe:
-    """A scan kept for the map: its pose in the map frame, points (base_link), laser origin."""
+def optimize_pose_graph(poses: F64, edges: list[tuple[int, int, Pose2D, F64]],
+                        iterations: int = 20) -> F64:
+    """Least-squares pose graph (node 0 fixed): a thin wrapper of
+    :class:`curio.estimation.pose_graph.PoseGraph` without robust edges.
 
-    pose: Pose2D
-    points: F64
-    no_return: F64  # (M, 2) unit-range directions in base_link of beams without a return
-    laser: Pose2D
-    travel_m: float
+    Args:
+        poses: ``(N, 3)`` initial (x, y, yaw) in ``map``.
+        edges: ``(i, j, z_ij, info)``: measured pose of j in i's frame, 3×3 information.
+
+    Returns:
+        The optimised ``(N, 3)`` poses.
+    """
+    g = PoseGraph()
+    for row in poses:
+        g.add_node(Pose2D(float(row[0]), float(row[1]), float(row[2])))
+    for i, j, z, info in edges:
+        g.add_edge(i, j, z, info)
+    g.optimize(iterations)
+    return g.poses
 
 
 class LogOdds:
@@ -114,6 +146,8 @@ class LogOdds:
         self.p = params
         self.l: npt.NDArray[np.float32] = np.zeros((0, 0), dtype=np.float32)
         self.seen: npt.NDArray[np.bool_] = np.zeros((0, 0), dtype=bool)
+        self._mark: npt.NDArray[np.int64] = np.zeros((0, 0), dtype=np.int64)
+        self._scan_id = 0
         self.ox = 0.0
         self.oy = 0.0
 
@@ -127,6 +161,7 @@ class LogOdds:
             h = math.ceil((ymax - self.oy + pad) / res)
             self.l = np.zeros((h, w), dtype=np.float32)
             self.seen = np.zeros((h, w), dtype=bool)
+            self._mark = np.zeros((h, w), dtype=np.int64)
             return
         h, w = self.l.shape
         grow_l = max(0, math.ceil((self.ox - xmin) / res))
@@ -138,49 +173,27 @@ class LogOdds:
             gl, gb, gr, gt = (g + step if g else 0 for g in (grow_l, grow_b, grow_r, grow_t))
             self.l = np.pad(self.l, ((gb, gt), (gl, gr)))
             self.seen = np.pad(self.seen, ((gb, gt), (gl, gr)))
+            self._mark = np.pad(self._mark, ((gb, gt), (gl, gr)))
             self.ox -= gl * res
             self.oy -= gb * res
 
     def integrate(self, origin_xy: tuple[float, float], ends: F64, clear_ends: F64) -> None:
-        """One scan: rays from ``origin_xy`` to ``ends`` (hit) and to ``clear_ends`` (no hit)."""
+        """One scan: rays from ``origin_xy`` to ``ends`` (hit) and to ``clear_ends`` (no hit).
+
+        Free cells are sampled every 0.8 cell up to one cell short of a hit (to the end if
+        none); a cell that is some beam's end point in this scan is not also marked free; each
+        cell is updated at most once per scan (:mod:`curio.estimation.log_odds_kernel`).
+        """
         allp = np.vstack([ends, clear_ends, np.array([origin_xy])])
         self._ensure(float(allp[:, 0].min()), float(allp[:, 1].min()),
                      float(allp[:, 0].max()), float(allp[:, 1].max()))
-        res = self.res
-        w = self.l.shape[1]
-        targets = np.vstack([ends, clear_ends])
+        targets = np.ascontiguousarray(np.vstack([ends, clear_ends]), dtype=np.float64)
         if len(targets) == 0:
             return
-        dx = targets[:, 0] - origin_xy[0]
-        dy = targets[:, 1] - origin_xy[1]
-        length = np.hypot(dx, dy)
-        n_hit = len(ends)
-        occ = np.zeros(0, dtype=np.int64)
-        if n_hit:
-            cols = ((ends[:, 0] - self.ox) / res).astype(np.int64)
-            rows = ((ends[:, 1] - self.oy) / res).astype(np.int64)
-            occ = np.unique(rows * w + cols)
-        # Free cells: samples every 0.8 cell up to one cell short of a hit (to the end if none);
-        # a cell that is some beam's end point in this scan is not also marked free.
-        stop = length.copy()
-        stop[:n_hit] -= res
-        steps = np.arange(0.0, float(stop.max(initial=0.0)), 0.8 * res)
-        flat_l = self.l.reshape(-1)
-        flat_seen = self.seen.reshape(-1)
-        if len(steps):
-            frac = steps[None, :] / np.maximum(length[:, None], 1e-9)
-            mask = steps[None, :] < stop[:, None]
-            fx = origin_xy[0] + dx[:, None] * frac
-            fy = origin_xy[1] + dy[:, None] * frac
-            cols = ((fx[mask] - self.ox) / res).astype(np.int64)
-            rows = ((fy[mask] - self.oy) / res).astype(np.int64)
-            free = np.setdiff1d(np.unique(rows * w + cols), occ, assume_unique=True)
-            flat_l[free] += self.p.l_free
-            flat_seen[free] = True
-        if len(occ):
-            flat_l[occ] += self.p.l_occ
-            flat_seen[occ] = True
-        np.clip(self.l, -self.p.l_max, self.p.l_max, out=self.l)
+        self._scan_id += 1
+        integrate_rays(self.l, self.seen, self._mark, self._scan_id, self.ox, self.oy, self.res,
+                       float(origin_xy[0]), float(origin_xy[1]), targets, len(ends),
+                       self.p.l_free, self.p.l_occ, self.p.l_max)
 
     def occupancy(self, crop: bool = True, margin_m: float = 1.0) -> OccupancyGrid:
         """The grid as map_server occupancy (−1 unknown, 0..100), cropped to the seen area."""
@@ -211,299 +224,259 @@ class LogOdds:
         return OccupancyGrid(data, res, Pose2D(self.ox + c0 * res, self.oy + r0 * res, 0.0))
 
 
-def _v(p: Pose2D) -> tuple[float, float, float]:
-    return (p.x, p.y, p.yaw)
-
-
-def optimize_pose_graph(poses: F64, edges: list[tuple[int, int, Pose2D, F64]],
-                        iterations: int = 10) -> F64:
-    """Least-squares pose graph (node 0 fixed) by sparse Gauss–Newton.
-
-    Args:
-        poses: ``(N, 3)`` initial (x, y, yaw).
-        edges: ``(i, j, z_ij, info)``: measured pose of j in i's frame, 3×3 information.
-
-    Returns:
-        The optimised ``(N, 3)`` poses.
-    """
-    x = poses.copy()
-    n = len(x)
-    if n < 2 or not edges:
-        return x
-    ii = np.array([e[0] for e in edges])
-    jj = np.array([e[1] for e in edges])
-    z = np.array([_v(e[2]) for e in edges])
-    info = np.stack([e[3] for e in edges])
-    m = len(edges)
-    for _ in range(iterations):
-        xi, xj = x[ii], x[jj]
-        ci, si = np.cos(xi[:, 2]), np.sin(xi[:, 2])
-        cz, sz = np.cos(z[:, 2]), np.sin(z[:, 2])
-        dx = xj[:, 0] - xi[:, 0]
-        dy = xj[:, 1] - xi[:, 1]
-        # d = R_i^T (t_j - t_i)
-        d0 = ci * dx + si * dy
-        d1 = -si * dx + ci * dy
-        ex = cz * (d0 - z[:, 0]) + sz * (d1 - z[:, 1])
-        ey = -sz * (d0 - z[:, 0]) + cz * (d1 - z[:, 1])
-        et = wrap_angles(xj[:, 2] - xi[:, 2] - z[:, 2])
-        e = np.stack([ex, ey, et], axis=1)
-        # Jacobians (m, 3, 3).
-        a = np.zeros((m, 3, 3))
-        b = np.zeros((m, 3, 3))
-        # R_z^T R_i^T
-        r00 = cz * ci - sz * si
-        r01 = cz * si + sz * ci
-        r10 = -sz * ci + cz * (-si)
-        r11 = -sz * si + cz * ci
-        # d/dθ_i of R_i^T (t_j - t_i) = (-si*dx + ci*dy, -ci*dx - si*dy)
-        g0 = d1
-        g1 = -d0
-        a[:, 0, 0], a[:, 0, 1] = -r00, -r01
-        a[:, 1, 0], a[:, 1, 1] = -r10, -r11
-        a[:, 0, 2] = cz * g0 + sz * g1
-        a[:, 1, 2] = -sz * g0 + cz * g1
-        a[:, 2, 2] = -1.0
-        b[:, 0, 0], b[:, 0, 1] = r00, r01
-        b[:, 1, 0], b[:, 1, 1] = r10, r11
-        b[:, 2, 2] = 1.0
-        at_o = np.einsum("mki,mkl->mil", a, info)
-        bt_o = np.einsum("mki,mkl->mil", b, info)
-        h_ii = np.einsum("mil,mlj->mij", at_o, a)
-        h_ij = np.einsum("mil,mlj->mij", at_o, b)
-        h_jj = np.einsum("mil,mlj->mij", bt_o, b)
-        g_i = np.einsum("mil,ml->mi", at_o, e)
-        g_j = np.einsum("mil,ml->mi", bt_o, e)
-        rows: list[npt.NDArray[np.int64]] = []
-        cols: list[npt.NDArray[np.int64]] = []
-        vals: list[F64] = []
-        r3 = np.arange(3)
-        for blk, bi, bj in ((h_ii, ii, ii), (h_ij, ii, jj), (h_jj, jj, jj)):
-            rr = (3 * bi)[:, None, None] + r3[None, :, None]
-            cc = (3 * bj)[:, None, None] + r3[None, None, :]
-            rows.append(np.broadcast_to(rr, blk.shape).ravel())
-            cols.append(np.broadcast_to(cc, blk.shape).ravel())
-            vals.append(blk.ravel())
-            if blk is h_ij:
-                rows.append(np.broadcast_to(cc, blk.shape).ravel())
-                cols.append(np.broadcast_to(rr, blk.shape).ravel())
-                vals.append(blk.ravel())
-        h = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(3 * n, 3 * n)).tocsr()
-        g = np.zeros(3 * n)
-        np.add.at(g, (3 * ii)[:, None] + r3[None, :], g_i)
-        np.add.at(g, (3 * jj)[:, None] + r3[None, :], g_j)
-        # Fix node 0.
-        keep = np.arange(3, 3 * n)
-        h_red = h[keep][:, keep] + sp.identity(3 * n - 3) * 1e-9
-        step = spsolve(h_red.tocsc(), -g[keep])
-        x[1:] += np.asarray(step).reshape(n - 1, 3)
-        x[:, 2] = wrap_angles(x[:, 2])
-        if float(np.max(np.abs(step))) < 1e-5:
-            break
-    return x
-
-
 class ScanMapper:
     """Incremental mapper (see the module docstring)."""
 
     def __init__(self, params: MapperParams | None = None, initial: Pose2D = Pose2D()) -> None:
         self.p = params or MapperParams()
-        self.grid = LogOdds(self.p.resolution_m, self.p)
+        self.drawer = MapDrawer(self.p)
+        self.graph = PoseGraph(self.p.dcs_phi)
         self.keyframes: list[Keyframe] = []
-        self.loop_edges: list[tuple[int, int, Pose2D]] = []
-        self.seq_edges: list[tuple[int, int, Pose2D]] = []
+        self.loops = LoopCloser(self.p, self.keyframes, self.graph)
         self.pose = initial
-        self._initial = initial
         self._last_odom: Pose2D | None = None
-        self._field: DistanceField | None = None
+        self._since_kf = Pose2D()
         self._travel = 0.0
-        self._cooldown = 0
         self.scans = 0
         self.matched = 0
-        self.trajectory: list[tuple[float, Pose2D]] = []
-        self._kf_scan_index: list[int] = []
+        self.optimizations = 0
+        self._unoptimized = 0
+        self.version = 0  # bumped whenever keyframes move (an optimisation)
+        self._local: tuple[PointMap, LikelihoodGrid] | None = None
+        self._traj: list[tuple[float, int, Pose2D]] = []  # stamp, keyframe, pose in its frame
+
+    # --- results -------------------------------------------------------------------------------
+    @property
+    def trajectory(self) -> list[tuple[float, Pose2D]]:
+        """Every scan's stamp and pose in ``map`` (following the optimised keyframes)."""
+        return [(t, self.keyframes[k].pose @ rel) for t, k, rel in self._traj]
+
+    @property
+    def loop_edges(self) -> list[tuple[int, int, Pose2D]]:
+        """Active loop-closure constraints ``(old keyframe, new keyframe, new in old's frame)``."""
+        g = self.graph
+        return [(g.ii[e], g.jj[e], Pose2D(*g.z[e])) for e, _ in self.loops.accepted
+                if g.active[e]]
+
+    @property
+    def _kf_scan_index(self) -> list[int]:
+        return [kf.scan_index for kf in self.keyframes]
 
     # --- per scan ------------------------------------------------------------------------------
     def add_scan(self, stamp: float, odom: Pose2D, points: F64, laser: Pose2D,
                  no_return_dirs: F64 | None = None) -> Pose2D:
-        """Process one scan (``points`` in base_link) with its odometry; return the pose."""
+        """Process one scan (``points`` in base_link, beam order) with its odometry pose
+        (``base_link`` in ``odom``); return the scan's pose in ``map``."""
         self.scans += 1
-        delta = Pose2D()
-        if self._last_odom is None:
-            guess = self.pose
-        else:
-            delta = self._last_odom.inverse() @ odom
-            self._travel += math.hypot(delta.x, delta.y)
-            guess = self.pose @ delta
+        delta = Pose2D() if self._last_odom is None else self._last_odom.inverse() @ odom
         self._last_odom = odom
-        pose = guess
-        prior: F64 | None = None
-        f = self.p.odom_prior_fraction
-        if f > 0.0 and self.scans > 1:
-            trans, rot = math.hypot(delta.x, delta.y), abs(delta.yaw)
-            sxy = 0.01 + f * trans
-            syaw = 0.005 + f * rot + 0.5 * f * trans
-            prior = np.diag([sxy**2, sxy**2, syaw**2])
-        if self._field is not None and len(points) >= 20:
-            pts = points
-            if len(pts) > self.p.match_beams:
-                pts = pts[np.linspace(0, len(pts) - 1, self.p.match_beams).astype(np.int64)]
-            m = scan_match(self._field, pts, guess, iterations=20, max_residual_m=0.4,
-                           inlier_m=0.1, surface_offset_m=0.0, prior_cov=prior)
-            m = scan_match(self._field, pts, m.pose, iterations=15, max_residual_m=0.12,
-                           inlier_m=0.08, surface_offset_m=0.0, prior_cov=prior,
-                           prior_mean=guess)
-            if m.inlier_fraction >= self.p.min_inlier_fraction and m.pose.distance_to(guess) < 0.6:
-                pose = m.pose
+        self._travel += math.hypot(delta.x, delta.y)
+        self._since_kf = self._since_kf @ delta
+        guess = self.pose @ delta
+        pose, info = guess, None
+        if self._local is not None and len(points) >= 10:
+            ref = self._match(points, guess, delta)
+            if ref is not None:
+                pose, info = ref.pose, ref.info_total
                 self.matched += 1
         self.pose = pose
-        self.trajectory.append((stamp, pose))
-        nr = no_return_dirs if no_return_dirs is not None else np.zeros((0, 2))
         last = self.keyframes[-1] if self.keyframes else None
         if last is None or self._is_keyframe(last.pose, pose):
-            self._add_keyframe(pose, points, nr, laser)
-        return pose
+            nr = no_return_dirs if no_return_dirs is not None else np.zeros((0, 2))
+            self._add_keyframe(stamp, pose, points, nr, laser, info)
+        else:
+            k = len(self.keyframes) - 1
+            self._traj.append((stamp, k, last.pose.inverse() @ pose))
+        return self.pose
 
     def _is_keyframe(self, a: Pose2D, b: Pose2D) -> bool:
         return (a.distance_to(b) >= self.p.keyframe_d_m
                 or abs(wrap_angle(a.yaw - b.yaw)) >= self.p.keyframe_a_rad)
 
-    def _add_keyframe(self, pose: Pose2D, points: F64, no_return: F64, laser: Pose2D) -> None:
-        kf = Keyframe(pose, points, no_return, laser, self._travel)
+    def _odom_info(self, delta: Pose2D) -> F64:
+        """Information (1/m², 1/rad²) of an odometry increment, isotropic in x and y."""
+        p = self.p
+        trans, rot = math.hypot(delta.x, delta.y), abs(delta.yaw)
+        sxy = p.odom_sigma_xy_m + p.odom_xy_per_m * trans
+        syaw = p.odom_sigma_yaw_rad + p.odom_yaw_per_rad * rot + p.odom_yaw_per_m * trans
+        return np.diag([1.0 / sxy**2, 1.0 / sxy**2, 1.0 / syaw**2])
+
+    def _near(self, points: F64) -> F64:
+        return points[np.hypot(points[:, 0], points[:, 1]) <= self.p.match_range_m]
+
+    def _match(self, points: F64, guess: Pose2D, delta: Pose2D) -> Refined | None:
+        """Scan-to-local-map: correlative search, then MAP point-to-line refinement."""
+        assert self._local is not None
+        pmap, lgrid = self._local
+        near = self._near(points)
+        if len(near) < 10:
+            return None
+        sub = near[voxel_subsample(near, 0.1)]
+        p = self.p
+        found = lgrid.search(sub, guess, p.search_xy_m, p.search_rad, p.search_step_rad,
+                             p.min_match_score)
+        if found is None:
+            found = lgrid.search(sub, guess, 2.0 * p.search_xy_m, 2.0 * p.search_rad,
+                                 2.0 * p.search_step_rad, p.min_match_score)
+            if found is None:
+                return None
+        ref = refine(pmap, near, found[0], sigma_m=p.match_sigma_m, prior_mean=guess,
+                     prior_info=self._odom_info(delta))
+        if ref.inlier_fraction < p.min_inlier_fraction:
+            return None
+        return ref
+
+    # --- keyframes -----------------------------------------------------------------------------
+    def _add_keyframe(self, stamp: float, pose: Pose2D, points: F64, no_return: F64,
+                      laser: Pose2D, info_map: F64 | None) -> None:
+        normals, ok = scan_normals(points)
+        kf = Keyframe(pose, points, normals, ok, no_return, laser, self._travel, len(self._traj))
+        k = self.graph.add_node(pose)
         self.keyframes.append(kf)
-        self._kf_scan_index.append(len(self.trajectory) - 1)
-        k = len(self.keyframes) - 1
+        self._traj.append((stamp, k, Pose2D()))
         if k > 0:
             prev = self.keyframes[k - 1]
-            self.seq_edges.append((k - 1, k, prev.pose.inverse() @ pose))
-        self._integrate(kf)
-        if self._cooldown > 0:
-            self._cooldown -= 1
-        elif k > 0 and k % self.p.loop_try_every == 0 and self._try_loop(k):
-            self._optimize()
-            self._cooldown = self.p.loop_cooldown
-        self._field = DistanceField(self.grid.window(self.pose.x, self.pose.y, self.p.window_m),
-                                    1.0)
+            info = info_map if info_map is not None else self._odom_info(self._since_kf)
+            self.graph.add_edge(k - 1, k, prev.pose.inverse() @ pose,
+                                to_local_info(info, pose.yaw))
+        self._since_kf = Pose2D()
+        edges = self.loops.on_keyframe(lambda: self._query_cloud(k))
+        if edges:
+            # A loop into a new region moves the graph far: optimise at once. Further closures
+            # in a region the estimate already agrees with are batched.
+            self._unoptimized += len(edges)
+            if self.loops.new_region or self._unoptimized >= self.p.optimize_every:
+                self._optimize()
+        self._rebuild_local()
 
-    def _integrate(self, kf: Keyframe, grid: LogOdds | None = None) -> None:
-        g = grid or self.grid
-        ends = kf.pose.transform_points(kf.points)
-        lo = kf.pose @ kf.laser
-        clear = kf.pose.transform_points(kf.laser.transform_points(
-            kf.no_return * self.p.no_return_clear_m)) if len(kf.no_return) else np.zeros((0, 2))
-        g.integrate((lo.x, lo.y), ends, clear)
-
-    # --- loop closure --------------------------------------------------------------------------
-    def _try_loop(self, k: int) -> bool:
+    def _query_cloud(self, k: int) -> F64:
+        """Points of keyframe ``k`` and its neighbours of the last ``loop_query_m``, in k's
+        ``base_link``, thinned to one per 5 cm."""
         cur = self.keyframes[k]
-        best_j = -1
-        best_d = self.p.loop_radius_m
-        for j in range(k):
-            kj = self.keyframes[j]
-            if cur.travel_m - kj.travel_m < self.p.loop_min_travel_m:
+        inv = cur.pose.inverse()
+        pts = [self._near(cur.points)]
+        j = k - 1
+        while j >= 0 and cur.travel_m - self.keyframes[j].travel_m <= self.p.loop_query_m:
+            kf = self.keyframes[j]
+            pts.append((inv @ kf.pose).transform_points(self._near(kf.points)))
+            j -= 1
+        allp = np.vstack(pts)
+        return allp[voxel_subsample(allp, 0.05)]
+
+    def _rebuild_local(self) -> None:
+        """The local map: keyframes of the last ``local_map_m`` of driving, in ``map``."""
+        kfs = self.keyframes
+        last = kfs[-1]
+        pts: list[F64] = []
+        nrm: list[F64] = []
+        ok: list[npt.NDArray[np.bool_]] = []
+        for kf in reversed(kfs):
+            if (last.travel_m - kf.travel_m > self.p.local_map_m
+                    or len(pts) >= self.p.local_map_keyframes):
                 break
-            d = kj.pose.distance_to(cur.pose)
-            if d < best_d:
-                best_d, best_j = d, j
-        if best_j < 0:
-            return False
-        lo = max(0, best_j - self.p.loop_neighbours)
-        hi = min(k, best_j + self.p.loop_neighbours + 1)
-        sub = LogOdds(self.p.resolution_m, self.p)
-        for kf in self.keyframes[lo:hi]:
-            self._integrate(kf, sub)
-        occ = sub.window(cur.pose.x, cur.pose.y, self.p.window_m)
-        if not np.any(occ.data > 0):
-            return False
-        fld = DistanceField(occ, 1.0)
-        pts = cur.points
-        if len(pts) > 90:
-            pts = pts[np.linspace(0, len(pts) - 1, 90).astype(np.int64)]
-        cand = self._correlative(fld, pts, cur.pose)
-        m = scan_match(fld, cur.points, cand, iterations=15, max_residual_m=0.3, inlier_m=0.1,
-                       surface_offset_m=0.0)
-        m = scan_match(fld, cur.points, m.pose, iterations=8, max_residual_m=0.12,
-                       inlier_m=0.08, surface_offset_m=0.0)
-        if m.inlier_fraction < self.p.loop_min_inliers:
-            return False
-        # Gate: the correction must be of the size scan-matching drift can reach over the
-        # distance travelled since the old keyframe (a false match in a look-alike place jumps).
-        travel = cur.travel_m - self.keyframes[best_j].travel_m
-        shift = m.pose.distance_to(cur.pose)
-        turn = abs(wrap_angle(m.pose.yaw - cur.pose.yaw))
-        if (shift > 0.15 + self.p.loop_drift_fraction * travel
-                or turn > 0.05 + self.p.loop_drift_rad_per_m * travel):
-            log.debug("loop candidate %d -> %d rejected: shift %.2f m, turn %.3f rad", best_j, k,
-                      shift, turn)
-            return False
-        z = self.keyframes[best_j].pose.inverse() @ m.pose
-        self.loop_edges.append((best_j, k, z))
-        log.info("loop closure: keyframe %d -> %d (correction %.2f m, fit %.2f)", best_j, k,
-                 m.pose.distance_to(cur.pose), m.inlier_fraction)
-        return True
+            near = np.hypot(kf.points[:, 0], kf.points[:, 1]) <= self.p.match_range_m
+            pts.append(kf.pose.transform_points(kf.points[near]))
+            c, s = math.cos(kf.pose.yaw), math.sin(kf.pose.yaw)
+            n = kf.normals[near]
+            nrm.append(np.stack([c * n[:, 0] - s * n[:, 1], s * n[:, 0] + c * n[:, 1]], axis=1))
+            ok.append(kf.normal_ok[near])
+        allp = np.vstack(pts)
+        keep = voxel_subsample(allp, 0.02)
+        allp = allp[keep]
+        good = np.concatenate(ok)[keep]
+        pmap = PointMap(allp[good], np.vstack(nrm)[keep][good])
+        reach = self.p.match_range_m + 2.0 * self.p.search_xy_m
+        x, y = self.pose.x, self.pose.y
+        grid = LikelihoodGrid(allp, self.p.match_cell_m, self.p.match_cell_m, 3,
+                              bounds=(x - reach, y - reach, x + reach, y + reach))
+        self._local = (pmap, grid)
 
-    def _correlative(self, fld: DistanceField, pts: F64, guess: Pose2D) -> Pose2D:
-        """Brute-force search of the best (x, y, yaw) offset around ``guess``."""
-        step = 0.1
-        n = round(self.p.loop_search_m / step)
-        offs = np.arange(-n, n + 1) * step
-        yaws = np.arange(-self.p.loop_search_rad, self.p.loop_search_rad + 1e-9, 0.035)
-        best = (-1.0, guess)
-        for dyaw in yaws:
-            th = guess.yaw + dyaw
-            c, s = math.cos(th), math.sin(th)
-            rx = c * pts[:, 0] - s * pts[:, 1]
-            ry = s * pts[:, 0] + c * pts[:, 1]
-            gx = guess.x + offs[:, None, None] + rx[None, None, :]
-            gy = guess.y + offs[None, :, None] + ry[None, None, :]
-            gx, gy = np.broadcast_arrays(gx, gy)
-            d = fld.lookup(gx, gy)
-            score = np.mean(np.exp(-0.5 * (d / 0.15) ** 2), axis=2)
-            i, j = np.unravel_index(int(np.argmax(score)), score.shape)
-            if score[i, j] > best[0]:
-                best = (float(score[i, j]), Pose2D(guess.x + offs[i], guess.y + offs[j], th))
-        return best[1]
-
+    # --- back end ------------------------------------------------------------------------------
     def _optimize(self) -> None:
-        info_odom = np.diag([1 / self.p.odom_sigma_xy_m**2, 1 / self.p.odom_sigma_xy_m**2,
-                             1 / self.p.odom_sigma_yaw_rad**2])
-        info_loop = np.diag([1 / self.p.loop_sigma_xy_m**2, 1 / self.p.loop_sigma_xy_m**2,
-                             1 / self.p.loop_sigma_yaw_rad**2])
-        edges = [(i, j, z, info_odom) for i, j, z in self.seq_edges]
-        edges += [(i, j, z, info_loop) for i, j, z in self.loop_edges]
-        x0 = np.array([_v(kf.pose) for kf in self.keyframes])
-        x = optimize_pose_graph(x0, edges)
-        last_old = self.keyframes[-1].pose
+        """Optimise the graph (plain least squares, then drop the loop edges that still
+        disagree, then with the robust kernel), and move everything along."""
+        self.graph.optimize(robust=False)
+        for _ in range(5):
+            chi2 = self.graph.chi2()
+            out = self.graph.outliers(self.p.outlier_chi2)
+            if not out:
+                break
+            worst = max(out, key=lambda e: chi2[e])  # one at a time: it may explain the rest
+            self.graph.deactivate(worst)
+            log.info("loop closure %d -> %d dropped after optimisation (chi2 %.1f)",
+                     self.graph.ii[worst], self.graph.jj[worst], float(chi2[worst]))
+            self.graph.optimize(robust=False)
+        self.graph.optimize()
+        self.optimizations += 1
+        self._unoptimized = 0
+        last = self.keyframes[-1]
+        rel = last.pose.inverse() @ self.pose
+        x = self.graph.poses
         for kf, row in zip(self.keyframes, x, strict=True):
             kf.pose = Pose2D(float(row[0]), float(row[1]), float(row[2]))
-        self.pose = self.keyframes[-1].pose @ (last_old.inverse() @ self.pose)
-        self._correct_trajectory(x0)
-        # Rebuilding the grid is the expensive part: skip it when nothing moved visibly.
-        shift = np.hypot(x[:, 0] - x0[:, 0], x[:, 1] - x0[:, 1]) + 3.0 * np.abs(
-            wrap_angles(x[:, 2] - x0[:, 2]))
-        if float(shift.max()) > 0.5 * self.p.resolution_m:
-            self.rebuild()
+        self.pose = last.pose @ rel
+        self.loops.invalidate()
+        self.version += 1
 
-    def _correct_trajectory(self, x0: F64) -> None:
-        """Move every scan pose with the keyframe it follows."""
-        idx = self._kf_scan_index
-        for n, (k_start, k_end) in enumerate(zip(idx, [*idx[1:], len(self.trajectory)],
-                                                 strict=True)):
-            old = Pose2D(*x0[n])
-            corr = self.keyframes[n].pose @ old.inverse()
-            for t in range(k_start, k_end):
-                stamp, p = self.trajectory[t]
-                self.trajectory[t] = (stamp, corr @ p)
+    def finish(self) -> None:
+        """After the last scan: a final optimisation if there are loop closures."""
+        if self.loop_edges:
+            self._optimize()
+
+    # --- the occupancy grid --------------------------------------------------------------------
+    def snapshot(self) -> MapSnapshot:
+        """What the map is drawn from, as it is now (cheap; safe to draw in another thread)."""
+        return MapSnapshot(self.version, tuple((kf.pose, kf) for kf in self.keyframes))
+
+    @property
+    def grid(self) -> LogOdds:
+        """The log-odds grid as last drawn."""
+        return self.drawer.grid
 
     def rebuild(self) -> None:
-        """Rebuild the occupancy grid from every keyframe at its current pose."""
-        self.grid = LogOdds(self.p.resolution_m, self.p)
-        for kf in self.keyframes:
-            self._integrate(kf)
+        """Redraw the occupancy grid from every keyframe at its current pose."""
+        self.drawer.draw(self.snapshot(), full=True)
 
     def occupancy(self) -> OccupancyGrid:
-        """The map so far (cropped to what was seen)."""
+        """The map so far (cropped to what was seen); redrawn first if the graph moved."""
+        return self.drawer.draw(self.snapshot())
+
+
+@dataclass(frozen=True)
+class MapSnapshot:
+    """The keyframes to draw, with the poses they had at ``version`` of the mapper's graph."""
+
+    version: int
+    keyframes: tuple[tuple[Pose2D, Keyframe], ...]
+
+
+class MapDrawer:
+    """Draws (and keeps) the log-odds grid of a :class:`MapSnapshot`: only the new keyframes
+    when the graph has not moved since the last drawing, all of them when it has."""
+
+    def __init__(self, params: MapperParams) -> None:
+        self.p = params
+        self.grid = LogOdds(params.resolution_m, params)
+        self._version = -1
+        self._count = 0
+
+    def _integrate(self, pose: Pose2D, kf: Keyframe) -> None:
+        ends = pose.transform_points(kf.points)
+        lo = pose @ kf.laser
+        clear = (pose.transform_points(kf.laser.transform_points(
+            kf.no_return * self.p.no_return_clear_m)) if len(kf.no_return)
+            else np.zeros((0, 2)))
+        self.grid.integrate((lo.x, lo.y), ends, clear)
+
+    def draw(self, snap: MapSnapshot, full: bool = False) -> OccupancyGrid:
+        """Bring the grid up to ``snap`` and return it as map_server occupancy."""
+        if full or snap.version != self._version or len(snap.keyframes) < self._count:
+            self.grid = LogOdds(self.p.resolution_m, self.p)
+            self._count = 0
+            self._version = snap.version
+        for pose, kf in snap.keyframes[self._count:]:
+            self._integrate(pose, kf)
+        self._count = len(snap.keyframes)
         return self.grid.occupancy()
 
 
@@ -525,8 +498,7 @@ def build_map_from_log(scans: Iterable[LogScan], params: MapperParams | None = N
         mapper.add_scan(s.stamp, s.odom, pts, s.laser_pose, dirs)
         if progress is not None:
             progress(n)
-    if mapper.loop_edges:
-        mapper._optimize()
+    mapper.finish()
     return mapper
 
 
@@ -540,11 +512,13 @@ class MappingNode:
     def __init__(self, bus: Bus, clock: Clock, laser: Pose2D, start: Pose2D,
                  on_map: Callable[[OccupancyGrid], None], params: MapperParams | None = None,
                  publish_period_s: float = 2.0) -> None:
-        """Each scan is mapped through ``clock.offload``: a loop closure re-optimises the graph
-        and rebuilds the grid, hundreds of milliseconds that must not block the event loop on
-        a real clock (a worker thread); on a simulated clock scans are mapped inline, keeping
-        runs deterministic."""
-        self._inflight: asyncio.Future[tuple[Pose2D, OccupancyGrid | None]] | None = None
+        """Each scan is mapped, and the published map drawn, through ``clock.offload``: a loop
+        closure re-optimises the graph (tens of milliseconds) and the map must then be redrawn
+        from every keyframe (hundreds), neither of which may block the event loop on a real
+        clock (worker threads), and the drawing must not hold up the next scan; on a simulated
+        clock both run inline, keeping runs deterministic."""
+        self._inflight: asyncio.Future[tuple[Pose2D, MapSnapshot | None]] | None = None
+        self._drawing: asyncio.Future[OccupancyGrid] | None = None
         self.bus = bus
         self.clock = clock
         self.laser = laser
@@ -581,45 +555,64 @@ class MappingNode:
             return None
         return min(self._odom[-20:], key=lambda o: abs(o.stamp - scan.stamp))
 
-    def _map_scan(self, scan: LaserScan, odom: Odometry) -> tuple[Pose2D, OccupancyGrid | None]:
+    def _map_scan(self, scan: LaserScan, odom: Odometry) -> tuple[Pose2D, MapSnapshot | None]:
         """The heavy part (thread-safe off the loop: touches the mapper only): the scan's pose
-        and, when a publication is due, the map."""
+        and, when a publication is due, what to draw."""
         r = np.asarray(scan.ranges_m, dtype=np.float64)
         s = LogScan(scan.stamp, odom.pose, self.laser, scan.angle_min_rad,
                     scan.angle_increment_rad, np.where(scan.valid_mask(), r, np.inf),
                     scan.range_max_m)
         pts, dirs = _scan_inputs(s, min(scan.range_max_m, self.mapper.p.max_range_m))
         pose = self.mapper.add_scan(scan.stamp, odom.pose, pts, self.laser, dirs)
-        grid = None
+        snap = None
         if scan.stamp - self._last_publish >= self.publish_period_s:
-            grid = self.mapper.occupancy()
-        return pose, grid
+            snap = self.mapper.snapshot()
+        return pose, snap
 
     def _after_scan(self, scan: LaserScan, odom: Odometry, pose: Pose2D,
-                    grid: OccupancyGrid | None) -> None:
-        """Publish the correction and the map (on the loop)."""
+                    snap: MapSnapshot | None) -> None:
+        """Publish the correction (on the loop) and start drawing the map if one is due."""
         from curio.core.messages import Transform
         from curio.core.topics import MAP_TO_ODOM
 
         self.map_to_odom = pose @ odom.pose.inverse()
         self.bus.publish(MAP_TO_ODOM, Transform(scan.stamp, self.map_to_odom))
-        if grid is not None:
+        if snap is not None and self._draw(snap):
             self._last_publish = scan.stamp
-            self.on_map(grid)
+
+    def _draw(self, snap: MapSnapshot) -> bool:
+        """Draw and publish ``snap``; False if the previous drawing is still running."""
+        if self._drawing is not None and not self._drawing.done():
+            return False
+        self._drawing = self.clock.offload(self.mapper.drawer.draw, snap)
+        if self._drawing.done():  # drawn inline (simulated clock): publish now, in order
+            self._drawn(self._drawing)
+        else:
+            self._drawing.add_done_callback(self._drawn)
+        return True
+
+    def _drawn(self, fut: asyncio.Future[OccupancyGrid]) -> None:
+        if fut.cancelled():
+            return
+        exc = fut.exception()
+        if exc is not None:
+            log.error("drawing the map failed: %r", exc)
+            return
+        self.on_map(fut.result())
 
     async def finish(self) -> OccupancyGrid | None:
-        """After ``run`` ends: wait for a scan still being mapped, close the pending loops and
-        return the final map (None if nothing was mapped); heavy work through
-        ``clock.offload``."""
-        if self._inflight is not None:
-            await asyncio.wait([self._inflight])
+        """After ``run`` ends: wait for a scan still being mapped and a map being drawn, close
+        the pending loops and return the final map (None if nothing was mapped); heavy work
+        through ``clock.offload``."""
+        pending = [f for f in (self._inflight, self._drawing) if f is not None]
+        if pending:
+            await asyncio.wait(pending)
         mapper = self.mapper
         if not mapper.keyframes:
             return None
 
         def final() -> OccupancyGrid:
-            if mapper.loop_edges:
-                mapper._optimize()
+            mapper.finish()
             return mapper.occupancy()
 
         return await self.clock.offload(final)
@@ -643,8 +636,8 @@ class MappingNode:
                 if odom is not None:
                     self._inflight = self.clock.offload(self._map_scan, s, odom)
                     # Shielded: a cancelled run leaves the thread to finish (see ``finish``).
-                    pose, grid = await asyncio.shield(self._inflight)
-                    self._after_scan(s, odom, pose, grid)
+                    pose, snap = await asyncio.shield(self._inflight)
+                    self._after_scan(s, odom, pose, snap)
 
         try:
             await asyncio.gather(odometry(), scans())
