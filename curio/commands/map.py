@@ -29,14 +29,18 @@ from __future__ import annotations
 
 import argparse
 import io
+import logging
 import math
 import sys
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from curio.core.fileio import atomic_write_text
 from curio.estimation.carmen import LogError, read_log
 from curio.estimation.maps import MapError, load_map, map_stats, save_map
+
+if TYPE_CHECKING:
+    from curio.estimation.mapping import MapperParams, ScanMapper
 
 __all__ = ["main"]
 
@@ -49,6 +53,12 @@ class _Progress:
         self.stream = stream
         self.enabled = enabled
         self._last = -1
+
+    def abort(self) -> None:
+        """End a bar left half drawn (an error follows on its own line)."""
+        if self.enabled and 0 <= self._last < 100:
+            self.stream.write("\n")
+            self.stream.flush()
 
     def __call__(self, n: int) -> None:
         if not self.enabled:
@@ -93,13 +103,17 @@ def _build(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         err.write(f"curio map build: --out must name a .yaml file, got {out_path}\n")
         return 2
     total = _count_scans(log_path)
-    progress = _Progress(total, err, enabled=not args.quiet and total > 100)
+    progress = _Progress(total, err, enabled=not args.quiet and total > 100 and err.isatty())
     params = MapperParams(resolution_m=args.resolution, max_range_m=args.max_range)
+    bad: list[str] | None = [] if args.skip_bad_lines else None
     t0 = wall_perf_counter()
     try:
-        mapper = build_map_from_log(read_log(log_path), params, progress)
+        mapper = build_map_from_log(read_log(log_path, bad), params, progress)
     except LogError as exc:
-        err.write(f"\ncurio map build: {exc}\n")
+        progress.abort()
+        hint = "" if args.skip_bad_lines else (
+            " (--skip-bad-lines maps the rest of the log and counts what it skipped)")
+        err.write(f"curio map build: {exc}{hint}\n")
         return 2
     grid = mapper.occupancy()
     grid.name = out_path.name
@@ -113,7 +127,7 @@ def _build(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
         atomic_write_text(Path(args.trajectory), buf.getvalue())
     wall = wall_perf_counter() - t0
     span = mapper.trajectory[-1][0] - mapper.trajectory[0][0] if mapper.trajectory else 0.0
-    stats = map_stats(grid)
+    stats = map_stats(load_map(out_path))  # what was saved: the figures `map info` shows
     out.write(f"built {out_path} from {mapper.scans} scans ({span:.0f} s of log) in {wall:.1f} s"
               f" ({span / wall if wall > 0 else 0:.1f}x real time)\n")
     out.write(f"  {grid.width} x {grid.height} cells at {grid.resolution_m:g} m, "
@@ -121,9 +135,24 @@ def _build(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
               f"{mapper.matched} scans matched\n")
     out.write(f"  free {stats['free_pct']:.1f} %, occupied {stats['occupied_pct']:.1f} %, "
               f"unknown {stats['unknown_pct']:.1f} %\n")
+    if bad:
+        out.write(f"  skipped {len(bad)} bad line{'s' if len(bad) != 1 else ''} "
+                  f"(first: {bad[0]})\n")
+    if len(mapper.keyframes) < 3:
+        out.write(_still_hint(mapper, params))
     if args.trajectory:
         out.write(f"  trajectory: {args.trajectory}\n")
     return 0
+
+
+def _still_hint(mapper: ScanMapper, params: MapperParams) -> str:
+    """Why a log of a rover that hardly moved gives a map with (almost) no free space."""
+    poses = [p for _, p in mapper.trajectory]
+    moved = max((poses[0].distance_to(p) for p in poses), default=0.0)
+    return (f"  note: the rover moved at most {moved:.2f} m in this log, so the map has only "
+            f"{len(mapper.keyframes)} keyframe(s) (one every {params.keyframe_d_m:g} m or "
+            f"{math.degrees(params.keyframe_a_rad):.0f} deg of motion) and one sighting of a "
+            "cell is not enough to call it free: drive the rover around to map a building\n")
 
 
 def _info(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
@@ -288,7 +317,8 @@ def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="curio map", description="Build, inspect and convert maps.")
-    sub = p.add_subparsers(dest="cmd", required=True)
+    sub = p.add_subparsers(dest="cmd", required=True, metavar="ACTION",
+                           title="actions (build, info, score, convert, record)")
     b = sub.add_parser("build", help="build a map from a CARMEN log or a Curio run log")
     b.add_argument("--log", required=True, help="CARMEN .clf/.log or Curio .jsonl run log")
     b.add_argument("--out", required=True, help="map YAML to write (image beside it)")
@@ -297,7 +327,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--max-range", type=float, default=25.0,
                    help="use ranges up to this many metres (25)")
     b.add_argument("--format", choices=("pgm", "png"), default="pgm")
-    b.add_argument("--quiet", action="store_true", help="no progress bar")
+    b.add_argument("--skip-bad-lines", action="store_true",
+                   help="skip malformed log lines (counted in the summary) instead of stopping")
+    b.add_argument("--quiet", action="store_true", help="no progress bar, no log messages")
     i = sub.add_parser("info", help="size, resolution, origin and content of a map")
     i.add_argument("map", help="map YAML")
     s = sub.add_parser("score", help="score a trajectory with ground-truth relations "
@@ -326,10 +358,16 @@ def main(argv: list[str] | None = None, out: TextIO | None = None,
     """Run ``curio map`` with ``argv`` (without the ``map`` word); return the exit code."""
     out = out or sys.stdout
     err = err or sys.stderr
+    if not argv:
+        err.write("curio map: choose an action: build, info, score, convert or record "
+                  "(curio map ACTION --help)\n")
+        return 2
     try:
         args = _parser().parse_args(argv)
     except SystemExit as exc:
         return 0 if exc.code == 0 else 2
+    if getattr(args, "quiet", False):
+        logging.getLogger("curio").setLevel(logging.WARNING)
     if args.cmd == "build":
         return _build(args, out, err)
     if args.cmd == "info":

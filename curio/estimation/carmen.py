@@ -171,8 +171,13 @@ def _parse_robotlaser(path: Path, lineno: int, tok: list[str]) -> LogScan:
     return LogScan(stamp, odom, laser, start, res, _ranges(ranges, max_range), max_range)
 
 
-def read_carmen(path: Path | str) -> Iterator[LogScan]:
+def read_carmen(path: Path | str, bad_lines: list[str] | None = None) -> Iterator[LogScan]:
     """Yield the scans of a CARMEN log, in file order.
+
+    Args:
+        path: the log.
+        bad_lines: when given, a malformed line is skipped and its error appended here
+            instead of raised (``curio map build --skip-bad-lines``).
 
     Raises:
         LogError: an unreadable file or a malformed laser/odometry line (with its number).
@@ -187,29 +192,41 @@ def read_carmen(path: Path | str) -> Iterator[LogScan]:
     found = False
     with fh:
         for lineno, line in enumerate(fh, start=1):
-            tok = line.split()
-            if not tok or tok[0].startswith("#"):
+            try:
+                scan = _carmen_line(p, lineno, line.split(), odom_t, odom_p)
+            except LogError as exc:
+                if bad_lines is None:
+                    raise
+                bad_lines.append(str(exc))
                 continue
-            kind = tok[0]
-            if kind == "FLASER":
+            if scan is not None:
                 found = True
-                yield _parse_flaser(p, lineno, tok)
-            elif kind in ("ROBOTLASER1", "ROBOTLASER2"):
-                found = True
-                yield _parse_robotlaser(p, lineno, tok)
-            elif kind == "ODOM":
-                vals = _floats(p, lineno, tok[1:8], "ODOM")
-                if len(vals) < 7:
-                    raise LogError(f"{p}:{lineno}: ODOM needs x y theta tv rv accel timestamp")
-                odom_t.append(vals[6])
-                odom_p.append(Pose2D(vals[0], vals[1], vals[2]))
-            elif kind.isupper() and kind.replace("_", "").isalnum():
-                continue  # another CARMEN message
-            else:
-                raise LogError(f"{p}:{lineno}: not a CARMEN message: starts with {kind[:20]!r} "
-                               "(expected FLASER, ROBOTLASER1, ODOM, ... or a # comment)")
+                yield scan
     if not found:
         raise LogError(f"{p}: no FLASER or ROBOTLASER lines: nothing to map")
+
+
+def _carmen_line(p: Path, lineno: int, tok: list[str], odom_t: list[float],
+                 odom_p: list[Pose2D]) -> LogScan | None:
+    """One CARMEN line: a scan, or None (odometry is appended to ``odom_t``/``odom_p``)."""
+    if not tok or tok[0].startswith("#"):
+        return None
+    kind = tok[0]
+    if kind == "FLASER":
+        return _parse_flaser(p, lineno, tok)
+    if kind in ("ROBOTLASER1", "ROBOTLASER2"):
+        return _parse_robotlaser(p, lineno, tok)
+    if kind == "ODOM":
+        vals = _floats(p, lineno, tok[1:8], "ODOM")
+        if len(vals) < 7:
+            raise LogError(f"{p}:{lineno}: ODOM needs x y theta tv rv accel timestamp")
+        odom_t.append(vals[6])
+        odom_p.append(Pose2D(vals[0], vals[1], vals[2]))
+        return None
+    if kind.isupper() and kind.replace("_", "").isalnum():
+        return None  # another CARMEN message
+    raise LogError(f"{p}:{lineno}: not a CARMEN message: starts with {kind[:20]!r} "
+                   "(expected FLASER, ROBOTLASER1, ODOM, ... or a # comment)")
 
 
 def _interp(ts: list[float], poses: list[Pose2D], t: float) -> Pose2D | None:
@@ -227,8 +244,13 @@ def _interp(ts: list[float], poses: list[Pose2D], t: float) -> Pose2D | None:
     return a @ Pose2D(d.x * f, d.y * f, d.yaw * f)
 
 
-def read_run(path: Path | str) -> Iterator[LogScan]:
+def read_run(path: Path | str, bad_lines: list[str] | None = None) -> Iterator[LogScan]:
     """Yield the scans of a Curio run log (JSON lines), each with interpolated odometry.
+
+    Args:
+        path: the log.
+        bad_lines: when given, a malformed line is skipped and its error appended here
+            instead of raised.
 
     Raises:
         LogError: unreadable file, bad JSON, a missing field or a wrong type (with the line).
@@ -238,13 +260,49 @@ def read_run(path: Path | str) -> Iterator[LogScan]:
         lines = p.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise LogError(f"{p}: cannot read the run log ({exc})") from None
-    laser = Pose2D()
-    odom_t: list[float] = []
-    odom_p: list[Pose2D] = []
-    scans: list[tuple[int, dict[str, Any]]] = []
+    run = _RunRecords()
     for lineno, line in enumerate(lines, start=1):
-        if not line.strip():
+        try:
+            run.add(p, lineno, line)
+        except LogError as exc:
+            if bad_lines is None:
+                raise
+            bad_lines.append(str(exc))
+    if not run.scans:
+        raise LogError(f"{p}: no scan records: nothing to map")
+    if not run.odom_t:
+        raise LogError(f"{p}: no odom records: scans need odometry")
+    for lineno, rec in run.scans:
+        t = float(rec["t"])
+        odom = _interp(run.odom_t, run.odom_p, t)
+        assert odom is not None
+        try:
+            r = np.array([np.inf if v is None else float(v) for v in rec["ranges"]])
+        except (TypeError, ValueError):
+            error = f"{p}:{lineno}: scan ranges must be numbers or null"
+            if bad_lines is None:
+                raise LogError(error) from None
+            bad_lines.append(error)
             continue
+        rmax = float(rec["range_max"])
+        r[~np.isfinite(r) | (r > rmax) | (r < float(rec.get("range_min", 0.0)))] = np.inf
+        yield LogScan(t, odom, run.laser, float(rec["angle_min"]),
+                      float(rec["angle_increment"]), r, rmax)
+
+
+class _RunRecords:
+    """The records of a run log, gathered line by line (odometry, scans, the laser pose)."""
+
+    def __init__(self) -> None:
+        self.laser = Pose2D()
+        self.odom_t: list[float] = []
+        self.odom_p: list[Pose2D] = []
+        self.scans: list[tuple[int, dict[str, Any]]] = []
+
+    def add(self, p: Path, lineno: int, line: str) -> None:
+        """Take one line (``LogError`` names the line when it is malformed)."""
+        if not line.strip():
+            return
         try:
             rec = json.loads(line)
         except json.JSONDecodeError as exc:
@@ -253,61 +311,48 @@ def read_run(path: Path | str) -> Iterator[LogScan]:
             raise LogError(f"{p}:{lineno}: each line must be an object with a 'type'")
         kind = rec["type"]
         try:
-            if kind == "header":
-                if rec.get("format") != "curio-run":
-                    raise LogError(f"{p}:{lineno}: header format must be 'curio-run', got "
-                                   f"{rec.get('format')!r}")
-                lp = rec.get("laser_pose", [0.0, 0.0, 0.0])
-                laser = Pose2D(float(lp[0]), float(lp[1]), float(lp[2]))
-            elif kind == "odom":
-                t = float(rec["t"])
-                if odom_t and t < odom_t[-1]:
-                    raise LogError(f"{p}:{lineno}: odom time {t} goes backwards")
-                odom_t.append(t)
-                odom_p.append(Pose2D(float(rec["x"]), float(rec["y"]), float(rec["yaw"])))
-            elif kind == "scan":
-                float(rec["t"])
-                float(rec["angle_min"])
-                float(rec["angle_increment"])
-                float(rec["range_max"])
-                if not isinstance(rec["ranges"], list):
-                    raise LogError(f"{p}:{lineno}: scan field 'ranges' must be a list")
-                scans.append((lineno, rec))
-            elif kind == "truth":
-                continue
-            else:
-                raise LogError(f"{p}:{lineno}: unknown record type {kind!r} (header, odom, "
-                               "scan, truth)")
+            self._record(p, lineno, kind, rec)
         except KeyError as exc:
             raise LogError(f"{p}:{lineno}: {kind} record is missing field {exc}") from None
         except (TypeError, ValueError, IndexError) as exc:
             if isinstance(exc, LogError):
                 raise
             raise LogError(f"{p}:{lineno}: {kind} record has a bad value ({exc})") from None
-    if not scans:
-        raise LogError(f"{p}: no scan records: nothing to map")
-    if not odom_t:
-        raise LogError(f"{p}: no odom records: scans need odometry")
-    for lineno, rec in scans:
-        t = float(rec["t"])
-        odom = _interp(odom_t, odom_p, t)
-        assert odom is not None
-        try:
-            r = np.array([np.inf if v is None else float(v) for v in rec["ranges"]])
-        except (TypeError, ValueError):
-            raise LogError(f"{p}:{lineno}: scan ranges must be numbers or null") from None
-        rmax = float(rec["range_max"])
-        r[~np.isfinite(r) | (r > rmax) | (r < float(rec.get("range_min", 0.0)))] = np.inf
-        yield LogScan(t, odom, laser, float(rec["angle_min"]), float(rec["angle_increment"]),
-                      r, rmax)
+
+    def _record(self, p: Path, lineno: int, kind: Any, rec: dict[str, Any]) -> None:
+        if kind == "header":
+            if rec.get("format") != "curio-run":
+                raise LogError(f"{p}:{lineno}: header format must be 'curio-run', got "
+                               f"{rec.get('format')!r}")
+            lp = rec.get("laser_pose", [0.0, 0.0, 0.0])
+            self.laser = Pose2D(float(lp[0]), float(lp[1]), float(lp[2]))
+        elif kind == "odom":
+            t = float(rec["t"])
+            if self.odom_t and t < self.odom_t[-1]:
+                raise LogError(f"{p}:{lineno}: odom time {t} goes backwards")
+            pose = Pose2D(float(rec["x"]), float(rec["y"]), float(rec["yaw"]))
+            self.odom_t.append(t)
+            self.odom_p.append(pose)
+        elif kind == "scan":
+            for key in ("t", "angle_min", "angle_increment", "range_max"):
+                float(rec[key])
+            if not isinstance(rec["ranges"], list):
+                raise LogError(f"{p}:{lineno}: scan field 'ranges' must be a list")
+            self.scans.append((lineno, rec))
+        elif kind != "truth":
+            raise LogError(f"{p}:{lineno}: unknown record type {kind!r} (header, odom, "
+                           "scan, truth)")
 
 
-def read_log(path: Path | str) -> Iterator[LogScan]:
-    """A run log (``.jsonl``/``.json``) or a CARMEN log (anything else), by file name."""
+def read_log(path: Path | str, bad_lines: list[str] | None = None) -> Iterator[LogScan]:
+    """A run log (``.jsonl``/``.json``) or a CARMEN log (anything else), by file name.
+
+    ``bad_lines``: when given, malformed lines are skipped and their errors appended here.
+    """
     p = Path(path)
     if p.suffix.lower() in (".jsonl", ".json"):
-        return read_run(p)
-    return read_carmen(p)
+        return read_run(p, bad_lines)
+    return read_carmen(p, bad_lines)
 
 
 class RunRecorder:
