@@ -166,7 +166,11 @@ def test_cli_build_from_the_mit_log_head_with_progress(tmp_path: Path,
     with open(mit) as fh:
         lines = [next(fh) for _ in range(130)]
     head.write_text("".join(lines))
-    out, err = io.StringIO(), io.StringIO()
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:  # the bar is drawn on terminals only
+            return True
+
+    out, err = io.StringIO(), Terminal()
     code = map_main(["build", "--log", str(head), "--out", str(tmp_path / "mit.yaml")], out, err)
     assert code == 0, err.getvalue()
     assert "100%" in err.getvalue()  # the progress bar
