@@ -295,7 +295,7 @@ def check_lidar(path: str, cfg: Config, scan_s: float = 1.5) -> CheckResult:
 # --- BNO055 -----------------------------------------------------------------------------------
 def check_imu(open_bus: Callable[[], Any], cfg: Config, where: str) -> CheckResult:
     """Identify the BNO055 on the bus ``open_bus()`` returns."""
-    from curio.drivers.bno055 import registers as r
+    from curio.drivers.bno055 import protocol as r
     from curio.drivers.bno055.driver import BAUD_FIX
 
     icfg = cfg.drivers.imu
@@ -455,9 +455,9 @@ def main(argv: list[str]) -> int:
             results.append(check_lidar(path, cfg))
     if "imu" not in skip:
         if bus_arg == "emulated":
-            from curio.drivers.bno055.fake_bus import FakeBno055Bus
+            from curio.drivers.bno055.emulator import Bno055Emulator
 
-            fake = FakeBno055Bus(None, RealClock().now, power_on_s=0.0)
+            fake = Bno055Emulator(None, RealClock().now, power_on_s=0.0)
             results.append(check_imu(fake.reopen, cfg, "the emulated I2C bus"))
         else:
             from curio.drivers.bno055.driver import open_smbus

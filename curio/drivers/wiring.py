@@ -15,7 +15,7 @@
 (which then publishes no sensor messages itself): the Arduino
 (:class:`~curio.drivers.arduino.emulator.ArduinoEmulator`) and the RPLidar
 (:class:`~curio.drivers.rplidar.emulator.RplidarEmulator`) on pseudo-terminals, the BNO055 on a
-fake I2C bus (:class:`~curio.drivers.bno055.fake_bus.FakeBno055Bus`, called inline since it is
+fake I2C bus (:class:`~curio.drivers.bno055.emulator.Bno055Emulator`, called inline since it is
 in memory). The drivers are pointed at the emulators' pty paths and at the fake bus. Each
 emulator's part is registered before its driver's, so its pty exists when the driver opens it.
 
@@ -116,7 +116,7 @@ def _device_drivers(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: Ro
             raise RuntimeError("drivers.mode = 'emulated' needs the simulator world "
                                "(curio/sim/wiring.py builds it in sim and emulated modes)")
         from curio.drivers.arduino.emulator import ArduinoEmulator
-        from curio.drivers.bno055.fake_bus import FakeBno055Bus
+        from curio.drivers.bno055.emulator import Bno055Emulator
         from curio.drivers.rplidar.emulator import RplidarEmulator
 
         seed = cfg.sim.seed
@@ -124,7 +124,7 @@ def _device_drivers(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: Ro
         arduino_emu.open()
         lidar_emu = RplidarEmulator(world.cast_scan, clock, rate_hz=cfg.sim.lidar_rate_hz,
                                     seed=seed + 1, angle_offset_rad=dcfg.lidar.angle_offset_rad)
-        imu_bus = FakeBno055Bus(world.imu_sample, clock.now, address=dcfg.imu.address,
+        imu_bus = Bno055Emulator(world.imu_sample, clock.now, address=dcfg.imu.address,
                                 seed=seed + 2)
         out.emulators.extend([arduino_emu, lidar_emu, imu_bus])
         parts.add(Part("arduino-emulator", run=arduino_emu.run, close=arduino_emu.aclose))

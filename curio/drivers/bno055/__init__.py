@@ -1,1 +1,2 @@
-"""BNO055 IMU: register map and conversions, smbus2 driver, fake I2C bus for emulation."""
+"""BNO055 IMU: register map and conversions (``protocol``), the smbus2 driver (``driver``) and
+the emulator on a fake I2C bus (``emulator``)."""

@@ -12,7 +12,7 @@ Per session (:meth:`Bno055Driver.run` repeats sessions for ever):
    the saved calibration profile (if any), then the operating mode (IMU or NDOF) and a check
    of SYS_STATUS / SYS_ERR;
 4. every ``1 / rate_hz``: read 0x13..0x2D (a sacrificial byte, GYR, EUL, QUA, LIA) in one
-   transaction, sanity-check it (:func:`~curio.drivers.bno055.registers.check_sample`; a bad
+   transaction, sanity-check it (:func:`~curio.drivers.bno055.protocol.check_sample`; a bad
    reading is re-read once, then dropped and counted), and publish an ``Imu`` in ``imu_link``
    with the REP-103 quaternion. CHIP_ID, OPR_MODE and CALIB_STAT are read every second: a chip
    that reset itself is re-initialised.
@@ -44,7 +44,7 @@ from curio.core.config import ImuConfig
 from curio.core.fileio import atomic_write_json
 from curio.core.messages import DriverHealth, Event, Imu
 from curio.core.topics import EVENTS, HEALTH, IMU
-from curio.drivers.bno055 import registers as r
+from curio.drivers.bno055 import protocol as r
 
 __all__ = ["Bno055Driver", "ImuFault", "SMBusLike", "open_smbus"]
 

@@ -1,6 +1,7 @@
-"""A fake I2C bus with a BNO055 on it, fed by the simulator (hardware.md §7.4).
+"""The BNO055 emulator: a fake I2C bus with the chip on it, fed by the simulator (§7.4 of
+hardware.md).
 
-:class:`FakeBno055Bus` exposes the part of ``smbus2.SMBus`` the driver uses —
+:class:`Bno055Emulator` exposes the part of ``smbus2.SMBus`` the driver uses —
 ``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data`` (≤ 32 bytes),
 ``write_i2c_block_data``, ``close`` — so the real :class:`~curio.drivers.bno055.driver.Bno055Driver`
 runs against it unchanged. Behind it is the chip as the datasheet describes it:
@@ -36,9 +37,9 @@ import numpy as np
 
 from curio.core.geometry import quat_to_yaw, yaw_to_quat
 from curio.core.messages import Imu
-from curio.drivers.bno055 import registers as r
+from curio.drivers.bno055 import protocol as r
 
-__all__ = ["Bno055Faults", "FakeBno055Bus"]
+__all__ = ["Bno055Emulator", "Bno055Faults"]
 
 RESET_S = 0.65
 # Page-0 configuration registers (writable in CONFIG mode only).
@@ -66,7 +67,7 @@ def _eremoteio() -> OSError:
     return OSError(errno.EREMOTEIO, "Remote I/O error")
 
 
-class FakeBno055Bus:
+class Bno055Emulator:
     """An I2C bus (``smbus2.SMBus`` subset) with one simulated BNO055.
 
     Args:
@@ -312,7 +313,7 @@ class FakeBno055Bus:
         """Close the bus (further accesses fail with EBADF)."""
         self.closed = True
 
-    def reopen(self) -> FakeBno055Bus:
+    def reopen(self) -> Bno055Emulator:
         """What ``SMBus(n)`` returns again after a close: the same chip, a fresh handle."""
         self.closed = False
         return self
