@@ -1,5 +1,5 @@
-"""Helpers shared by the device drivers: timed waits and fixed-rate loops on the injected clock,
-and the systemd readiness/watchdog notifier.
+"""Helpers shared by the device drivers: timed waits on the injected clock and the systemd
+readiness/watchdog notifier.
 
 The clock helpers use only the :class:`~curio.core.clock.Clock` protocol (``now``, ``sleep_until``),
 so a driver works on the real clock on the rover and on the simulated clock in emulated mode.
@@ -10,12 +10,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import socket
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 from curio.core.clock import Clock
 
-__all__ = ["BytePacer", "SystemdNotifier", "wait_event"]
+__all__ = ["SystemdNotifier", "wait_event"]
 
 
 async def wait_event(clock: Clock, event: asyncio.Event, timeout_s: float) -> bool:
@@ -91,53 +91,3 @@ class SystemdNotifier:
             sub.close()
             with contextlib.suppress(OSError):
                 self._send("STOPPING=1")
-
-
-class BytePacer:
-    """Holds a simulated clock until the peer has read the bytes this side wrote to a pty.
-
-    Emulated mode runs the real drivers and the emulators over pseudo-terminals on a
-    ``SimClock`` that runs virtual time as fast as the CPU allows. The kernel hands pty bytes
-    to the reader a little later (a work queue); meanwhile virtual time could move on, so when
-    a message arrives would depend on the machine's load. :meth:`settle` keeps the calling task
-    runnable — the ``SimClock`` does not advance while a task is ready — until
-    ``peer_received()`` has caught up with ``sent()`` (exact byte counts on both sides), for at
-    most ``max_spins`` loop turns. While ``active()`` is false (the peer has the port closed)
-    unread bytes are written off at once. Without a peer (real hardware) it does nothing.
-
-    Args:
-        clock: the application clock (``sleep(0)`` yields one loop turn).
-        sent: bytes this side has written so far.
-        max_spins: loop turns to wait before writing the bytes off.
-    """
-
-    def __init__(self, clock: Clock, sent: Callable[[], int], max_spins: int = 5000) -> None:
-        self.clock = clock
-        self.sent = sent
-        self.peer_received: Callable[[], int] | None = None
-        self.active: Callable[[], bool] = lambda: True
-        self.max_spins = max_spins
-        self._offset = 0
-        self.spins = 0
-        self.write_offs = 0
-
-    def _pending(self) -> int:
-        assert self.peer_received is not None
-        return self.sent() - self._offset - self.peer_received()
-
-    async def settle(self) -> None:
-        """Wait, without moving virtual time, until the peer has read what was sent."""
-        if self.peer_received is None:
-            return
-        for _ in range(self.max_spins):
-            pending = self._pending()
-            if pending <= 0:
-                self._offset += min(0, pending)
-                return
-            if not self.active():
-                break
-            self.spins += 1
-            await self.clock.sleep(0.0)
-        else:
-            self.write_offs += 1
-        self._offset += max(0, self._pending())

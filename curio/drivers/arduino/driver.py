@@ -83,8 +83,9 @@ from curio.core.messages import (
 )
 from curio.core.topics import BATTERY, CMD_VEL, CMD_VEL_TELEOP, ESTOP, HEALTH, SERVO_CMD, WHEELS
 from curio.drivers.arduino import protocol as p
-from curio.drivers.arduino._loop import Pacer, wait_until
+from curio.drivers.arduino._loop import wait_until
 from curio.drivers.kinematics import twist_to_servo_command
+from curio.drivers.pty import BytePacer
 from curio.robot import RobotModel
 
 __all__ = ["ArduinoBase", "CommandFn", "McuClock"]
@@ -100,6 +101,7 @@ ACK_TIMEOUT_S = 0.3
 ACK_RETRIES = 3
 TX_HOLD_S = 0.15  # the board sends STATE at 10 Hz and SERVO_POS at 30 Hz: longer silence is odd
 CLOSE_TIMEOUT_S = 1.0  # clock time to wait for the OS to release the port (then give up)
+PACER_MAX_SPINS = 20_000  # loop turns to wait for the emulator to read what was sent
 HOLD_MAX_SPINS = 100_000  # loop turns the paced clock is held for port work in a thread
 PORT_HINT = ("is the Mega plugged in? Run `curio check`; on the Pi the udev rule in deploy/ "
              "names it /dev/curio-arduino, and the user needs the dialout group; no other "
@@ -167,7 +169,7 @@ class ArduinoBase:
         self.bytes_received = 0
         # Emulated mode only (see ArduinoEmulator.pair): keeps a simulated clock from racing
         # ahead of pty delivery. Without a peer it does nothing.
-        self.pacer = Pacer(clock, lambda: self.bytes_sent)
+        self.pacer = BytePacer(clock, lambda: self.bytes_sent, max_spins=PACER_MAX_SPINS)
         self._writer: asyncio.StreamWriter | None = None
         self._opening: asyncio.Future[tuple[asyncio.StreamReader, asyncio.StreamWriter]] | None \
             = None

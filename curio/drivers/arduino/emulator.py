@@ -68,7 +68,7 @@ import numpy as np
 from curio.core.clock import Clock, SimClock
 from curio.core.messages import ServoCommand
 from curio.drivers.arduino import protocol as p
-from curio.drivers.arduino._loop import Pacer
+from curio.drivers.pty import BytePacer
 
 __all__ = ["ArduinoEmulator", "EmulatorWorld", "FirmwareModel", "ServoSide"]
 
@@ -82,6 +82,7 @@ STATE_PERIOD_MS = 100
 INTER_BYTE_TIMEOUT_MS = 20
 RESET_POWER_ON = 0x01
 RESET_EXTERNAL = 0x02
+PACER_MAX_SPINS = 20000  # loop turns to hold a fast simulated clock for the driver's reads
 Six = tuple[int, int, int, int, int, int]
 Four = tuple[int, int, int, int]
 
@@ -425,7 +426,7 @@ class ArduinoEmulator:
         self.opens = 0
         self.bytes_in = 0
         self.bytes_out = 0
-        self.pacer = Pacer(clock, lambda: self.bytes_out)
+        self.pacer = BytePacer(clock, lambda: self.bytes_out, max_spins=PACER_MAX_SPINS)
 
     # --- properties -----------------------------------------------------------------------------
 

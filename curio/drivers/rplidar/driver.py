@@ -36,7 +36,8 @@ from curio.core.clock import Clock
 from curio.core.config import LidarConfig
 from curio.core.messages import DriverHealth, Event, LaserScan
 from curio.core.topics import EVENTS, HEALTH, SCAN
-from curio.drivers.health import BytePacer, wait_event
+from curio.drivers.health import wait_event
+from curio.drivers.pty import BytePacer
 from curio.drivers.rplidar import protocol as p
 
 __all__ = ["LidarFault", "RplidarDriver"]

@@ -36,9 +36,8 @@ import numpy as np
 
 from curio.core.clock import Clock, SimClock
 from curio.core.messages import LaserScan
-from curio.drivers.health import BytePacer
+from curio.drivers.pty import BytePacer, PtyDevice
 from curio.drivers.rplidar import protocol as p
-from curio.drivers.rplidar.ptydevice import PtyDevice
 
 __all__ = ["RplidarEmulator", "RplidarFaults"]
 
