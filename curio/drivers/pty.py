@@ -1,14 +1,18 @@
-"""A pseudo-terminal that stands in for a USB serial device (device side of an emulator).
+"""The device end of an emulated USB serial line: a pseudo-terminal, and pacing its bytes.
 
 :class:`PtyDevice` opens a pty pair, puts it in raw mode, and publishes the slave under a stable
 symlink (like ``/dev/curio-lidar`` on the rover) so a driver can open ``device.path`` again and
 again. ``unplug()`` closes the pty and removes the link, as pulling the USB cable removes the
 device node (a driver holding it open gets ``EIO``); ``replug()`` makes a fresh pty behind the
 same link. Writes never block: bytes that the kernel buffer cannot take are dropped and counted,
-as a UART drops bytes nobody reads.
+as a UART drops bytes nobody reads. The emulator reads the master side with ``loop.add_reader``;
+the callback it gives is called with every chunk of bytes the driver wrote.
 
-The emulator reads the master side with ``loop.add_reader``; the callback it gives is called
-with every chunk of bytes the driver wrote.
+With ``watch_host`` (the Arduino, which resets when its port is opened) the device does not hold
+the slave itself, so the master reports a hang-up while no client has the port open:
+:meth:`PtyDevice.poll_host` notices a client opening it and starts reading, and a client closing
+it (end of file on the master) stops reading until the next open; bytes written meanwhile are
+discarded. Without it (the RPLidar) the device keeps the slave open and reads from :meth:`open` on.
 
 :class:`BytePacer` keeps a fast simulated clock from racing ahead of pty delivery (emulated mode);
 drivers and emulators both use it.
@@ -21,6 +25,7 @@ import contextlib
 import errno
 import fcntl
 import os
+import select
 import shutil
 import tempfile
 import termios
@@ -40,6 +45,8 @@ class PtyDevice:
         name: the link's file name (e.g. ``curio-lidar``).
         on_bytes: called on the event loop with each chunk the driver wrote.
         link_dir: where the symlink lives (a fresh temporary directory by default).
+        watch_host: do not hold the slave open: see whether a client has the port open
+            (:meth:`poll_host`) and talk only while one has.
     """
 
     def __init__(
@@ -47,14 +54,20 @@ class PtyDevice:
         name: str,
         on_bytes: Callable[[bytes], None],
         link_dir: Path | None = None,
+        *,
+        watch_host: bool = False,
     ) -> None:
         self._own_dir = link_dir is None
         self._dir = Path(tempfile.mkdtemp(prefix="curio-emu-")) if link_dir is None else link_dir
         self.path = str(self._dir / name)
         self._on_bytes = on_bytes
+        self.watch_host = watch_host
         self._master: int | None = None
         self._slave: int | None = None
+        self._tty_name: str | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._reading = False
+        self.host_open = False  # a client has the port open (always, while plugged, unwatched)
         self.bytes_written = 0
         self.bytes_dropped = 0
         self.bytes_read = 0
@@ -67,24 +80,57 @@ class PtyDevice:
     @property
     def tty_path(self) -> str | None:
         """The pty slave's own path (``/dev/pts/N``), or None when unplugged."""
-        return os.ttyname(self._slave) if self._slave is not None else None
+        return self._tty_name
 
     def open(self) -> None:
-        """Create the pty and the link (must run on the event loop that will serve it)."""
+        """Create the pty and the link (unwatched: on the event loop that will serve it)."""
         if self._master is not None:
             return
-        self._loop = asyncio.get_running_loop()
         master, slave = os.openpty()
-        tty.setraw(slave, termios.TCSANOW)
+        tty.setraw(slave, termios.TCSANOW)  # raw before anyone writes: no echo, no CR/LF
         tty.setraw(master, termios.TCSANOW)
         flags = fcntl.fcntl(master, fcntl.F_GETFL)
         fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+        self._tty_name = os.ttyname(slave)
         self._master, self._slave = master, slave
-        link = Path(self.path)
+        if self.watch_host:
+            os.close(slave)  # the master now reports hang-up until a client opens the slave
+            self._slave = None
+        tmp = self.path + ".tmp"
         with contextlib.suppress(FileNotFoundError):
-            link.unlink()
-        link.symlink_to(os.ttyname(slave))
-        self._loop.add_reader(master, self._readable)
+            os.unlink(tmp)
+        os.symlink(self._tty_name, tmp)
+        os.replace(tmp, self.path)
+        if not self.watch_host:
+            self._start_reading()
+
+    def poll_host(self) -> bool:
+        """With ``watch_host``: True once a client has opened the port since the last call
+        (reading starts then); False while nobody has or it is already known to be open."""
+        if self._master is None or self.host_open:
+            return False
+        poller = select.poll()
+        poller.register(self._master, select.POLLIN)
+        if any(ev & select.POLLHUP for _, ev in poller.poll(0)):
+            return False
+        self._start_reading()
+        return True
+
+    def _start_reading(self) -> None:
+        assert self._master is not None
+        self.host_open = True
+        self._reading = True
+        self._loop = asyncio.get_running_loop()
+        self._loop.add_reader(self._master, self._readable)
+
+    def stop_reading(self) -> None:
+        """Stop reading and forget the client: with ``watch_host`` the next :meth:`poll_host`
+        sees the port as newly opened (the emulator stopped serving, or the client closed it)."""
+        if self._reading and self._master is not None and self._loop is not None:
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._master)
+        self._reading = False
+        self.host_open = False
 
     def _readable(self) -> None:
         if self._master is None:
@@ -94,41 +140,37 @@ class PtyDevice:
         except BlockingIOError:
             return
         except OSError:
+            self.stop_reading()
             return
-        if data:
-            self.bytes_read += len(data)
-            self._on_bytes(data)
+        if not data:
+            self.stop_reading()
+            return
+        self.bytes_read += len(data)
+        self._on_bytes(data)
 
     def write(self, data: bytes) -> int:
-        """Send ``data`` to the driver; return the bytes accepted (0 when unplugged)."""
-        if self._master is None or not data:
+        """Send ``data`` to the driver; return the bytes accepted (0 when unplugged or, watched,
+        while no client has the port open)."""
+        if self._master is None or not self.host_open or not data:
             return 0
         try:
             n = os.write(self._master, data)
         except BlockingIOError:
             n = 0
-        except OSError as exc:  # pragma: no cover - the pty went away under us
+        except OSError as exc:  # the client closed the port, or the pty went away under us
             if exc.errno not in (errno.EIO, errno.EBADF):
                 raise
+            self.stop_reading()
             n = 0
         self.bytes_written += n
         self.bytes_dropped += len(data) - n
         return n
 
-    def pending_to_driver(self) -> int:
-        """Bytes written but not yet read by the driver (0 when unplugged)."""
-        if self._slave is None:
-            return 0
-        buf = fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
-        return int.from_bytes(buf, "little")
-
     def unplug(self) -> None:
         """Close the pty and remove the link, as pulling the USB cable does."""
         if self._master is None:
             return
-        if self._loop is not None:
-            with contextlib.suppress(Exception):
-                self._loop.remove_reader(self._master)
+        self.stop_reading()
         with contextlib.suppress(FileNotFoundError):
             Path(self.path).unlink()
         for fd in (self._master, self._slave):
@@ -136,6 +178,7 @@ class PtyDevice:
                 with contextlib.suppress(OSError):
                     os.close(fd)
         self._master = self._slave = None
+        self._tty_name = None
 
     def replug(self) -> None:
         """A fresh pty behind the same link."""

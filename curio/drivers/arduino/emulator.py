@@ -49,15 +49,7 @@ receiver: set ``firmware.rc_channels_us`` (µs, raw receiver order) and ``firmwa
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-import errno
 import logging
-import os
-import select
-import shutil
-import tempfile
-import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,7 +60,7 @@ import numpy as np
 from curio.core.clock import Clock, SimClock
 from curio.core.messages import ServoCommand
 from curio.drivers.arduino import protocol as p
-from curio.drivers.pty import BytePacer
+from curio.drivers.pty import BytePacer, PtyDevice
 
 __all__ = ["ArduinoEmulator", "EmulatorWorld", "FirmwareModel", "ServoSide"]
 
@@ -405,27 +397,20 @@ class ArduinoEmulator:
         self.boot_delay_s = boot_delay_s
         self.tick_s = tick_s
         self._rng = np.random.default_rng(seed)
-        self._own_dir = link_dir is None
-        self._dir = Path(tempfile.mkdtemp(prefix="curio-emu-")) if link_dir is None \
-            else Path(link_dir)
-        self.port_path = str(self._dir / name)
+        self.device = PtyDevice(name, self._on_bytes, None if link_dir is None else Path(link_dir),
+                                watch_host=True)
         self.servos = _WorldServos(world, self._rng)
         self.firmware = FirmwareModel(self.servos, self._send)
-        self._master: int | None = None
-        self._host_open = False
         self._booting_until: float | None = None
         self._booted = False
         self._stalled_until = -1.0
         self._corrupt_rx_until = -1.0
         self._corrupt_tx = 0
         self._truncate_tx = 0
-        self._plugged = False
         self._pending_reset_cause = RESET_POWER_ON
         # Counters for tests and `curio emulate`.
         self.boots = 0
         self.opens = 0
-        self.bytes_in = 0
-        self.bytes_out = 0
         self.pacer = BytePacer(clock, lambda: self.bytes_out, max_spins=PACER_MAX_SPINS)
 
     # --- properties -----------------------------------------------------------------------------
@@ -443,7 +428,22 @@ class ArduinoEmulator:
     @property
     def host_connected(self) -> bool:
         """Whether a client has the port open."""
-        return self._host_open
+        return self.device.host_open
+
+    @property
+    def port_path(self) -> str:
+        """The stable device path a driver opens (a symlink to the current pty)."""
+        return self.device.path
+
+    @property
+    def bytes_in(self) -> int:
+        """Bytes read from the host so far (also those the bootloader dropped)."""
+        return self.device.bytes_read
+
+    @property
+    def bytes_out(self) -> int:
+        """Bytes sent to the host so far."""
+        return self.device.bytes_written
 
     @property
     def servo_read_fail_rate(self) -> float:
@@ -460,41 +460,12 @@ class ArduinoEmulator:
 
     def open(self) -> str:
         """Create the pseudo-terminal and the ``port_path`` symlink; return ``port_path``."""
-        if self._master is not None:
-            return self.port_path
-        master, slave = os.openpty()
-        tty.setraw(slave)  # raw before anyone writes: no echo, no CR/LF translation
-        os.set_blocking(master, False)
-        slave_name = os.ttyname(slave)
-        os.close(slave)  # the master now reports hang-up until a client opens the slave
-        tmp = self.port_path + ".tmp"
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        os.symlink(slave_name, tmp)
-        os.replace(tmp, self.port_path)
-        self._master = master
-        self._host_open = False
-        self._plugged = True
+        self.device.open()
         return self.port_path
-
-    def _close_pty(self) -> None:
-        if self._master is None:
-            return
-        with contextlib.suppress(Exception):
-            asyncio.get_running_loop().remove_reader(self._master)
-        with contextlib.suppress(OSError):
-            os.close(self._master)
-        self._master = None
-        self._host_open = False
 
     def close(self) -> None:
         """Close the pty and remove the symlink (and its directory if the emulator made it)."""
-        self._close_pty()
-        self._plugged = False
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.port_path)
-        if self._own_dir:
-            shutil.rmtree(self._dir, ignore_errors=True)
+        self.device.close()
 
     def pair(self, driver: Any) -> None:
         """Pace virtual time with ``driver`` (an ``ArduinoBase`` on this emulator's port).
@@ -520,10 +491,7 @@ class ArduinoEmulator:
     def unplug(self) -> None:
         """Pull the USB cable: the pty and the symlink disappear; the board keeps running on
         battery power, so its motion watchdog stops the wheels."""
-        self._close_pty()
-        self._plugged = False
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.port_path)
+        self.device.unplug()
 
     def replug(self) -> None:
         """Plug the cable back in: a fresh pty behind the same ``port_path``."""
@@ -582,36 +550,15 @@ class ArduinoEmulator:
         self._write(frame)
 
     def _write(self, data: bytes) -> None:
-        if self._master is None or not self._host_open or self._stalled():
+        if not self.device.host_open or self._stalled():
             return
-        try:
-            n = os.write(self._master, data)
-            self.bytes_out += n
-        except BlockingIOError:
+        if self.device.write(data) < len(data):
             log.debug("pty buffer full: %d bytes dropped", len(data))
-        except OSError as exc:
-            if exc.errno in (errno.EIO, errno.EBADF):
-                self._host_closed()
-            else:
-                raise
 
     def _stalled(self) -> bool:
         return self.clock.now() < self._stalled_until
 
-    def _on_readable(self) -> None:
-        if self._master is None:
-            return
-        try:
-            data = os.read(self._master, 4096)
-        except BlockingIOError:
-            return
-        except OSError:
-            self._host_closed()
-            return
-        if not data:
-            self._host_closed()
-            return
-        self.bytes_in += len(data)
+    def _on_bytes(self, data: bytes) -> None:
         if not self._booted or self._stalled():
             return  # the bootloader (or a hung board) drops what it gets
         if self.clock.now() < self._corrupt_rx_until:
@@ -622,29 +569,15 @@ class ArduinoEmulator:
             data = bytes(b)
         self.firmware.on_bytes(data, self._now_ms())
 
-    def _host_closed(self) -> None:
-        if self._host_open and self._master is not None:
-            with contextlib.suppress(Exception):
-                asyncio.get_running_loop().remove_reader(self._master)
-        self._host_open = False
-
     def _poll_host_open(self) -> None:
         """While nobody has the port open, watch for a client opening it (DTR reset)."""
-        if self._master is None or self._host_open:
-            return
-        poller = select.poll()
-        poller.register(self._master, select.POLLIN)
-        events = poller.poll(0)
-        if any(ev & select.POLLHUP for _, ev in events):
-            return
-        self._host_open = True
-        self.opens += 1
-        asyncio.get_running_loop().add_reader(self._master, self._on_readable)
-        self._start_boot(RESET_EXTERNAL)
+        if self.device.poll_host():
+            self.opens += 1
+            self._start_boot(RESET_EXTERNAL)
 
     async def run(self) -> None:
         """Serve until cancelled: watch the port, run the firmware loop every ``tick_s``."""
-        if self._master is None and not self._plugged:
+        if not self.device.plugged:
             self.open()
         try:
             async for now in self.clock.every(self.tick_s):
@@ -657,7 +590,7 @@ class ArduinoEmulator:
                     self.firmware.boot(self._now_ms(), self._pending_reset_cause)
                 elif self._booted:
                     self.firmware.tick(self._now_ms())
-                if self._host_open:
+                if self.device.host_open:
                     await self.pacer.settle()
         finally:
-            self._host_closed()
+            self.device.stop_reading()
