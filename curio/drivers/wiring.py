@@ -38,13 +38,14 @@ from curio.core.messages import Imu, LaserScan
 from curio.core.parts import Part, Parts
 from curio.drivers.arduino.driver import ArduinoBase
 from curio.drivers.arduino.emulator import EmulatorWorld
+from curio.drivers.base import BaseDriver
 from curio.drivers.bno055.driver import Bno055Driver, SMBusLike
 from curio.drivers.health import SystemdNotifier
 from curio.drivers.odometry import WheelOdometry
 from curio.drivers.rplidar.driver import RplidarDriver
 from curio.robot import RobotModel
 
-__all__ = ["BaseDriver", "Drivers", "SimulatedWorld", "build_drivers"]
+__all__ = ["Drivers", "SimulatedWorld", "build_drivers"]
 
 
 class SimulatedWorld(EmulatorWorld, Protocol):
@@ -56,19 +57,6 @@ class SimulatedWorld(EmulatorWorld, Protocol):
 
     def imu_sample(self, stamp: float) -> Imu:
         """One BNO055 reading in ``imu_link``."""
-        ...
-
-
-class BaseDriver(Protocol):
-    """What the application needs from a base (the Arduino's or the simulator's): it executes
-    ``/cmd_vel`` while it runs and stops the wheels at once on :meth:`halt`."""
-
-    async def run(self) -> None:
-        """Execute ``/cmd_vel`` until cancelled."""
-        ...
-
-    async def halt(self) -> None:
-        """Zero every wheel duty now."""
         ...
 
 

@@ -6,50 +6,29 @@
 * both modes: the :class:`~curio.sim.world.World`, a physics loop at
   ``cfg.sim.physics_rate_hz`` that also publishes ``/ground_truth`` (``map``, every physics
   step, ≥ 20 Hz) and the world's events (``collision``, ``door``) on ``/events``;
-* ``sim`` mode only: :class:`SimBase` (the base: ``/cmd_vel`` → kinematics → ``/servo_cmd``
-  → the world, with the 0.5 s command timeout and a halt hook) and the sensor publishers
-  ``/scan`` (``cfg.sim.lidar_rate_hz``), ``/imu`` (``cfg.sim.imu_rate_hz``), ``/wheels``
-  (``cfg.sim.wheel_feedback_rate_hz``) and ``/battery`` (1 Hz). In ``emulated`` mode the
+* ``sim`` mode only: :class:`~curio.sim.base.SimBase` (the base: ``/cmd_vel`` → kinematics →
+  ``/servo_cmd`` → the world, with the 0.5 s command timeout and a halt hook) and the sensor
+  publishers ``/scan`` (``cfg.sim.lidar_rate_hz``), ``/imu`` (``cfg.sim.imu_rate_hz``),
+  ``/wheels`` (``cfg.sim.wheel_feedback_rate_hz``) and ``/battery`` (1 Hz). In ``emulated`` mode the
   byte-exact device emulators pull from the world instead.
 * both modes: ``/health`` (name ``simulator``, 1 Hz) with collision, step and scan counters.
 """
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
-from curio.core.messages import (
-    BatteryState,
-    DriverHealth,
-    Event,
-    Odometry,
-    ServoCommand,
-    Twist,
-    WheelEncoders,
-)
+from curio.core.messages import BatteryState, DriverHealth, Event, Odometry, WheelEncoders
 from curio.core.parts import Part, Parts
-from curio.core.topics import (
-    BATTERY,
-    CMD_VEL,
-    EVENTS,
-    GROUND_TRUTH,
-    HEALTH,
-    IMU,
-    SCAN,
-    SERVO_CMD,
-    WHEELS,
-)
-from curio.drivers.kinematics import twist_to_servo_command
+from curio.core.topics import BATTERY, EVENTS, GROUND_TRUTH, HEALTH, IMU, SCAN, WHEELS
 from curio.robot import RobotModel
+from curio.sim.base import SimBase
 from curio.sim.world import World
 
-__all__ = ["SimBase", "SimParts", "Simulator", "build_sim"]
-
-log = logging.getLogger("curio.sim")
+__all__ = ["SimParts", "Simulator", "build_sim"]
 
 LOW_BATTERY_V = 6.6
 
@@ -113,67 +92,6 @@ class Simulator:
                 "physics_steps": float(self.physics_steps),
                 "scans": float(self.scans),
                 "in_contact": float(self.world.in_contact)}))
-
-
-class SimBase:
-    """The simulated base driver: ``/cmd_vel`` → servo command → the world.
-
-    Applies the command timeout of the real base (``cfg.drivers.arduino.cmd_timeout_s``): a
-    command older than that stops the wheels; steering keeps the last command's angles.
-    """
-
-    def __init__(self, cfg: Config, bus: Bus, clock: Clock, world: World,
-                 robot: RobotModel) -> None:
-        self.cfg = cfg
-        self.robot = robot
-        self.bus = bus
-        self.clock = clock
-        self.world = world
-        self.last_cmd: Twist | None = None
-        self.last_cmd_time = -1e9
-        self.timed_out = True
-        self.sent = 0
-        self._sub = bus.subscribe(CMD_VEL, maxsize=1)
-
-    def _send(self, cmd: ServoCommand) -> None:
-        self.world.apply_servo_command(cmd)
-        self.bus.publish(SERVO_CMD, cmd)
-        self.sent += 1
-
-    def _stop_wheels(self, stamp: float) -> None:
-        prev = self.bus.latest(SERVO_CMD)
-        steer = prev.steer_position if prev is not None else (500, 500, 500, 500)
-        self._send(ServoCommand(stamp, (0, 0, 0, 0, 0, 0), steer))
-
-    async def run(self) -> None:
-        """Forward every ``/cmd_vel`` to the servos at once."""
-        async for msg in self._sub:
-            now = self.clock.now()
-            self.last_cmd, self.last_cmd_time, self.timed_out = msg, now, False
-            try:
-                cmd = twist_to_servo_command(msg.linear_mps, msg.angular_radps, self.robot,
-                                             now)
-            except ValueError as exc:
-                log.warning("ignoring /cmd_vel: %s", exc)
-                continue
-            self._send(cmd)
-
-    async def run_watchdog(self) -> None:
-        """Stop the wheels when no command came for ``cmd_timeout_s``."""
-        timeout = self.cfg.drivers.arduino.cmd_timeout_s
-        async for t in self.clock.every(0.05, phase_s=0.004):
-            if not self.timed_out and t - self.last_cmd_time > timeout:
-                self.timed_out = True
-                self._stop_wheels(t)
-
-    async def halt(self) -> None:
-        """Zero every wheel duty now."""
-        self.timed_out = True
-        self._stop_wheels(self.clock.now())
-
-    async def close(self) -> None:
-        """Stop listening."""
-        self._sub.close()
 
 
 @dataclass(frozen=True)

@@ -83,6 +83,7 @@ from curio.core.messages import (
 )
 from curio.core.topics import BATTERY, CMD_VEL, CMD_VEL_TELEOP, ESTOP, SERVO_CMD, WHEELS
 from curio.drivers.arduino import protocol as p
+from curio.drivers.base import BaseDriver
 from curio.drivers.health import HealthReporter
 from curio.drivers.kinematics import twist_to_servo_command
 from curio.drivers.pty import BytePacer
@@ -141,7 +142,7 @@ class _LinkLost(DeviceFault):
     """The session must end (the message says why and what to check)."""
 
 
-class ArduinoBase:
+class ArduinoBase(BaseDriver):
     """The base driver (see the module docstring).
 
     Args:
