@@ -5,7 +5,7 @@ LX-16A servos, in ``real`` and ``emulated`` mode) and :class:`~curio.sim.base.Si
 simulated rover, in ``sim`` mode). Either executes ``/cmd_vel`` while :meth:`BaseDriver.run`
 runs, stops the wheels at once on :meth:`BaseDriver.halt` (the application's first shutdown step
 and its halt hook) and releases what it holds on :meth:`BaseDriver.close`. Which one runs is
-decided by ``drivers.mode``.
+decided by the ``drivers.mode`` table (:mod:`curio.drivers.modes`).
 """
 
 from __future__ import annotations

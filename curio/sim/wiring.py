@@ -1,12 +1,13 @@
 """Simulator wiring: the world, rover physics and simulated sensors (owner: simulator).
 
-``build_sim`` builds them when ``cfg.drivers.mode`` is ``sim`` or ``emulated`` (None in
-``real`` mode):
+``build_sim`` builds them when the ``drivers.mode`` table (:mod:`curio.drivers.modes`) has a
+device emulated or simulated, i.e. in ``sim`` and ``emulated`` mode (None in ``real`` mode):
 
 * both modes: the :class:`~curio.sim.world.World`, a physics loop at
   ``cfg.sim.physics_rate_hz`` that also publishes ``/ground_truth`` (``map``, every physics
   step, ≥ 20 Hz) and the world's events (``collision``, ``door``) on ``/events``;
-* ``sim`` mode only: :class:`~curio.sim.base.SimBase` (the base: ``/cmd_vel`` → kinematics →
+* ``sim`` mode only (the devices the table puts on the simulator):
+  :class:`~curio.sim.base.SimBase` (the base: ``/cmd_vel`` → kinematics →
   ``/servo_cmd`` → the world, with the 0.5 s command timeout and a halt hook) and the sensor
   publishers ``/scan`` (``cfg.sim.lidar_rate_hz``), ``/imu`` (``cfg.sim.imu_rate_hz``),
   ``/wheels`` (``cfg.sim.wheel_feedback_rate_hz``) and ``/battery`` (1 Hz). In ``emulated`` mode the
@@ -24,6 +25,7 @@ from curio.core.config import Config
 from curio.core.messages import BatteryState, DriverHealth, Event, Odometry, WheelEncoders
 from curio.core.parts import Part, Parts
 from curio.core.topics import BATTERY, EVENTS, GROUND_TRUTH, HEALTH, IMU, SCAN, WHEELS
+from curio.drivers.modes import driver_mode
 from curio.robot import RobotModel
 from curio.sim.base import SimBase
 from curio.sim.world import World
@@ -106,21 +108,26 @@ class SimParts:
 
 def build_sim(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
               robot: RobotModel) -> SimParts | None:
-    """Construct the world and simulator parts (``sim`` and ``emulated`` modes; else None)."""
-    if cfg.drivers.mode not in ("sim", "emulated"):
+    """Construct the world and simulator parts (when the ``drivers.mode`` table has a device
+    emulated or simulated; else None) and the simulator's stand-ins for the simulated devices."""
+    mode = driver_mode(cfg)
+    if not mode.world:
         return None
     world = World.from_config(cfg, robot)
-    sim_mode = cfg.drivers.mode == "sim"
-    simulator = Simulator(cfg, bus, clock, world, publish_sensors=sim_mode)
+    sim_base = mode.base == "simulator"
+    simulator = Simulator(cfg, bus, clock, world, publish_sensors=sim_base)
     parts.add(Part("sim.physics", run=simulator.run_physics))
     parts.add(Part("sim.battery", run=simulator.run_battery))
-    if not sim_mode:
-        return SimParts(world, simulator, None)
-    base = SimBase(cfg, bus, clock, world, robot)
-    parts.add(Part("sim.base", run=base.run, close=base.close))
-    parts.add(Part("sim.base.watchdog", run=base.run_watchdog))
-    parts.add_halt_hook(base.halt)
-    parts.add(Part("sim.lidar", run=simulator.run_scan))
-    parts.add(Part("sim.imu", run=simulator.run_imu))
-    parts.add(Part("sim.wheels", run=simulator.run_wheels))
+    base = None
+    if sim_base:
+        base = SimBase(cfg, bus, clock, world, robot)
+        parts.add(Part("sim.base", run=base.run, close=base.close))
+        parts.add(Part("sim.base.watchdog", run=base.run_watchdog))
+        parts.add_halt_hook(base.halt)
+    if mode.lidar == "simulator":
+        parts.add(Part("sim.lidar", run=simulator.run_scan))
+    if mode.imu == "simulator":
+        parts.add(Part("sim.imu", run=simulator.run_imu))
+    if sim_base:
+        parts.add(Part("sim.wheels", run=simulator.run_wheels))  # the base's wheel feedback
     return SimParts(world, simulator, base)

@@ -58,7 +58,9 @@ from typing import Any, Protocol, cast
 import numpy as np
 
 from curio.core.clock import Clock, SimClock
+from curio.core.config import Config
 from curio.core.messages import ServoCommand
+from curio.core.parts import Part
 from curio.drivers.arduino import protocol as p
 from curio.drivers.pty import BytePacer, PtyDevice
 
@@ -413,6 +415,25 @@ class ArduinoEmulator:
         self.opens = 0
         self.pacer = BytePacer(clock, lambda: self.bytes_out, max_spins=PACER_MAX_SPINS)
 
+    @classmethod
+    def for_world(cls, world: EmulatorWorld, clock: Clock, cfg: Config, seed: int,
+                  link: Path | None = None) -> ArduinoEmulator:
+        """The board on the simulator's ``world`` (emulated mode, ``curio emulate arduino``).
+
+        Args:
+            world: the simulator's world (servos and battery).
+            clock: the application clock.
+            cfg: the configuration (unused: the board's config comes from the driver).
+            seed: the fault randomness.
+            link: the device path to serve (default: ``curio-arduino`` in a temp dir).
+        """
+        return cls(world, clock, seed=seed, link_dir=link.parent if link else None,
+                   name=link.name if link else "curio-arduino")
+
+    def parts(self) -> list[Part]:
+        """What runs the emulator: its firmware loop."""
+        return [Part("arduino-emulator", run=self.run, close=self.aclose)]
+
     # --- properties -----------------------------------------------------------------------------
 
     @property
@@ -433,6 +454,11 @@ class ArduinoEmulator:
     @property
     def port_path(self) -> str:
         """The stable device path a driver opens (a symlink to the current pty)."""
+        return self.device.path
+
+    @property
+    def path(self) -> str:
+        """:attr:`port_path` (every serial emulator has a ``path``)."""
         return self.device.path
 
     @property
