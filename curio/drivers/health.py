@@ -14,7 +14,7 @@ from curio.core.clock import Clock
 from curio.core.messages import DriverHealth, Event
 from curio.core.topics import EVENTS, HEALTH
 
-__all__ = ["HealthReporter", "SystemdNotifier"]
+__all__ = ["HealthReporter", "ReportsHealth", "SystemdNotifier"]
 
 
 class HealthReporter:
@@ -117,6 +117,23 @@ class HealthReporter:
         if self.down_since is not None:
             down_s, self.down_since = at_s - self.down_since, None
             self.event(f"driver.{self.name}_recovered", down_s=round(down_s, 3))
+
+
+class ReportsHealth:
+    """A driver whose ``/health`` is its :class:`HealthReporter` ``reporter``: its ``state``
+    and ``message`` read from there."""
+
+    reporter: HealthReporter
+
+    @property
+    def state(self) -> str:
+        """``starting``, ``ok``, ``degraded`` or ``error`` (as on ``/health``)."""
+        return self.reporter.state
+
+    @property
+    def message(self) -> str:
+        """What is wrong and what to do (as on ``/health``)."""
+        return self.reporter.message
 
 
 class SystemdNotifier:

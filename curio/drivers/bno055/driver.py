@@ -45,7 +45,7 @@ from curio.core.fileio import atomic_write_json
 from curio.core.messages import Imu
 from curio.core.topics import IMU
 from curio.drivers.bno055 import protocol as r
-from curio.drivers.health import HealthReporter
+from curio.drivers.health import HealthReporter, ReportsHealth
 from curio.drivers.session import Backoff, DeviceFault, SessionLoop
 
 __all__ = ["Bno055Driver", "ImuFault", "SMBusLike", "open_smbus"]
@@ -104,7 +104,7 @@ class ImuFault(DeviceFault):
     """A session-ending problem, phrased for the person who has to fix it."""
 
 
-class Bno055Driver:
+class Bno055Driver(ReportsHealth):
     """Reads a BNO055 and publishes ``/imu``, ``/health`` and events.
 
     Args:
@@ -203,16 +203,6 @@ class Bno055Driver:
         return f"BNO055 running in {self._mode.name} mode at {self._where()}"
 
     # --- life cycle ---------------------------------------------------------------------------
-    @property
-    def state(self) -> str:
-        """``starting``, ``ok``, ``degraded`` or ``error`` (as on ``/health``)."""
-        return self.reporter.state
-
-    @property
-    def message(self) -> str:
-        """What is wrong and what to do (as on ``/health``)."""
-        return self.reporter.message
-
     async def run(self) -> None:
         """Run sessions for ever; each failure is reported and retried."""
         reconnect_s = self.cfg.reconnect_s

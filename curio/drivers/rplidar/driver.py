@@ -36,7 +36,7 @@ from curio.core.clock import Clock
 from curio.core.config import LidarConfig
 from curio.core.messages import LaserScan
 from curio.core.topics import SCAN
-from curio.drivers.health import HealthReporter
+from curio.drivers.health import HealthReporter, ReportsHealth
 from curio.drivers.pty import BytePacer
 from curio.drivers.rplidar import protocol as p
 from curio.drivers.session import Backoff, DeviceFault, SessionLoop, wait_event
@@ -63,7 +63,7 @@ class _Proto(asyncio.Protocol):
         self.driver._on_lost(exc)
 
 
-class RplidarDriver:
+class RplidarDriver(ReportsHealth):
     """Talks to an RPLidar A1 and publishes ``/scan``, ``/health`` and events.
 
     Args:
@@ -119,16 +119,6 @@ class RplidarDriver:
         self._last_scan_at = -math.inf
 
     # --- the long-lived part ------------------------------------------------------------------
-    @property
-    def state(self) -> str:
-        """``starting``, ``ok``, ``degraded`` or ``error`` (as on ``/health``)."""
-        return self.reporter.state
-
-    @property
-    def message(self) -> str:
-        """What is wrong and what to do (as on ``/health``)."""
-        return self.reporter.message
-
     async def run(self) -> None:
         """Run sessions for ever; each failure is reported and retried; ``/health`` every
         second."""
