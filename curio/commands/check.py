@@ -173,10 +173,7 @@ def main(argv: list[str]) -> int:
         return 2
     try:
         cfg = load_config(args.config, _overrides(args))
-    except _Usage as exc:
-        print(f"curio check: {exc}", file=sys.stderr)
-        return 2
-    except ConfigError as exc:
+    except (_Usage, ConfigError) as exc:
         print(f"curio check: {exc}", file=sys.stderr)
         return 2
     results = _device_rows(args, cfg, skip)
