@@ -1,2 +1,2 @@
-"""BNO055 IMU: register map and conversions (``protocol``), the smbus2 driver (``driver``) and
-the emulator on a fake I2C bus (``emulator``)."""
+"""BNO055 IMU: register map and conversions, smbus2 driver, emulator on a fake I2C bus and its
+part of ``curio check`` (``protocol``, ``driver``, ``emulator``, ``check``)."""
