@@ -6,9 +6,9 @@
 It builds the simulator world from the configuration (``sim.world``, or ``--map``), runs its
 physics in real time (the Arduino emulator's servo commands move the simulated rover; the
 lidar sees the world from the rover's pose), starts the emulator (the same class, built the
-same way, as ``drivers.mode = "emulated"`` does: ``DEVICES`` in ``curio/drivers/wiring.py``),
-prints the device path (a stable symlink; ``--link`` chooses it) and serves until Ctrl-C (or
-``--duration`` seconds).
+same way, as ``drivers.mode = "emulated"`` does: ``LIDAR`` and ``BASE`` in
+``curio/drivers/wiring.py``), prints the device path (a stable symlink; ``--link`` chooses it)
+and serves until Ctrl-C (or ``--duration`` seconds).
 
 A pseudo-terminal has no modem-control lines: the RPLidar's motor, which the A1 switches with
 DTR, is always spinning here, and clients that set DTR get ``ENOTTY`` from the kernel (pyserial

@@ -17,9 +17,10 @@
   - ``simulator``: nothing here; the simulator publishes the device's messages and its
     ``SimBase`` is the base (``curio/sim/wiring.py``).
 
-:data:`DEVICES` pairs each device's driver with its emulator (RoSys's hardware/simulation
-pairs); ``curio emulate`` serves the emulators from the same table. The emulators' parts are
-registered before the drivers', so a pty exists when its driver opens it.
+:data:`BASE`, :data:`LIDAR` and :data:`IMU` pair each device's driver with its emulator
+(RoSys's hardware/simulation pairs); ``curio emulate`` serves the emulators from the same rows.
+The emulators' parts are registered (and so start) before the drivers', so a pty exists when
+its driver opens it.
 
 Under systemd (``NOTIFY_SOCKET`` set, ``deploy/curio.service``) a
 :class:`~curio.drivers.health.SystemdNotifier` part reports readiness, feeds the watchdog and
@@ -51,7 +52,7 @@ from curio.drivers.rplidar.emulator import RplidarEmulator, ScanWorld
 from curio.robot import RobotModel
 
 __all__ = [
-    "BASE", "DEVICES", "IMU", "LIDAR", "Device", "DeviceEmulator", "Drivers", "SimulatedWorld",
+    "BASE", "IMU", "LIDAR", "Device", "DeviceEmulator", "Drivers", "SimulatedWorld",
     "build_drivers",
 ]
 
@@ -155,14 +156,12 @@ def _bno055(ctx: DeviceContext, emulator: Bno055Emulator | None) -> Bno055Driver
                         open_bus=emulator.reopen, offload=False)
 
 
+#: The devices: each one's emulator and driver (built in this order).
 BASE = Device("arduino", "base", ArduinoEmulator.for_world, _arduino, 0,
               serves="Arduino Mega base controller (115200 baud)")
 LIDAR = Device("rplidar", "lidar", RplidarEmulator.for_world, _rplidar, 1,
                serves="RPLidar A1M8 (115200 baud; motor always on: no DTR on a pty)")
 IMU = Device("bno055", "imu", Bno055Emulator.for_world, _bno055, 2)
-#: Every device, in start order.
-DEVICES: tuple[Device[ArduinoEmulator, ArduinoBase], Device[RplidarEmulator, RplidarDriver],
-               Device[Bno055Emulator, Bno055Driver]] = (BASE, LIDAR, IMU)
 
 
 @dataclass
