@@ -39,7 +39,7 @@ from curio.core.messages import Twist
 from curio.core.topics import CMD_VEL, IMU, SCAN, WHEELS, make_bus
 from curio.drivers.arduino.driver import ArduinoBase
 from curio.drivers.bno055.driver import Bno055Driver
-from curio.drivers.bno055.fake_bus import FakeBno055Bus
+from curio.drivers.bno055.emulator import Bno055Emulator
 from curio.drivers.rplidar.driver import RplidarDriver
 from curio.robot import RobotModel
 from curio.sim.world import World
@@ -50,7 +50,7 @@ WARMUP_S = 3.0
 class TimedFakeBus:
     """The fake BNO055 bus with the CPU time spent inside it accumulated (thread CPU clock)."""
 
-    def __init__(self, inner: FakeBno055Bus) -> None:
+    def __init__(self, inner: Bno055Emulator) -> None:
         self.inner = inner
         self.cpu_s = 0.0
 
@@ -130,7 +130,7 @@ async def _phase(which: set[str], cfg: Config, links: dict[str, Path], duration_
         tasks.append(asyncio.create_task(teleop()))
     if "imu" in which:
         world = World.from_config(cfg)
-        fake = TimedFakeBus(FakeBno055Bus(world.imu_sample, clock.now, power_on_s=0.0))
+        fake = TimedFakeBus(Bno055Emulator(world.imu_sample, clock.now, power_on_s=0.0))
         imu = Bno055Driver(cfg.drivers.imu, clock, bus,
                            calibration_path=cfg.data_path("bench_bno055.json"),
                            open_bus=fake.reopen, offload=True)

@@ -34,8 +34,9 @@ from curio.core.clock import SimClock, process_cpu_time, wall_perf_counter
 from curio.core.config import REPO_ROOT, Config, load_config
 from curio.core.messages import Twist
 from curio.core.topics import CMD_VEL, make_bus
+from curio.sim.base import SimBase
 from curio.sim.raycast import naive_cast
-from curio.sim.wiring import SimBase, Simulator
+from curio.sim.wiring import Simulator
 from curio.sim.world import World
 
 

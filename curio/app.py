@@ -30,7 +30,8 @@ from curio.core.config import Config
 from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
 from curio.core.topics import CMD_VEL, make_bus
-from curio.drivers.wiring import BaseDriver, build_drivers
+from curio.drivers.base import BaseDriver
+from curio.drivers.wiring import build_drivers
 from curio.estimation.ekf import EkfNode
 from curio.estimation.wiring import Localiser, MapServer, build_estimation
 from curio.nav.controller import LocalController

@@ -209,11 +209,12 @@ def _announce(mode: str, web_url: str | None) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from curio.app import App
     from curio.core.clock import Clock, RealClock, SimClock
+    from curio.drivers.modes import driver_mode
 
     cfg = _load(args)
     clock: Clock
     sim_clock: SimClock | None = None
-    if cfg.drivers.mode != "real" and cfg.sim.speed is not None:
+    if driver_mode(cfg).world and cfg.sim.speed is not None:
         sim_clock = SimClock(speed=cfg.sim.speed)
         clock = sim_clock
     else:

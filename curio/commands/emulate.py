@@ -5,8 +5,10 @@
 
 It builds the simulator world from the configuration (``sim.world``, or ``--map``), runs its
 physics in real time (the Arduino emulator's servo commands move the simulated rover; the
-lidar sees the world from the rover's pose), starts the emulator, prints the device path (a
-stable symlink; ``--link`` chooses it) and serves until Ctrl-C (or ``--duration`` seconds).
+lidar sees the world from the rover's pose), starts the emulator (the same class, built the
+same way, as ``drivers.mode = "emulated"`` does: ``LIDAR`` and ``BASE`` in
+``curio/drivers/wiring.py``), prints the device path (a stable symlink; ``--link`` chooses it)
+and serves until Ctrl-C (or ``--duration`` seconds).
 
 A pseudo-terminal has no modem-control lines: the RPLidar's motor, which the A1 switches with
 DTR, is always spinning here, and clients that set DTR get ``ENOTTY`` from the kernel (pyserial
@@ -22,10 +24,14 @@ import asyncio
 import contextlib
 import sys
 from pathlib import Path
-from typing import Any
 
 from curio.core.clock import RealClock
-from curio.core.config import ConfigError, load_config
+from curio.core.config import Config, ConfigError, load_config
+from curio.drivers.wiring import BASE, LIDAR
+
+# The devices served on a pseudo-terminal, in the usage line's order (the BNO055's emulator is
+# an in-memory I2C bus).
+SERVED = {device.name: device for device in (LIDAR, BASE)}
 
 __all__ = ["main"]
 
@@ -35,7 +41,7 @@ def _parser() -> argparse.ArgumentParser:
         prog="curio emulate",
         description="Serve a device emulator on a pseudo-terminal, fed by the simulator.",
     )
-    ap.add_argument("device", choices=["rplidar", "arduino"], help="which device to emulate")
+    ap.add_argument("device", choices=list(SERVED), help="which device to emulate")
     ap.add_argument("--config", help="config file (default: ./config.toml or the shipped one)")
     ap.add_argument("--map", dest="map_yaml", help="world map YAML (overrides sim.world)")
     ap.add_argument("--seed", type=int, help="simulator seed (overrides sim.seed)")
@@ -46,7 +52,7 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-async def _serve(args: argparse.Namespace, cfg: Any) -> int:
+async def _serve(args: argparse.Namespace, cfg: Config) -> int:
     from curio.sim.world import World
 
     clock = RealClock()
@@ -54,34 +60,10 @@ async def _serve(args: argparse.Namespace, cfg: Any) -> int:
     link = Path(args.link).expanduser().absolute() if args.link else None
     if link is not None:
         link.parent.mkdir(parents=True, exist_ok=True)
-    emulator: Any
-    if args.device == "rplidar":
-        from curio.drivers.rplidar.emulator import RplidarEmulator
-
-        emulator = RplidarEmulator(
-            world.cast_scan,
-            clock,
-            rate_hz=cfg.sim.lidar_rate_hz,
-            seed=cfg.sim.seed,
-            link_dir=link.parent if link else None,
-            name=link.name if link else "curio-lidar",
-            motor_on=True,
-        )
-        emulator.open()
-        path, what = emulator.path, "RPLidar A1M8 (115200 baud; motor always on: no DTR on a pty)"
-    else:
-        from curio.drivers.arduino.emulator import ArduinoEmulator
-
-        emulator = ArduinoEmulator(
-            world,
-            clock,
-            seed=cfg.sim.seed,
-            link_dir=link.parent if link else None,
-            name=link.name if link else "curio-arduino",
-        )
-        emulator.open()
-        path, what = emulator.port_path, "Arduino Mega base controller (115200 baud)"
-    print(f"{what} emulator on {path}", flush=True)
+    device = SERVED[args.device]
+    emulator = device.emulator(world, clock, cfg, cfg.sim.seed, link)
+    emulator.open()
+    print(f"{device.serves} emulator on {emulator.path}", flush=True)
     print(f"world {cfg.sim.world}, seed {cfg.sim.seed}; Ctrl-C to stop", flush=True)
 
     async def physics() -> None:
@@ -89,7 +71,10 @@ async def _serve(args: argparse.Namespace, cfg: Any) -> int:
         async for _ in clock.every(dt):
             world.step(dt)
 
-    tasks = [asyncio.create_task(emulator.run()), asyncio.create_task(physics())]
+    parts = emulator.parts()
+    tasks: list[asyncio.Future[None]] = [
+        asyncio.ensure_future(part.run()) for part in parts if part.run is not None]
+    tasks.append(asyncio.ensure_future(physics()))
     try:
         if args.duration is not None:
             await clock.sleep(args.duration)
@@ -99,10 +84,9 @@ async def _serve(args: argparse.Namespace, cfg: Any) -> int:
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
-        closer = getattr(emulator, "aclose", None) or emulator.close
-        result = closer()
-        if asyncio.iscoroutine(result):
-            await result
+        for part in parts:
+            if part.close is not None:
+                await part.close()
     return 0
 
 

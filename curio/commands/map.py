@@ -246,6 +246,7 @@ def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from curio.core.config import ConfigError, load_config
     from curio.core.parts import Part
     from curio.core.topics import GROUND_TRUTH, ODOM, SCAN
+    from curio.drivers.modes import driver_mode
     from curio.estimation.carmen import RunRecorder
 
     try:
@@ -253,7 +254,7 @@ def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     except ConfigError as exc:
         err.write(f"curio map record: {exc}\n")
         return 2
-    sim = cfg.drivers.mode == "sim"
+    sim = driver_mode(cfg).simulated
     if sim and args.duration is None:
         err.write("curio map record: in sim mode give --duration (simulated seconds)\n")
         return 2

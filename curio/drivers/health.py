@@ -1,38 +1,139 @@
-"""Helpers shared by the device drivers: timed waits and fixed-rate loops on the injected clock,
-and the systemd readiness/watchdog notifier.
-
-The clock helpers use only the :class:`~curio.core.clock.Clock` protocol (``now``, ``sleep_until``),
-so a driver works on the real clock on the rover and on the simulated clock in emulated mode.
-"""
+"""Driver health: each driver's ``/health`` and events (:class:`HealthReporter`), and the systemd
+readiness/watchdog notifier that shows them in ``systemctl status curio``."""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
+import logging
 import socket
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from curio.core.bus import Bus
 from curio.core.clock import Clock
+from curio.core.messages import DriverHealth, Event
+from curio.core.topics import EVENTS, HEALTH
 
-__all__ = ["BytePacer", "SystemdNotifier", "wait_event"]
+__all__ = ["HealthReporter", "ReportsHealth", "SystemdNotifier"]
 
 
-async def wait_event(clock: Clock, event: asyncio.Event, timeout_s: float) -> bool:
-    """Wait for ``event`` at most ``timeout_s`` of clock time; return ``event.is_set()``."""
-    if event.is_set():
-        return True
-    waiter = asyncio.ensure_future(event.wait())
-    timer = asyncio.ensure_future(clock.sleep_until(clock.now() + max(0.0, timeout_s)))
-    try:
-        await asyncio.wait({waiter, timer}, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for task in (waiter, timer):
-            if not task.done():
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
-    return event.is_set()
+class HealthReporter:
+    """A driver's ``/health``: its state and message, its counters, and its lost and recovered
+    events.
+
+    ``state`` is ``starting``, ``ok``, ``degraded``, ``error`` or ``off``; ``message`` says what
+    is wrong and what to do. A driver either sets them (:meth:`set_state`, :meth:`lost`) or
+    derives them when asked (``assess``). It publishes with :meth:`publish` (now),
+    :meth:`publish_if_due` (from its own loop: on a change, else once a period) or :meth:`run`
+    (a fixed-rate task).
+
+    Args:
+        name: the driver's name on ``/health``; its events are ``driver.<name>_lost`` and
+            ``driver.<name>_recovered``.
+        clock: the application clock (stamps).
+        bus: the application bus.
+        log: where state changes are logged.
+        counters: the driver's counters (the same dict: the driver updates it).
+        extra: more counters computed at each publication, added after ``counters``.
+        assess: derives (state, message) at each publication (instead of :meth:`set_state`).
+        publish_unchanged: :meth:`set_state` publishes even when nothing changed.
+        period_s: :meth:`publish_if_due` publishes at least this often, seconds.
+    """
+
+    def __init__(self, name: str, clock: Clock, bus: Bus, log: logging.Logger,
+                 counters: dict[str, float], *,
+                 extra: Callable[[], dict[str, float]] | None = None,
+                 assess: Callable[[], tuple[str, str]] | None = None,
+                 publish_unchanged: bool = False, period_s: float = 1.0) -> None:
+        self.name = name
+        self.clock = clock
+        self.bus = bus
+        self.log = log
+        self.counters = counters
+        self.extra = extra
+        self.assess = assess
+        self.publish_unchanged = publish_unchanged
+        self.period_s = period_s
+        self.state = "starting"
+        self.message = ""
+        self.down_since: float | None = None
+        self._published_key: tuple[str, str] | None = None
+        self._next_s = 0.0
+
+    def snapshot(self) -> DriverHealth:
+        """The health now: state, message and counters."""
+        state, message = self.assess() if self.assess is not None else (self.state, self.message)
+        counters = dict(self.counters)
+        if self.extra is not None:
+            counters.update(self.extra())
+        return DriverHealth(self.clock.now(), self.name, state, message, counters)
+
+    def publish(self) -> None:
+        """Publish ``/health`` now."""
+        self.bus.publish(HEALTH, self.snapshot())
+
+    def publish_if_due(self, force: bool = False) -> None:
+        """Publish ``/health`` when forced, when the state or message changed since the last
+        time, or when ``period_s`` has passed since."""
+        health = self.snapshot()
+        key = (health.state, health.message)
+        now = self.clock.now()
+        if force or key != self._published_key or now >= self._next_s:
+            self._published_key = key
+            self._next_s = now + self.period_s
+            self.bus.publish(HEALTH, health)
+
+    async def run(self, period_s: float) -> None:
+        """Publish ``/health`` every ``period_s`` until cancelled."""
+        async for _ in self.clock.every(period_s):
+            self.publish()
+
+    def set_state(self, state: str, message: str) -> None:
+        """Set the state and message; publish if either changed (or ``publish_unchanged``). A
+        new state, or a new message in state ``error``, is logged."""
+        changed = (state, message) != (self.state, self.message)
+        if state != self.state or (changed and state == "error"):
+            (self.log.info if state == "ok" else self.log.warning)(
+                "%s %s: %s", self.name, state, message)
+        self.state, self.message = state, message
+        if changed or self.publish_unchanged:
+            self.publish()
+
+    def event(self, kind: str, **detail: Any) -> None:
+        """Publish an event on ``/events``, stamped now."""
+        self.bus.publish(EVENTS, Event(self.clock.now(), kind, detail))
+
+    def lost(self, reason: str, message: str | None = None) -> None:
+        """The device is down: ``driver.<name>_lost`` (once per outage, with ``reason``) and
+        state ``error`` with ``message`` (default: ``reason``)."""
+        if self.down_since is None:
+            self.down_since = self.clock.now()
+            self.event(f"driver.{self.name}_lost", reason=reason)
+        self.set_state("error", reason if message is None else message)
+
+    def recovered(self, at_s: float) -> None:
+        """The device works again at clock time ``at_s``: ``driver.<name>_recovered`` with how
+        long it was down (nothing when it was not down)."""
+        if self.down_since is not None:
+            down_s, self.down_since = at_s - self.down_since, None
+            self.event(f"driver.{self.name}_recovered", down_s=round(down_s, 3))
+
+
+class ReportsHealth:
+    """A driver whose ``/health`` is its :class:`HealthReporter` ``reporter``: its ``state``
+    and ``message`` read from there."""
+
+    reporter: HealthReporter
+
+    @property
+    def state(self) -> str:
+        """``starting``, ``ok``, ``degraded`` or ``error`` (as on ``/health``)."""
+        return self.reporter.state
+
+    @property
+    def message(self) -> str:
+        """What is wrong and what to do (as on ``/health``)."""
+        return self.reporter.message
 
 
 class SystemdNotifier:
@@ -75,8 +176,6 @@ class SystemdNotifier:
         """Notify until cancelled (returns at once when not under systemd)."""
         if not self.enabled:
             return
-        from curio.core.topics import HEALTH
-
         states: dict[str, str] = {}
         sub = self.bus.subscribe(HEALTH, maxsize=256)
         try:
@@ -91,53 +190,3 @@ class SystemdNotifier:
             sub.close()
             with contextlib.suppress(OSError):
                 self._send("STOPPING=1")
-
-
-class BytePacer:
-    """Holds a simulated clock until the peer has read the bytes this side wrote to a pty.
-
-    Emulated mode runs the real drivers and the emulators over pseudo-terminals on a
-    ``SimClock`` that runs virtual time as fast as the CPU allows. The kernel hands pty bytes
-    to the reader a little later (a work queue); meanwhile virtual time could move on, so when
-    a message arrives would depend on the machine's load. :meth:`settle` keeps the calling task
-    runnable — the ``SimClock`` does not advance while a task is ready — until
-    ``peer_received()`` has caught up with ``sent()`` (exact byte counts on both sides), for at
-    most ``max_spins`` loop turns. While ``active()`` is false (the peer has the port closed)
-    unread bytes are written off at once. Without a peer (real hardware) it does nothing.
-
-    Args:
-        clock: the application clock (``sleep(0)`` yields one loop turn).
-        sent: bytes this side has written so far.
-        max_spins: loop turns to wait before writing the bytes off.
-    """
-
-    def __init__(self, clock: Clock, sent: Callable[[], int], max_spins: int = 5000) -> None:
-        self.clock = clock
-        self.sent = sent
-        self.peer_received: Callable[[], int] | None = None
-        self.active: Callable[[], bool] = lambda: True
-        self.max_spins = max_spins
-        self._offset = 0
-        self.spins = 0
-        self.write_offs = 0
-
-    def _pending(self) -> int:
-        assert self.peer_received is not None
-        return self.sent() - self._offset - self.peer_received()
-
-    async def settle(self) -> None:
-        """Wait, without moving virtual time, until the peer has read what was sent."""
-        if self.peer_received is None:
-            return
-        for _ in range(self.max_spins):
-            pending = self._pending()
-            if pending <= 0:
-                self._offset += min(0, pending)
-                return
-            if not self.active():
-                break
-            self.spins += 1
-            await self.clock.sleep(0.0)
-        else:
-            self.write_offs += 1
-        self._offset += max(0, self._pending())

@@ -35,6 +35,7 @@ from curio.core.messages import (
 )
 from curio.core.parts import Part, Parts
 from curio.core.topics import LOCALIZATION, MAP, MAP_TO_ODOM, ODOM, POSE, WHEEL_ODOM
+from curio.drivers.modes import driver_mode
 from curio.estimation.ekf import EkfNode, OdomEkf
 from curio.estimation.localization import Localizer, LocalizerNode
 from curio.estimation.mapping import MapperParams, MappingNode
@@ -90,7 +91,7 @@ def map_path(cfg: Config) -> str:
 def start_pose(cfg: Config, robot: RobotModel) -> Pose2D:
     """The initial pose of ``base_link`` in ``map``: ``sim.start`` (simulator) or the robot's
     home."""
-    if cfg.drivers.mode != "real" and cfg.sim.start is not None:
+    if driver_mode(cfg).world and cfg.sim.start is not None:
         return Pose2D(*cfg.sim.start)
     return robot.home
 

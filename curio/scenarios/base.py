@@ -35,6 +35,7 @@ from curio.core.geometry import Pose2D
 from curio.core.jsonable import to_jsonable
 from curio.core.messages import Event, OperatorAction, OperatorCommand, PoseWithCovariance
 from curio.core.topics import EVENTS, GROUND_TRUTH, OPERATOR, POSE
+from curio.drivers.modes import driver_mode
 
 __all__ = ["Scenario", "ScenarioArgs", "ScenarioContext", "ScenarioFailed", "run_scenario"]
 
@@ -277,7 +278,7 @@ async def run_scenario(
         on_app: awaited once the app has started (``--web`` uses it to print the URL).
     """
     cfg = _fresh_data_dir(scenario.configure(_apply_common_args(cfg, args), args), scenario.name)
-    settle = 3 if cfg.drivers.mode == "emulated" else 0
+    settle = 3 if driver_mode(cfg).emulated else 0  # pty bytes take a few loop turns
     clock = SimClock(speed=args.speed, settle_polls=settle)
     wall_start = wall_perf_counter()
     app = App(cfg, clock, web=args.web)

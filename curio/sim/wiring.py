@@ -1,55 +1,36 @@
 """Simulator wiring: the world, rover physics and simulated sensors (owner: simulator).
 
-``build_sim`` builds them when ``cfg.drivers.mode`` is ``sim`` or ``emulated`` (None in
-``real`` mode):
+``build_sim`` builds them when the ``drivers.mode`` table (:mod:`curio.drivers.modes`) has a
+device emulated or simulated, i.e. in ``sim`` and ``emulated`` mode (None in ``real`` mode):
 
 * both modes: the :class:`~curio.sim.world.World`, a physics loop at
   ``cfg.sim.physics_rate_hz`` that also publishes ``/ground_truth`` (``map``, every physics
   step, ≥ 20 Hz) and the world's events (``collision``, ``door``) on ``/events``;
-* ``sim`` mode only: :class:`SimBase` (the base: ``/cmd_vel`` → kinematics → ``/servo_cmd``
-  → the world, with the 0.5 s command timeout and a halt hook) and the sensor publishers
-  ``/scan`` (``cfg.sim.lidar_rate_hz``), ``/imu`` (``cfg.sim.imu_rate_hz``), ``/wheels``
-  (``cfg.sim.wheel_feedback_rate_hz``) and ``/battery`` (1 Hz). In ``emulated`` mode the
+* ``sim`` mode only (the devices the table puts on the simulator):
+  :class:`~curio.sim.base.SimBase` (the base: ``/cmd_vel`` → kinematics →
+  ``/servo_cmd`` → the world, with the 0.5 s command timeout and a halt hook) and the sensor
+  publishers ``/scan`` (``cfg.sim.lidar_rate_hz``), ``/imu`` (``cfg.sim.imu_rate_hz``),
+  ``/wheels`` (``cfg.sim.wheel_feedback_rate_hz``) and ``/battery`` (1 Hz). In ``emulated`` mode the
   byte-exact device emulators pull from the world instead.
 * both modes: ``/health`` (name ``simulator``, 1 Hz) with collision, step and scan counters.
 """
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
-from curio.core.messages import (
-    BatteryState,
-    DriverHealth,
-    Event,
-    Odometry,
-    ServoCommand,
-    Twist,
-    WheelEncoders,
-)
+from curio.core.messages import BatteryState, DriverHealth, Event, Odometry, WheelEncoders
 from curio.core.parts import Part, Parts
-from curio.core.topics import (
-    BATTERY,
-    CMD_VEL,
-    EVENTS,
-    GROUND_TRUTH,
-    HEALTH,
-    IMU,
-    SCAN,
-    SERVO_CMD,
-    WHEELS,
-)
-from curio.drivers.kinematics import twist_to_servo_command
+from curio.core.topics import BATTERY, EVENTS, GROUND_TRUTH, HEALTH, IMU, SCAN, WHEELS
+from curio.drivers.modes import driver_mode
 from curio.robot import RobotModel
+from curio.sim.base import SimBase
 from curio.sim.world import World
 
-__all__ = ["SimBase", "SimParts", "Simulator", "build_sim"]
-
-log = logging.getLogger("curio.sim")
+__all__ = ["SimParts", "Simulator", "build_sim"]
 
 LOW_BATTERY_V = 6.6
 
@@ -115,67 +96,6 @@ class Simulator:
                 "in_contact": float(self.world.in_contact)}))
 
 
-class SimBase:
-    """The simulated base driver: ``/cmd_vel`` → servo command → the world.
-
-    Applies the command timeout of the real base (``cfg.drivers.arduino.cmd_timeout_s``): a
-    command older than that stops the wheels; steering keeps the last command's angles.
-    """
-
-    def __init__(self, cfg: Config, bus: Bus, clock: Clock, world: World,
-                 robot: RobotModel) -> None:
-        self.cfg = cfg
-        self.robot = robot
-        self.bus = bus
-        self.clock = clock
-        self.world = world
-        self.last_cmd: Twist | None = None
-        self.last_cmd_time = -1e9
-        self.timed_out = True
-        self.sent = 0
-        self._sub = bus.subscribe(CMD_VEL, maxsize=1)
-
-    def _send(self, cmd: ServoCommand) -> None:
-        self.world.apply_servo_command(cmd)
-        self.bus.publish(SERVO_CMD, cmd)
-        self.sent += 1
-
-    def _stop_wheels(self, stamp: float) -> None:
-        prev = self.bus.latest(SERVO_CMD)
-        steer = prev.steer_position if prev is not None else (500, 500, 500, 500)
-        self._send(ServoCommand(stamp, (0, 0, 0, 0, 0, 0), steer))
-
-    async def run(self) -> None:
-        """Forward every ``/cmd_vel`` to the servos at once."""
-        async for msg in self._sub:
-            now = self.clock.now()
-            self.last_cmd, self.last_cmd_time, self.timed_out = msg, now, False
-            try:
-                cmd = twist_to_servo_command(msg.linear_mps, msg.angular_radps, self.robot,
-                                             now)
-            except ValueError as exc:
-                log.warning("ignoring /cmd_vel: %s", exc)
-                continue
-            self._send(cmd)
-
-    async def run_watchdog(self) -> None:
-        """Stop the wheels when no command came for ``cmd_timeout_s``."""
-        timeout = self.cfg.drivers.arduino.cmd_timeout_s
-        async for t in self.clock.every(0.05, phase_s=0.004):
-            if not self.timed_out and t - self.last_cmd_time > timeout:
-                self.timed_out = True
-                self._stop_wheels(t)
-
-    async def halt(self) -> None:
-        """Zero every wheel duty now."""
-        self.timed_out = True
-        self._stop_wheels(self.clock.now())
-
-    async def close(self) -> None:
-        """Stop listening."""
-        self._sub.close()
-
-
 @dataclass(frozen=True)
 class SimParts:
     """The simulator's objects; ``base`` only in ``sim`` mode (the emulators drive the world in
@@ -188,21 +108,26 @@ class SimParts:
 
 def build_sim(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
               robot: RobotModel) -> SimParts | None:
-    """Construct the world and simulator parts (``sim`` and ``emulated`` modes; else None)."""
-    if cfg.drivers.mode not in ("sim", "emulated"):
+    """Construct the world and simulator parts (when the ``drivers.mode`` table has a device
+    emulated or simulated; else None) and the simulator's stand-ins for the simulated devices."""
+    mode = driver_mode(cfg)
+    if not mode.world:
         return None
     world = World.from_config(cfg, robot)
-    sim_mode = cfg.drivers.mode == "sim"
-    simulator = Simulator(cfg, bus, clock, world, publish_sensors=sim_mode)
+    sim_base = mode.base == "simulator"
+    simulator = Simulator(cfg, bus, clock, world, publish_sensors=sim_base)
     parts.add(Part("sim.physics", run=simulator.run_physics))
     parts.add(Part("sim.battery", run=simulator.run_battery))
-    if not sim_mode:
-        return SimParts(world, simulator, None)
-    base = SimBase(cfg, bus, clock, world, robot)
-    parts.add(Part("sim.base", run=base.run, close=base.close))
-    parts.add(Part("sim.base.watchdog", run=base.run_watchdog))
-    parts.add_halt_hook(base.halt)
-    parts.add(Part("sim.lidar", run=simulator.run_scan))
-    parts.add(Part("sim.imu", run=simulator.run_imu))
-    parts.add(Part("sim.wheels", run=simulator.run_wheels))
+    base = None
+    if sim_base:
+        base = SimBase(cfg, bus, clock, world, robot)
+        parts.add(Part("sim.base", run=base.run, close=base.close))
+        parts.add(Part("sim.base.watchdog", run=base.run_watchdog))
+        parts.add_halt_hook(base.halt)
+    if mode.lidar == "simulator":
+        parts.add(Part("sim.lidar", run=simulator.run_scan))
+    if mode.imu == "simulator":
+        parts.add(Part("sim.imu", run=simulator.run_imu))
+    if sim_base:
+        parts.add(Part("sim.wheels", run=simulator.run_wheels))  # the base's wheel feedback
     return SimParts(world, simulator, base)

@@ -20,9 +20,9 @@ from curio.core.config import ImuConfig
 from curio.core.geometry import quat_to_yaw, yaw_to_quat
 from curio.core.messages import DriverHealth, Imu
 from curio.core.topics import EVENTS, HEALTH, IMU, make_bus
-from curio.drivers.bno055 import registers as r
+from curio.drivers.bno055 import protocol as r
 from curio.drivers.bno055.driver import Bno055Driver
-from curio.drivers.bno055.fake_bus import FakeBno055Bus
+from curio.drivers.bno055.emulator import Bno055Emulator
 
 
 def truth(t: float) -> Imu:
@@ -98,7 +98,7 @@ def test_calibration_profile_json_and_checks() -> None:
 # --- fake bus ---------------------------------------------------------------------------------
 def test_fake_bus_register_map() -> None:
     t = [0.0]
-    bus = FakeBno055Bus(truth, lambda: t[0], power_on_s=0.4)
+    bus = Bno055Emulator(truth, lambda: t[0], power_on_s=0.4)
     with pytest.raises(OSError) as exc:
         bus.read_byte_data(0x28, r.Reg.CHIP_ID)  # still booting: no ACK
     assert exc.value.errno == errno.EREMOTEIO
@@ -130,11 +130,11 @@ def test_fake_bus_register_map() -> None:
 # --- driver on the fake bus (simulated time) ---------------------------------------------------
 class Rig:
     def __init__(self, tmp_path: Path, *, fake_address: int = 0x28, mode: str = "imu",
-                 offload: bool = False, fake: FakeBno055Bus | None = None,
+                 offload: bool = False, fake: Bno055Emulator | None = None,
                  clock: SimClock | None = None) -> None:
         self.clock = clock or SimClock()
         self.bus: Bus = make_bus()
-        self.fake = fake or FakeBno055Bus(truth, self.clock.now, address=fake_address)
+        self.fake = fake or Bno055Emulator(truth, self.clock.now, address=fake_address)
         self.path = tmp_path / "bno055_calibration.json"
         cfg = ImuConfig(mode=mode, reconnect_s=0.5)  # type: ignore[arg-type]
         self.driver = Bno055Driver(cfg, self.clock, self.bus, calibration_path=self.path,
@@ -224,7 +224,7 @@ async def test_missing_chip_and_wrong_id(tmp_path: Path) -> None:
 
 
 async def test_no_i2c_device_node(tmp_path: Path) -> None:
-    def missing() -> FakeBno055Bus:
+    def missing() -> Bno055Emulator:
         raise FileNotFoundError("/dev/i2c-1")
 
     clock = SimClock()
@@ -282,7 +282,7 @@ async def test_threaded_io_on_real_clock(tmp_path: Path) -> None:
     clock = RealClock()
     bus = make_bus()
     bus.bind_loop(asyncio.get_running_loop())
-    fake = FakeBno055Bus(truth, clock.now, power_on_s=0.05)
+    fake = Bno055Emulator(truth, clock.now, power_on_s=0.05)
     drv = Bno055Driver(ImuConfig(), clock, bus, calibration_path=tmp_path / "c.json",
                        open_bus=fake.reopen, offload=True)
     sub = bus.subscribe(IMU, maxsize=1000)

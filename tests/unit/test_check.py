@@ -13,7 +13,7 @@ from curio.commands import check
 from curio.core.clock import RealClock
 from curio.core.config import Config, load_config
 from curio.drivers.arduino.emulator import ArduinoEmulator
-from curio.drivers.bno055.fake_bus import FakeBno055Bus
+from curio.drivers.bno055.emulator import Bno055Emulator
 from curio.drivers.rplidar.emulator import RplidarEmulator
 from curio.sim.world import World
 
@@ -124,23 +124,23 @@ def test_imu_faults(tmp_path: Path) -> None:
     cfg = _imu_cfg(tmp_path)
     clock = RealClock()
 
-    fake = FakeBno055Bus(None, clock.now, power_on_s=0.0)
+    fake = Bno055Emulator(None, clock.now, power_on_s=0.0)
     fake.faults.missing = True
     res = check.check_imu(fake.reopen, cfg, "bus")
     assert res.status == "FAIL" and "nothing answers" in res.detail and "i2cdetect" in res.fix
 
-    fake = FakeBno055Bus(None, clock.now, power_on_s=0.0)
+    fake = Bno055Emulator(None, clock.now, power_on_s=0.0)
     fake.faults.chip_id = 0x68
     res = check.check_imu(fake.reopen, cfg, "bus")
     assert res.status == "FAIL" and "0x68" in res.detail and "i2c_arm_baudrate" in res.fix
 
-    fake = FakeBno055Bus(None, clock.now, power_on_s=0.0, seed=4)
+    fake = Bno055Emulator(None, clock.now, power_on_s=0.0, seed=4)
     fake.faults.zero_rate = 0.3  # clock-stretching garbage
     res = check.check_imu(fake.reopen, cfg, "bus")
     assert res.status == "warn" and "garbled" in res.detail
     assert "i2c_arm_baudrate=10000" in res.fix
 
-    def no_bus() -> FakeBno055Bus:
+    def no_bus() -> Bno055Emulator:
         raise FileNotFoundError("/dev/i2c-1")
 
     res = check.check_imu(no_bus, cfg, "/dev/i2c-1")

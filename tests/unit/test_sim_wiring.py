@@ -28,7 +28,8 @@ from curio.core.topics import (
 from curio.drivers.kinematics import twist_to_servo_command
 from curio.drivers.odometry import WheelOdometry
 from curio.robot import RobotModel
-from curio.sim.wiring import SimBase, Simulator
+from curio.sim.base import SimBase
+from curio.sim.wiring import Simulator
 from curio.sim.world import World
 from tests.unit.test_sim_raycast import room
 

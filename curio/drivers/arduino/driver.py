@@ -81,10 +81,13 @@ from curio.core.messages import (
     Twist,
     WheelEncoders,
 )
-from curio.core.topics import BATTERY, CMD_VEL, CMD_VEL_TELEOP, ESTOP, HEALTH, SERVO_CMD, WHEELS
+from curio.core.topics import BATTERY, CMD_VEL, CMD_VEL_TELEOP, ESTOP, SERVO_CMD, WHEELS
 from curio.drivers.arduino import protocol as p
-from curio.drivers.arduino._loop import Pacer, wait_until
+from curio.drivers.base import BaseDriver
+from curio.drivers.health import HealthReporter
 from curio.drivers.kinematics import twist_to_servo_command
+from curio.drivers.pty import BytePacer
+from curio.drivers.session import Backoff, DeviceFault, SessionLoop, wait_until
 from curio.robot import RobotModel
 
 __all__ = ["ArduinoBase", "CommandFn", "McuClock"]
@@ -95,11 +98,13 @@ Six = tuple[int | None, int | None, int | None, int | None, int | None, int | No
 CommandFn = Callable[[float, float, RobotModel, float], ServoCommand]
 HEARTBEAT_PERIOD_S = 0.2
 HEALTH_PERIOD_S = 1.0
+FIRST_RECONNECT_S = 0.1  # the back-off doubles from here up to reconnect_max_s
 RECOVERED_NOTE_S = 60.0  # how long an "ok" health still mentions the last problem
 ACK_TIMEOUT_S = 0.3
 ACK_RETRIES = 3
 TX_HOLD_S = 0.15  # the board sends STATE at 10 Hz and SERVO_POS at 30 Hz: longer silence is odd
 CLOSE_TIMEOUT_S = 1.0  # clock time to wait for the OS to release the port (then give up)
+PACER_MAX_SPINS = 20_000  # loop turns to wait for the emulator to read what was sent
 HOLD_MAX_SPINS = 100_000  # loop turns the paced clock is held for port work in a thread
 PORT_HINT = ("is the Mega plugged in? Run `curio check`; on the Pi the udev rule in deploy/ "
              "names it /dev/curio-arduino, and the user needs the dialout group; no other "
@@ -133,11 +138,11 @@ class McuClock:
         return min(received_s, (t_ms + extra_ms) / 1000.0 + min(self._offsets))
 
 
-class _LinkLost(Exception):
+class _LinkLost(DeviceFault):
     """The session must end (the message says why and what to check)."""
 
 
-class ArduinoBase:
+class ArduinoBase(BaseDriver):
     """The base driver (see the module docstring).
 
     Args:
@@ -167,7 +172,7 @@ class ArduinoBase:
         self.bytes_received = 0
         # Emulated mode only (see ArduinoEmulator.pair): keeps a simulated clock from racing
         # ahead of pty delivery. Without a peer it does nothing.
-        self.pacer = Pacer(clock, lambda: self.bytes_sent)
+        self.pacer = BytePacer(clock, lambda: self.bytes_sent, max_spins=PACER_MAX_SPINS)
         self._writer: asyncio.StreamWriter | None = None
         self._opening: asyncio.Future[tuple[asyncio.StreamReader, asyncio.StreamWriter]] | None \
             = None
@@ -205,42 +210,39 @@ class ArduinoBase:
         # Health.
         self.last_error = ""
         self._last_error_s: float | None = None
-        self._health_key: tuple[str, str] | None = None
-        self._next_health_s = 0.0
         self.counters: dict[str, float] = {
             "reconnects": 0, "link_losses": 0, "rx_frames": 0, "tx_frames": 0,
             "bad_payloads": 0, "nacks": 0, "mcu_resets": 0, "watchdog_trips": 0,
             "servo_read_failures": 0, "mcu_rx_crc_err": 0, "tx_holds": 0,
             "heartbeat_echo_age_ms": -1.0, "rc_teleop": 0,
         }
+        self.reporter = HealthReporter(self.name, clock, bus, log, self.counters,
+                                       extra=self._link_counters, assess=self._assess,
+                                       period_s=HEALTH_PERIOD_S)
+        self._backoff = Backoff(FIRST_RECONNECT_S, cfg.reconnect_max_s)
 
     # --- public -------------------------------------------------------------------------------
 
     async def run(self) -> None:
         """Connect, configure, arm and drive until cancelled (or :meth:`close`); reconnect after
         any failure."""
-        backoff_s = 0.1
-        while not self._closed:
-            try:
-                await self._session()
-                backoff_s = 0.1
-            except _LinkLost as exc:
-                if self._closed:
-                    break  # close() closed the port under the session
-                self._error(str(exc))
-                self.counters["link_losses"] += 1
-                if self._configured:
-                    backoff_s = 0.1
-            except OSError as exc:
-                if self._closed:
-                    break
-                self._error(f"cannot use {self.port}: {exc}; {PORT_HINT}")
-            if self._closed:
-                break
-            self._phase = "disconnected"
-            self.publish_health(force=True)
-            await self.clock.sleep(backoff_s)
-            backoff_s = min(self.cfg.reconnect_max_s, backoff_s * 2.0)
+        self._backoff.reset()
+        await SessionLoop(self.clock, self._session, self._on_fault, self._backoff,
+                          faults=(_LinkLost, OSError), after=self._disconnected,
+                          stopped=lambda: self._closed).run()
+
+    def _on_fault(self, exc: Exception) -> None:
+        if isinstance(exc, _LinkLost):
+            self._error(str(exc))
+            self.counters["link_losses"] += 1
+            if self._configured:
+                self._backoff.reset()  # the link worked: try again soon
+        else:
+            self._error(f"cannot use {self.port}: {exc}; {PORT_HINT}")
+
+    async def _disconnected(self) -> None:
+        self._phase = "disconnected"
+        self.publish_health(force=True)
 
     async def halt(self) -> None:
         """Stop the wheels now and disarm (the app's first shutdown step); stays stopped."""
@@ -306,26 +308,19 @@ class ArduinoBase:
 
     def health(self) -> DriverHealth:
         """The driver's health now: state, what is wrong and what to do, counters."""
-        state, message = self._assess()
-        counters = dict(self.counters)
-        st = self.decoder.stats
-        counters.update(crc_errors=st.crc_errors, resyncs=st.resyncs,
-                        garbage_bytes=st.garbage_bytes, length_errors=st.length_errors)
-        counters["mcu_state"] = -1 if self.mcu_state is None else int(self.mcu_state)
-        return DriverHealth(stamp=self.clock.now(), name=self.name, state=state,
-                            message=message, counters=counters)
+        return self.reporter.snapshot()
 
     def publish_health(self, force: bool = False) -> None:
         """Publish ``/health`` (when forced, when due, or when the state or message changed)."""
-        h = self.health()
-        key = (h.state, h.message)
-        now = self.clock.now()
-        if force or key != self._health_key or now >= self._next_health_s:
-            self._health_key = key
-            self._next_health_s = now + HEALTH_PERIOD_S
-            self.bus.publish(HEALTH, h)
+        self.reporter.publish_if_due(force)
 
     # --- health -------------------------------------------------------------------------------
+
+    def _link_counters(self) -> dict[str, float]:
+        st = self.decoder.stats
+        return {"crc_errors": st.crc_errors, "resyncs": st.resyncs,
+                "garbage_bytes": st.garbage_bytes, "length_errors": st.length_errors,
+                "mcu_state": -1 if self.mcu_state is None else int(self.mcu_state)}
 
     def _error(self, text: str) -> None:
         self.last_error = text
@@ -373,13 +368,40 @@ class ArduinoBase:
     # --- session ------------------------------------------------------------------------------
 
     async def _session(self) -> None:
+        """One link session: open the port, wait out the boot window, configure, arm, drive."""
+        connected = await self._connect()
+        if connected is None:
+            return  # close() ran while the port was opening
+        reader, writer = connected
+        opened_s = self.clock.now()
+        reader_task = asyncio.ensure_future(self._read_loop(reader))
+        try:
+            await self._boot_and_configure(reader_task)
+            await self._drive(reader_task, opened_s)
+        except asyncio.CancelledError:
+            if self._writer is writer:  # stopped abruptly (no halt first): stop the wheels
+                self._send_stop(writer)
+            raise
+        finally:
+            reader_task.cancel()
+            with contextlib.suppress(BaseException):
+                await reader_task
+            self._retire(writer)  # close() or the next session waits for the release
+            if self._writer is writer:
+                self._writer = None
+            self.connected = False
+            self.mcu_state = None  # unknown until the board speaks again
+
+    async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter] | None:
+        """Open the port (once the previous one is released) and start a fresh session state;
+        None when :meth:`close` ran meanwhile."""
         self._phase = "starting"
         self.publish_health()
         await self._release_all()  # the previous session's port must be free (exclusive open)
         reader, writer = await self._open()
         if self._closed:  # close() ran while the port was opening
             self._retire(writer)
-            return
+            return None
         self._writer = writer
         if self._opened_before:
             self.counters["reconnects"] += 1
@@ -395,64 +417,66 @@ class ArduinoBase:
         self._configured = False
         self._need_config = False
         self._last_rx_s = None
-        opened_s = self.clock.now()
-        reader_task = asyncio.ensure_future(self._read_loop(reader))
-        try:
-            self._phase = "booting"
-            self.publish_health()
-            await wait_until(self.clock, lambda: self._saw_boot or reader_task.done(),
-                             self.cfg.boot_wait_s, self._rx_event)
+        return reader, writer
+
+    async def _boot_and_configure(self, reader_task: asyncio.Future[None]) -> None:
+        """Send nothing until the board announced itself (or ``boot_wait_s``), then configure
+        and arm it."""
+        self._phase = "booting"
+        self.publish_health()
+        await wait_until(self.clock, lambda: self._saw_boot or reader_task.done(),
+                         self.cfg.boot_wait_s, self._rx_event)
+        self._check_reader(reader_task)
+        if self._last_rx_s is None:
+            raise _LinkLost(f"nothing heard from {self.port} within boot_wait_s = "
+                            f"{self.cfg.boot_wait_s:g} s: wrong port, sketch not flashed "
+                            "(see firmware/README.md), or wrong baud rate")
+        self._phase = "configuring"
+        self.publish_health()
+        await self._configure(reader_task)
+        self._phase = "running"
+
+    async def _drive(self, reader_task: asyncio.Future[None], opened_s: float) -> None:
+        """Every ``1 / cmd_rate_hz``: keep the board configured and armed, send the command and
+        the heartbeat, publish ``/health``; until the link fails."""
+        next_heartbeat_s = 0.0
+        async for now in self.clock.every(1.0 / self.cfg.cmd_rate_hz):
             self._check_reader(reader_task)
-            if self._last_rx_s is None:
-                raise _LinkLost(f"nothing heard from {self.port} within boot_wait_s = "
-                                f"{self.cfg.boot_wait_s:g} s: wrong port, sketch not flashed "
-                                "(see firmware/README.md), or wrong baud rate")
-            self._phase = "configuring"
+            if self._board_quiet(now, opened_s):
+                continue
+            if self._need_config:
+                self._phase = "configuring"
+                await self._configure(reader_task)
+                self._phase = "running"
+            self._handle_estop()
+            if self.mcu_state == p.McuState.DISARMED and not self._estop and not self._halted:
+                await self._arm(reader_task)
+            if now >= next_heartbeat_s:
+                next_heartbeat_s = now + HEARTBEAT_PERIOD_S
+                self._send(p.Heartbeat(self._host_ms()))
+            self._command(now)
             self.publish_health()
-            await self._configure(reader_task)
-            self._phase = "running"
-            next_heartbeat_s = 0.0
-            async for now in self.clock.every(1.0 / self.cfg.cmd_rate_hz):
-                self._check_reader(reader_task)
-                last = self._last_rx_s if self._last_rx_s is not None else opened_s
-                if now - last > self.cfg.link_timeout_s:
-                    raise _LinkLost(f"no frame from the Mega for {now - last:.2f} s "
-                                    "(stalled or reset board, or a bad cable)")
-                if now - last > min(TX_HOLD_S, 0.5 * self.cfg.link_timeout_s):
-                    # The board went quiet: it may be sitting in its bootloader after a
-                    # spontaneous reset. Streaming into the bootloader can keep it from
-                    # starting the sketch (the original's runaway wheels): hold all traffic
-                    # until the board speaks again (or the link is declared down).
-                    self.counters["tx_holds"] += 1
-                    self.publish_health()
-                    continue
-                if self._need_config:
-                    self._phase = "configuring"
-                    await self._configure(reader_task)
-                    self._phase = "running"
-                self._handle_estop()
-                if self.mcu_state == p.McuState.DISARMED and not self._estop and \
-                        not self._halted:
-                    await self._arm(reader_task)
-                if now >= next_heartbeat_s:
-                    next_heartbeat_s = now + HEARTBEAT_PERIOD_S
-                    self._send(p.Heartbeat(self._host_ms()))
-                self._command(now)
-                self.publish_health()
-                await self.pacer.settle()
-        except asyncio.CancelledError:
-            if self._writer is writer:  # stopped abruptly (no halt first): stop the wheels
-                self._send_stop(writer)
-            raise
-        finally:
-            reader_task.cancel()
-            with contextlib.suppress(BaseException):
-                await reader_task
-            self._retire(writer)  # close() or the next session waits for the release
-            if self._writer is writer:
-                self._writer = None
-            self.connected = False
-            self.mcu_state = None  # unknown until the board speaks again
+            await self.pacer.settle()
+
+    def _board_quiet(self, now: float, opened_s: float) -> bool:
+        """True while the board has been quiet too long to send to it (counted as a hold).
+
+        Raises:
+            _LinkLost: it has been quiet for ``link_timeout_s``.
+        """
+        last = self._last_rx_s if self._last_rx_s is not None else opened_s
+        if now - last > self.cfg.link_timeout_s:
+            raise _LinkLost(f"no frame from the Mega for {now - last:.2f} s "
+                            "(stalled or reset board, or a bad cable)")
+        if now - last > min(TX_HOLD_S, 0.5 * self.cfg.link_timeout_s):
+            # The board went quiet: it may be sitting in its bootloader after a spontaneous
+            # reset. Streaming into the bootloader can keep it from starting the sketch (the
+            # original's runaway wheels): hold all traffic until the board speaks again (or
+            # the link is declared down).
+            self.counters["tx_holds"] += 1
+            self.publish_health()
+            return True
+        return False
 
     async def _open(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
         """Open the port (in pyserial-asyncio-fast's worker thread), holding a paced clock."""

@@ -49,15 +49,7 @@ receiver: set ``firmware.rc_channels_us`` (µs, raw receiver order) and ``firmwa
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-import errno
 import logging
-import os
-import select
-import shutil
-import tempfile
-import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -66,9 +58,11 @@ from typing import Any, Protocol, cast
 import numpy as np
 
 from curio.core.clock import Clock, SimClock
+from curio.core.config import Config
 from curio.core.messages import ServoCommand
+from curio.core.parts import Part
 from curio.drivers.arduino import protocol as p
-from curio.drivers.arduino._loop import Pacer
+from curio.drivers.pty import BytePacer, PtyDevice
 
 __all__ = ["ArduinoEmulator", "EmulatorWorld", "FirmwareModel", "ServoSide"]
 
@@ -82,6 +76,7 @@ STATE_PERIOD_MS = 100
 INTER_BYTE_TIMEOUT_MS = 20
 RESET_POWER_ON = 0x01
 RESET_EXTERNAL = 0x02
+PACER_MAX_SPINS = 20000  # loop turns to hold a fast simulated clock for the driver's reads
 Six = tuple[int, int, int, int, int, int]
 Four = tuple[int, int, int, int]
 
@@ -404,28 +399,40 @@ class ArduinoEmulator:
         self.boot_delay_s = boot_delay_s
         self.tick_s = tick_s
         self._rng = np.random.default_rng(seed)
-        self._own_dir = link_dir is None
-        self._dir = Path(tempfile.mkdtemp(prefix="curio-emu-")) if link_dir is None \
-            else Path(link_dir)
-        self.port_path = str(self._dir / name)
+        self.device = PtyDevice(name, self._on_bytes, None if link_dir is None else Path(link_dir),
+                                watch_host=True)
         self.servos = _WorldServos(world, self._rng)
         self.firmware = FirmwareModel(self.servos, self._send)
-        self._master: int | None = None
-        self._host_open = False
         self._booting_until: float | None = None
         self._booted = False
         self._stalled_until = -1.0
         self._corrupt_rx_until = -1.0
         self._corrupt_tx = 0
         self._truncate_tx = 0
-        self._plugged = False
         self._pending_reset_cause = RESET_POWER_ON
         # Counters for tests and `curio emulate`.
         self.boots = 0
         self.opens = 0
-        self.bytes_in = 0
-        self.bytes_out = 0
-        self.pacer = Pacer(clock, lambda: self.bytes_out)
+        self.pacer = BytePacer(clock, lambda: self.bytes_out, max_spins=PACER_MAX_SPINS)
+
+    @classmethod
+    def for_world(cls, world: EmulatorWorld, clock: Clock, cfg: Config, seed: int,
+                  link: Path | None = None) -> ArduinoEmulator:
+        """The board on the simulator's ``world`` (emulated mode, ``curio emulate arduino``).
+
+        Args:
+            world: the simulator's world (servos and battery).
+            clock: the application clock.
+            cfg: the configuration (unused: the board's config comes from the driver).
+            seed: the fault randomness.
+            link: the device path to serve (default: ``curio-arduino`` in a temp dir).
+        """
+        return cls(world, clock, seed=seed, link_dir=link.parent if link else None,
+                   name=link.name if link else "curio-arduino")
+
+    def parts(self) -> list[Part]:
+        """What runs the emulator: its firmware loop."""
+        return [Part("arduino-emulator", run=self.run, close=self.aclose)]
 
     # --- properties -----------------------------------------------------------------------------
 
@@ -442,7 +449,27 @@ class ArduinoEmulator:
     @property
     def host_connected(self) -> bool:
         """Whether a client has the port open."""
-        return self._host_open
+        return self.device.host_open
+
+    @property
+    def port_path(self) -> str:
+        """The stable device path a driver opens (a symlink to the current pty)."""
+        return self.device.path
+
+    @property
+    def path(self) -> str:
+        """:attr:`port_path` (every serial emulator has a ``path``)."""
+        return self.device.path
+
+    @property
+    def bytes_in(self) -> int:
+        """Bytes read from the host so far (also those the bootloader dropped)."""
+        return self.device.bytes_read
+
+    @property
+    def bytes_out(self) -> int:
+        """Bytes sent to the host so far."""
+        return self.device.bytes_written
 
     @property
     def servo_read_fail_rate(self) -> float:
@@ -459,41 +486,12 @@ class ArduinoEmulator:
 
     def open(self) -> str:
         """Create the pseudo-terminal and the ``port_path`` symlink; return ``port_path``."""
-        if self._master is not None:
-            return self.port_path
-        master, slave = os.openpty()
-        tty.setraw(slave)  # raw before anyone writes: no echo, no CR/LF translation
-        os.set_blocking(master, False)
-        slave_name = os.ttyname(slave)
-        os.close(slave)  # the master now reports hang-up until a client opens the slave
-        tmp = self.port_path + ".tmp"
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        os.symlink(slave_name, tmp)
-        os.replace(tmp, self.port_path)
-        self._master = master
-        self._host_open = False
-        self._plugged = True
+        self.device.open()
         return self.port_path
-
-    def _close_pty(self) -> None:
-        if self._master is None:
-            return
-        with contextlib.suppress(Exception):
-            asyncio.get_running_loop().remove_reader(self._master)
-        with contextlib.suppress(OSError):
-            os.close(self._master)
-        self._master = None
-        self._host_open = False
 
     def close(self) -> None:
         """Close the pty and remove the symlink (and its directory if the emulator made it)."""
-        self._close_pty()
-        self._plugged = False
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.port_path)
-        if self._own_dir:
-            shutil.rmtree(self._dir, ignore_errors=True)
+        self.device.close()
 
     def pair(self, driver: Any) -> None:
         """Pace virtual time with ``driver`` (an ``ArduinoBase`` on this emulator's port).
@@ -519,10 +517,7 @@ class ArduinoEmulator:
     def unplug(self) -> None:
         """Pull the USB cable: the pty and the symlink disappear; the board keeps running on
         battery power, so its motion watchdog stops the wheels."""
-        self._close_pty()
-        self._plugged = False
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.port_path)
+        self.device.unplug()
 
     def replug(self) -> None:
         """Plug the cable back in: a fresh pty behind the same ``port_path``."""
@@ -581,36 +576,15 @@ class ArduinoEmulator:
         self._write(frame)
 
     def _write(self, data: bytes) -> None:
-        if self._master is None or not self._host_open or self._stalled():
+        if not self.device.host_open or self._stalled():
             return
-        try:
-            n = os.write(self._master, data)
-            self.bytes_out += n
-        except BlockingIOError:
+        if self.device.write(data) < len(data):
             log.debug("pty buffer full: %d bytes dropped", len(data))
-        except OSError as exc:
-            if exc.errno in (errno.EIO, errno.EBADF):
-                self._host_closed()
-            else:
-                raise
 
     def _stalled(self) -> bool:
         return self.clock.now() < self._stalled_until
 
-    def _on_readable(self) -> None:
-        if self._master is None:
-            return
-        try:
-            data = os.read(self._master, 4096)
-        except BlockingIOError:
-            return
-        except OSError:
-            self._host_closed()
-            return
-        if not data:
-            self._host_closed()
-            return
-        self.bytes_in += len(data)
+    def _on_bytes(self, data: bytes) -> None:
         if not self._booted or self._stalled():
             return  # the bootloader (or a hung board) drops what it gets
         if self.clock.now() < self._corrupt_rx_until:
@@ -621,29 +595,15 @@ class ArduinoEmulator:
             data = bytes(b)
         self.firmware.on_bytes(data, self._now_ms())
 
-    def _host_closed(self) -> None:
-        if self._host_open and self._master is not None:
-            with contextlib.suppress(Exception):
-                asyncio.get_running_loop().remove_reader(self._master)
-        self._host_open = False
-
     def _poll_host_open(self) -> None:
         """While nobody has the port open, watch for a client opening it (DTR reset)."""
-        if self._master is None or self._host_open:
-            return
-        poller = select.poll()
-        poller.register(self._master, select.POLLIN)
-        events = poller.poll(0)
-        if any(ev & select.POLLHUP for _, ev in events):
-            return
-        self._host_open = True
-        self.opens += 1
-        asyncio.get_running_loop().add_reader(self._master, self._on_readable)
-        self._start_boot(RESET_EXTERNAL)
+        if self.device.poll_host():
+            self.opens += 1
+            self._start_boot(RESET_EXTERNAL)
 
     async def run(self) -> None:
         """Serve until cancelled: watch the port, run the firmware loop every ``tick_s``."""
-        if self._master is None and not self._plugged:
+        if not self.device.plugged:
             self.open()
         try:
             async for now in self.clock.every(self.tick_s):
@@ -656,7 +616,7 @@ class ArduinoEmulator:
                     self.firmware.boot(self._now_ms(), self._pending_reset_cause)
                 elif self._booted:
                     self.firmware.tick(self._now_ms())
-                if self._host_open:
+                if self.device.host_open:
                     await self.pacer.settle()
         finally:
-            self._host_closed()
+            self.device.stop_reading()

@@ -12,7 +12,7 @@ Per session (:meth:`Bno055Driver.run` repeats sessions for ever):
    the saved calibration profile (if any), then the operating mode (IMU or NDOF) and a check
    of SYS_STATUS / SYS_ERR;
 4. every ``1 / rate_hz``: read 0x13..0x2D (a sacrificial byte, GYR, EUL, QUA, LIA) in one
-   transaction, sanity-check it (:func:`~curio.drivers.bno055.registers.check_sample`; a bad
+   transaction, sanity-check it (:func:`~curio.drivers.bno055.protocol.check_sample`; a bad
    reading is re-read once, then dropped and counted), and publish an ``Imu`` in ``imu_link``
    with the REP-103 quaternion. CHIP_ID, OPR_MODE and CALIB_STAT are read every second: a chip
    that reset itself is re-initialised.
@@ -42,9 +42,11 @@ from curio.core.bus import Bus
 from curio.core.clock import Clock, wall_sleep
 from curio.core.config import ImuConfig
 from curio.core.fileio import atomic_write_json
-from curio.core.messages import DriverHealth, Event, Imu
-from curio.core.topics import EVENTS, HEALTH, IMU
-from curio.drivers.bno055 import registers as r
+from curio.core.messages import Imu
+from curio.core.topics import IMU
+from curio.drivers.bno055 import protocol as r
+from curio.drivers.health import HealthReporter, ReportsHealth
+from curio.drivers.session import Backoff, DeviceFault, SessionLoop
 
 __all__ = ["Bno055Driver", "ImuFault", "SMBusLike", "open_smbus"]
 
@@ -98,11 +100,11 @@ def open_smbus(bus_number: int) -> SMBusLike:
     return bus
 
 
-class ImuFault(Exception):
+class ImuFault(DeviceFault):
     """A session-ending problem, phrased for the person who has to fix it."""
 
 
-class Bno055Driver:
+class Bno055Driver(ReportsHealth):
     """Reads a BNO055 and publishes ``/imu``, ``/health`` and events.
 
     Args:
@@ -134,8 +136,6 @@ class Bno055Driver:
         self.open_bus = open_bus or (lambda: open_smbus(cfg.i2c_bus))
         self.offload = offload
         self.addr = cfg.address
-        self.state = "starting"
-        self.message = ""
         self.calibration: tuple[int, int, int, int] = (0, 0, 0, 0)
         self.counters: dict[str, float] = {
             "samples": 0,
@@ -147,12 +147,13 @@ class Bno055Driver:
             "calibration_saves": 0,
             "calibration_restored": 0,
         }
+        self.reporter = HealthReporter(self.name, clock, bus, log, self.counters,
+                                       extra=self._calibration_counters, publish_unchanged=True)
         self._smbus: SMBusLike | None = None
         self._unit_sel = r.CURIO_UNIT_SEL
         self._saved_this_session = False
         self._prev: r.Sample | None = None
         self._recent: deque[tuple[float, bool]] = deque()
-        self._down_since: float | None = None
         self._mode = r.Mode.NDOF if cfg.mode == "ndof" else r.Mode.IMU
 
     # --- I/O helpers --------------------------------------------------------------------------
@@ -198,17 +199,16 @@ class Bno055Driver:
     def _where(self) -> str:
         return f"I2C bus {self.cfg.i2c_bus} address 0x{self.addr:02X}"
 
+    def _running(self) -> str:
+        return f"BNO055 running in {self._mode.name} mode at {self._where()}"
+
     # --- life cycle ---------------------------------------------------------------------------
     async def run(self) -> None:
         """Run sessions for ever; each failure is reported and retried."""
-        while True:
-            try:
-                await self._session()
-            except ImuFault as exc:
-                self._report_down(str(exc))
-            finally:
-                await self._close_bus()
-            await self.clock.sleep(self.cfg.reconnect_s)
+        reconnect_s = self.cfg.reconnect_s
+        await SessionLoop(self.clock, self._session, self._report_down,
+                          Backoff(reconnect_s, reconnect_s), after=self._close_bus,
+                          on_abort=self._close_bus).run()
 
     async def close(self) -> None:
         """Release the bus."""
@@ -240,7 +240,7 @@ class Bno055Driver:
         except OSError as exc:
             raise ImuFault(f"cannot open I2C bus {self.cfg.i2c_bus}: {exc}") from exc
         await self._init_chip()
-        self._set_state("ok", f"BNO055 running in {self._mode.name} mode at {self._where()}")
+        self.reporter.set_state("ok", self._running())
         await self._stream()
 
     async def _init_chip(self) -> None:
@@ -317,7 +317,7 @@ class Bno055Driver:
             profile = r.CalibrationProfile.from_json(json.loads(path.read_text("utf-8")))
         except (ValueError, OSError) as exc:
             log.warning("ignoring the calibration file %s: %s", path, exc)
-            self._event("driver.imu_calibration_ignored", path=str(path), reason=str(exc))
+            self.reporter.event("driver.imu_calibration_ignored", path=str(path), reason=str(exc))
             return
         problem = profile.problem()
         if problem is not None:
@@ -356,7 +356,7 @@ class Bno055Driver:
         obj["mode"] = self._mode.name
         await self._io(atomic_write_json, self.calibration_path, obj)
         self.counters["calibration_saves"] += 1
-        self._event("driver.imu_calibration_saved", path=str(self.calibration_path))
+        self.reporter.event("driver.imu_calibration_saved", path=str(self.calibration_path))
 
     # --- streaming ----------------------------------------------------------------------------
     def _read_once(self) -> r.Sample | None:
@@ -497,9 +497,7 @@ class Bno055Driver:
         )
         self.counters["samples"] += 1
         self.bus.publish(IMU, imu)
-        if self._down_since is not None:
-            down_s, self._down_since = now - self._down_since, None
-            self._event("driver.imu_recovered", down_s=round(down_s, 3))
+        self.reporter.recovered(now)
 
     # --- health -------------------------------------------------------------------------------
     def _note(self, ok: bool) -> None:
@@ -512,39 +510,20 @@ class Bno055Driver:
         total = len(self._recent)
         bad = sum(1 for _, ok in self._recent if not ok)
         if total and bad / total > self.cfg.error_rate_warn:
-            self._set_state(
+            self.reporter.set_state(
                 "degraded",
                 f"{bad} of {total} BNO055 reads in the last 10 s failed or were corrupted "
                 f"(counted and dropped): {BAUD_FIX}",
             )
         elif self.state == "degraded":
-            self._set_state("ok", f"BNO055 running in {self._mode.name} mode at {self._where()}")
+            self.reporter.set_state("ok", self._running())
         else:
-            self._publish_health()
+            self.reporter.publish()
 
-    def _set_state(self, state: str, message: str) -> None:
-        changed = state != self.state
-        self.state, self.message = state, message
-        if changed:
-            (log.info if state == "ok" else log.warning)("imu %s: %s", state, message)
-        self._publish_health()
+    def _calibration_counters(self) -> dict[str, float]:
+        sys_, gyr, acc, mag = self.calibration
+        return {"calibration_sys": sys_, "calibration_gyr": gyr, "calibration_acc": acc,
+                "calibration_mag": mag}
 
-    def _publish_health(self) -> None:
-        self.bus.publish(
-            HEALTH,
-            DriverHealth(self.clock.now(), self.name, self.state, self.message,
-                         dict(self.counters, calibration_sys=self.calibration[0],
-                              calibration_gyr=self.calibration[1],
-                              calibration_acc=self.calibration[2],
-                              calibration_mag=self.calibration[3])),
-        )
-
-    def _report_down(self, message: str) -> None:
-        now = self.clock.now()
-        if self._down_since is None:
-            self._down_since = now
-            self._event("driver.imu_lost", reason=message)
-        self._set_state("error", message)
-
-    def _event(self, kind: str, **detail: Any) -> None:
-        self.bus.publish(EVENTS, Event(self.clock.now(), kind, detail))
+    def _report_down(self, exc: Exception) -> None:
+        self.reporter.lost(str(exc))

@@ -1,1 +1,2 @@
-"""RPLidar A1: pure protocol, asyncio driver and a byte-exact pty emulator."""
+"""RPLidar A1: pure protocol, asyncio driver, byte-exact pty emulator and its part of
+``curio check`` (``protocol``, ``driver``, ``emulator``, ``check``)."""

@@ -34,10 +34,12 @@ import numpy as np
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import LidarConfig
-from curio.core.messages import DriverHealth, Event, LaserScan
-from curio.core.topics import EVENTS, HEALTH, SCAN
-from curio.drivers.health import BytePacer, wait_event
+from curio.core.messages import LaserScan
+from curio.core.topics import SCAN
+from curio.drivers.health import HealthReporter, ReportsHealth
+from curio.drivers.pty import BytePacer
 from curio.drivers.rplidar import protocol as p
+from curio.drivers.session import Backoff, DeviceFault, SessionLoop, wait_event
 
 __all__ = ["LidarFault", "RplidarDriver"]
 
@@ -46,7 +48,7 @@ log = logging.getLogger("curio.drivers.rplidar")
 MotorHook = Callable[[bool], None]
 
 
-class LidarFault(Exception):
+class LidarFault(DeviceFault):
     """A session-ending problem, phrased for the person who has to fix it."""
 
 
@@ -61,7 +63,7 @@ class _Proto(asyncio.Protocol):
         self.driver._on_lost(exc)
 
 
-class RplidarDriver:
+class RplidarDriver(ReportsHealth):
     """Talks to an RPLidar A1 and publishes ``/scan``, ``/health`` and events.
 
     Args:
@@ -90,8 +92,6 @@ class RplidarDriver:
         self.motor = motor
         self.info: p.DeviceInfo | None = None
         self.health: p.HealthStatus | None = None
-        self.state = "starting"
-        self.message = ""
         self.counters: dict[str, float] = {
             "scans": 0,
             "sessions": 0,
@@ -101,6 +101,7 @@ class RplidarDriver:
             "resets": 0,
             "short_scans": 0,
         }
+        self.reporter = HealthReporter(self.name, clock, bus, log, self.counters)
         self._transport: Any = None
         self.bytes_sent = 0
         self.bytes_received = 0
@@ -116,27 +117,20 @@ class RplidarDriver:
         self._assembler = p.ScanAssembler(min_nodes=cfg.min_nodes_per_scan)
         self._rev_start: float | None = None
         self._last_scan_at = -math.inf
-        self._down_since: float | None = None
 
     # --- the long-lived part ------------------------------------------------------------------
     async def run(self) -> None:
-        """Run sessions for ever; each failure is reported and retried."""
-        health_task = asyncio.ensure_future(self._health_loop())
-        try:
-            while True:
-                try:
-                    await self._session()
-                except LidarFault as exc:
-                    self._report_down(str(exc))
-                except BaseException:
-                    await self._close_port(stop=True)  # shutting down: scanning and motor off
-                    raise
-                await self._close_port()
-                await self.clock.sleep(self.cfg.reconnect_s)
-        finally:
-            health_task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await health_task
+        """Run sessions for ever; each failure is reported and retried; ``/health`` every
+        second."""
+        reconnect_s = self.cfg.reconnect_s
+        await SessionLoop(
+            self.clock, self._session, self._report_down, Backoff(reconnect_s, reconnect_s),
+            after=self._close_port, on_abort=self._shut_down,
+            health=self.reporter, health_period_s=1.0,
+        ).run()
+
+    async def _shut_down(self) -> None:
+        await self._close_port(stop=True)  # shutting down: scanning and motor off
 
     async def close(self) -> None:
         """Stop scanning and the motor, close the port."""
@@ -152,7 +146,7 @@ class RplidarDriver:
         )
         health = await self._get_health()
         if health.status == p.HealthLevel.ERROR:
-            self._set_state(
+            self.reporter.set_state(
                 "error",
                 f"the lidar reported a protection stop (error code 0x{health.error_code:04X}): "
                 "sent RESET; if this repeats the laser or motor needs service",
@@ -167,7 +161,7 @@ class RplidarDriver:
                 )
         self._set_motor(True)
         await self._start_scan()
-        self._set_state(
+        self.reporter.set_state(
             "degraded" if health.status == p.HealthLevel.WARNING else "ok",
             f"scanning: {self.info.describe()}"
             + (f"; health warning 0x{health.error_code:04X}" if health.status else ""),
@@ -416,37 +410,8 @@ class RplidarDriver:
         self._last_scan_at = now
         self.counters["scans"] += 1
         self.bus.publish(SCAN, scan)
-        if self._down_since is not None:
-            down_s = now - self._down_since
-            self._down_since = None
-            self.bus.publish(
-                EVENTS,
-                Event(now, "driver.lidar_recovered", {"down_s": round(down_s, 3)}),
-            )
+        self.reporter.recovered(now)
 
     # --- health -------------------------------------------------------------------------------
-    def _set_state(self, state: str, message: str) -> None:
-        changed = (state, message) != (self.state, self.message)
-        self.state, self.message = state, message
-        if changed:
-            (log.info if state == "ok" else log.warning)("lidar %s: %s", state, message)
-            self._publish_health()
-
-    def _report_down(self, message: str) -> None:
-        now = self.clock.now()
-        if self._down_since is None:
-            self._down_since = now
-            self.bus.publish(EVENTS, Event(now, "driver.lidar_lost", {"reason": message}))
-        self._set_state("error", message + " — the rover stays stopped until scans return")
-
-    def _publish_health(self) -> None:
-        self.bus.publish(
-            HEALTH,
-            DriverHealth(
-                self.clock.now(), self.name, self.state, self.message, dict(self.counters)
-            ),
-        )
-
-    async def _health_loop(self) -> None:
-        async for _ in self.clock.every(1.0):
-            self._publish_health()
+    def _report_down(self, exc: Exception) -> None:
+        self.reporter.lost(str(exc), f"{exc} — the rover stays stopped until scans return")

@@ -30,19 +30,28 @@ import math
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from curio.core.clock import Clock, SimClock
+from curio.core.config import Config
 from curio.core.messages import LaserScan
-from curio.drivers.health import BytePacer
+from curio.core.parts import Part
+from curio.drivers.pty import BytePacer, PtyDevice
 from curio.drivers.rplidar import protocol as p
-from curio.drivers.rplidar.ptydevice import PtyDevice
 
-__all__ = ["RplidarEmulator", "RplidarFaults"]
+__all__ = ["RplidarEmulator", "RplidarFaults", "ScanWorld"]
 
 BANNER = b"RP LIDAR System.\r\nFirmware Ver 1.29 - rc2, HW Ver 7\r\nModel: 18\r\n"
+
+
+class ScanWorld(Protocol):
+    """What the emulator needs from the simulator's world."""
+
+    def cast_scan(self, stamp: float) -> LaserScan:
+        """One revolution seen at clock time ``stamp``, ``laser`` frame."""
+        ...
 
 
 @dataclass
@@ -113,6 +122,28 @@ class RplidarEmulator:
         self.requests: list[int] = []
         #: holds a simulated clock until the driver has read our bytes (see :meth:`pair`)
         self.pacer = BytePacer(clock, lambda: self.device.bytes_written)
+
+    @classmethod
+    def for_world(cls, world: ScanWorld, clock: Clock, cfg: Config, seed: int,
+                  link: Path | None = None) -> RplidarEmulator:
+        """The lidar in the simulator's ``world`` (emulated mode, ``curio emulate rplidar``).
+
+        Args:
+            world: the simulator's world (``cast_scan``).
+            clock: the application clock.
+            cfg: the configuration: ``sim.lidar_rate_hz`` and the driver's
+                ``drivers.lidar.angle_offset_rad`` (undone here, so the driver sees the world).
+            seed: jitter and quality randomness.
+            link: the device path to serve (default: ``curio-lidar`` in a temp dir).
+        """
+        return cls(world.cast_scan, clock, rate_hz=cfg.sim.lidar_rate_hz, seed=seed,
+                   link_dir=link.parent if link else None,
+                   name=link.name if link else "curio-lidar",
+                   angle_offset_rad=cfg.drivers.lidar.angle_offset_rad)
+
+    def parts(self) -> list[Part]:
+        """What runs the emulator: its revolution stream."""
+        return [Part("lidar-emulator", run=self.run, close=self.close)]
 
     # --- life cycle ---------------------------------------------------------------------------
     @property

@@ -1,6 +1,7 @@
-"""A fake I2C bus with a BNO055 on it, fed by the simulator (hardware.md §7.4).
+"""The BNO055 emulator: a fake I2C bus with the chip on it, fed by the simulator (§7.4 of
+hardware.md).
 
-:class:`FakeBno055Bus` exposes the part of ``smbus2.SMBus`` the driver uses —
+:class:`Bno055Emulator` exposes the part of ``smbus2.SMBus`` the driver uses —
 ``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data`` (≤ 32 bytes),
 ``write_i2c_block_data``, ``close`` — so the real :class:`~curio.drivers.bno055.driver.Bno055Driver`
 runs against it unchanged. Behind it is the chip as the datasheet describes it:
@@ -31,14 +32,19 @@ import errno
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
+from curio.core.clock import Clock
+from curio.core.config import Config
 from curio.core.geometry import quat_to_yaw, yaw_to_quat
 from curio.core.messages import Imu
-from curio.drivers.bno055 import registers as r
+from curio.core.parts import Part
+from curio.drivers.bno055 import protocol as r
 
-__all__ = ["Bno055Faults", "FakeBno055Bus"]
+__all__ = ["Bno055Emulator", "Bno055Faults", "ImuWorld"]
 
 RESET_S = 0.65
 # Page-0 configuration registers (writable in CONFIG mode only).
@@ -48,6 +54,14 @@ _CONFIG_REGS = frozenset(
 )
 _ALWAYS_WRITABLE = frozenset({r.Reg.OPR_MODE, r.Reg.PAGE_ID, r.Reg.SYS_TRIGGER, r.Reg.PWR_MODE})
 _READ_ONLY = frozenset(range(0x00, 0x07)) | frozenset(range(0x08, 0x3B))
+
+
+class ImuWorld(Protocol):
+    """What the emulator needs from the simulator's world."""
+
+    def imu_sample(self, stamp: float) -> Imu:
+        """The reading at clock time ``stamp`` in ``imu_link``."""
+        ...
 
 
 @dataclass
@@ -66,7 +80,7 @@ def _eremoteio() -> OSError:
     return OSError(errno.EREMOTEIO, "Remote I/O error")
 
 
-class FakeBno055Bus:
+class Bno055Emulator:
     """An I2C bus (``smbus2.SMBus`` subset) with one simulated BNO055.
 
     Args:
@@ -96,6 +110,32 @@ class FakeBno055Bus:
         self.transactions = 0
         self.closed = False
         self._power_on(self.now() + power_on_s)
+
+    @classmethod
+    def for_world(cls, world: ImuWorld, clock: Clock, cfg: Config, seed: int,
+                  link: Path | None = None) -> Bno055Emulator:
+        """The chip in the simulator's ``world`` (emulated mode).
+
+        Args:
+            world: the simulator's world (``imu_sample``).
+            clock: the application clock.
+            cfg: the configuration (``drivers.imu.address``).
+            seed: fault randomness and the chip's calibration offsets.
+            link: unused: the bus is in memory, there is no device node.
+        """
+        return cls(world.imu_sample, clock.now, address=cfg.drivers.imu.address, seed=seed)
+
+    @property
+    def path(self) -> None:
+        """No device node: the bus is in memory."""
+        return None
+
+    def open(self) -> None:
+        """Nothing to open: the bus is in memory."""
+
+    def parts(self) -> list[Part]:
+        """Nothing runs the emulator: the driver calls it."""
+        return []
 
     # --- chip state ---------------------------------------------------------------------------
     def _power_on(self, ready_at: float) -> None:
@@ -312,7 +352,7 @@ class FakeBno055Bus:
         """Close the bus (further accesses fail with EBADF)."""
         self.closed = True
 
-    def reopen(self) -> FakeBno055Bus:
+    def reopen(self) -> Bno055Emulator:
         """What ``SMBus(n)`` returns again after a close: the same chip, a fresh handle."""
         self.closed = False
         return self
