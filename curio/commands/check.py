@@ -98,12 +98,14 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="curio check",
                                  description="Diagnose the rover's hardware and say how to fix it.")
     ap.add_argument("--config", help="config file (default: ./config.toml or the shipped one)")
-    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="override one config key (repeatable), e.g. drivers.arduino.port=...")
     ap.add_argument("--arduino", help="the Arduino's serial port (default: config / USB id)")
     ap.add_argument("--lidar", help="the RPLidar's serial port (default: config / USB id)")
     ap.add_argument("--i2c-bus", help="I2C bus number, or 'emulated' for the fake BNO055 bus")
     ap.add_argument("--imu-address", help="0x28 or 0x29 (default: drivers.imu.address)")
-    ap.add_argument("--skip", default="", help="comma-separated: arduino,lidar,imu")
+    ap.add_argument("--skip", default="", help="devices not to check, comma-separated: "
+                    "arduino,lidar,imu")
     return ap
 
 
@@ -176,8 +178,18 @@ def main(argv: list[str]) -> int:
     except (_Usage, ConfigError) as exc:
         print(f"curio check: {exc}", file=sys.stderr)
         return 2
+    if cfg.drivers.mode != "real":
+        print(f"note: the config runs drivers.mode = {cfg.drivers.mode!r} (no hardware: "
+              "'curio run' would not use these devices); this checks the hardware anyway. On "
+              "the rover set drivers.mode = \"real\".\n")
     results = _device_rows(args, cfg, skip)
     print(format_table(results))
     failed = [r.name for r in results if r.status == "FAIL"]
-    print(f"\n{'FAILED: ' + ', '.join(failed) if failed else 'all checks passed'}")
+    if failed:
+        print(f"\nFAILED: {', '.join(failed)}")
+    elif skip >= {"arduino", "lidar", "imu"}:
+        print("\nno device checked: arduino, lidar and imu were all skipped (--skip)")
+    else:
+        checked = sorted({"arduino", "lidar", "imu"} - skip)
+        print(f"\nall checks passed ({', '.join(checked)})")
     return 1 if failed else 0

@@ -22,11 +22,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import signal
 import sys
 from pathlib import Path
 
 from curio.core.clock import RealClock
 from curio.core.config import Config, ConfigError, load_config
+from curio.core.errors import SetupError
 from curio.drivers.wiring import BASE, LIDAR
 
 # The devices served on a pseudo-terminal, in the usage line's order (the BNO055's emulator is
@@ -55,6 +57,11 @@ def _parser() -> argparse.ArgumentParser:
 async def _serve(args: argparse.Namespace, cfg: Config) -> int:
     from curio.sim.world import World
 
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):  # clean up the pty and its folder on both
+        with contextlib.suppress(NotImplementedError):
+            loop.add_signal_handler(sig, stop.set)
     clock = RealClock()
     world = World.from_config(cfg)
     link = Path(args.link).expanduser().absolute() if args.link else None
@@ -75,13 +82,19 @@ async def _serve(args: argparse.Namespace, cfg: Config) -> int:
     tasks: list[asyncio.Future[None]] = [
         asyncio.ensure_future(part.run()) for part in parts if part.run is not None]
     tasks.append(asyncio.ensure_future(physics()))
+    async def stopped() -> None:
+        await stop.wait()
+
+    waiters: list[asyncio.Future[None]] = [asyncio.ensure_future(stopped())]
+    if args.duration is not None:
+        waiters.append(asyncio.ensure_future(clock.sleep(args.duration)))
     try:
-        if args.duration is not None:
-            await clock.sleep(args.duration)
-        else:
-            await asyncio.gather(*tasks)
+        done, _ = await asyncio.wait([*waiters, *tasks], return_when=asyncio.FIRST_COMPLETED)
+        for fut in done:
+            if fut not in waiters:
+                fut.result()  # an emulator part that ended: its error, if it had one
     finally:
-        for task in tasks:
+        for task in [*waiters, *tasks]:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         for part in parts:
@@ -109,7 +122,15 @@ def main(argv: list[str]) -> int:
     except ConfigError as exc:
         print(f"curio emulate: {exc}", file=sys.stderr)
         return 2
-    with contextlib.suppress(KeyboardInterrupt):
-        return asyncio.run(_serve(args, cfg))
+    if args.seed is not None and args.seed < 0:
+        print(f"curio emulate: --seed takes a whole number >= 0, got {args.seed}",
+              file=sys.stderr)
+        return 2
+    try:
+        with contextlib.suppress(KeyboardInterrupt):
+            return asyncio.run(_serve(args, cfg))
+    except SetupError as exc:  # a missing or corrupt world map
+        print(f"curio emulate: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
     print("stopped", flush=True)
     return 0

@@ -160,3 +160,35 @@ def test_scripts_run_starts_without_the_network(tmp_path: Path) -> None:
                for line in seen), log
     assert proc.returncode == 0, log
     assert "Traceback" not in log and "error" not in log.lower(), log
+
+
+def test_check_says_what_it_checked_and_the_mode(data: str) -> None:
+    result = curio("check", "--skip", "arduino,lidar,imu", "--set", data)
+    assert result.returncode == 0
+    assert "all checks passed" not in result.stdout
+    assert "no device checked" in result.stdout
+    assert "drivers.mode = 'sim'" in result.stdout
+    assert "override one config key" in curio("check", "--help").stdout
+
+
+def test_emulate_refuses_a_corrupt_map_and_cleans_up_on_sigterm(tmp_path: Path) -> None:
+    import glob
+    import signal
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(BAD_YAML)
+    assert_one_line_error(curio("emulate", "rplidar", "--map", str(bad)), str(bad))
+    before = set(glob.glob("/tmp/curio-emu-*"))
+    proc = subprocess.Popen([sys.executable, "-m", "curio", "emulate", "rplidar"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            cwd=REPO_ROOT)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    device = Path(line.split(" on ")[-1].strip())
+    assert device.exists(), line
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, out
+    assert "Traceback" not in out and "never retrieved" not in out, out
+    assert not device.exists() and not device.parent.exists()
+    assert set(glob.glob("/tmp/curio-emu-*")) <= before
