@@ -51,10 +51,10 @@ from curio.core.topics import (
 )
 from curio.nav.api import (
     ControllerFailedError,
-    GoalBlockedError,
     GoalHandle,
     GoalOutsideMapError,
     GoalState,
+    InvalidGoalError,
     LocalizationLostError,
     NavError,
     NoPathError,
@@ -65,18 +65,13 @@ from curio.nav.api import (
 from curio.nav.controller import ControlStatus, LocalController
 from curio.nav.costs import INSCRIBED, LETHAL, NO_INFORMATION
 from curio.nav.recovery import Recovery
+from curio.nav.validation import GoalValidator
 
 __all__ = ["InvalidGoalError", "NavigatorNode"]
 
 log = logging.getLogger("curio.nav.navigator")
 
 U8 = npt.NDArray[np.uint8]
-
-
-class InvalidGoalError(NavError):
-    """The goal is not a usable pose (empty, not finite)."""
-
-    code = "invalid_goal"
 
 
 class PlanCostmap(Protocol):
@@ -142,6 +137,7 @@ class NavigatorNode:
         self.planner = planner
         self.controller = controller
         self.recovery = recovery
+        self.validator = GoalValidator(cfg.nav.planner)
         self._ids = itertools.count(1)
         self._active: GoalHandle | None = None
         self._pending: GoalHandle | None = None
@@ -186,7 +182,8 @@ class NavigatorNode:
         seq = [poses] if isinstance(poses, Pose2D) else list(poses)
         handle = GoalHandle(next(self._ids), seq, tag=tag)
         try:
-            self._validate(seq)
+            self.validator.check_goals(seq, self.costmap.costs(), self.costmap.resolution_m,
+                                       self.costmap.origin)
         except NavError as exc:
             handle.state = GoalState.REJECTED
             handle.error = exc
@@ -210,44 +207,6 @@ class NavigatorNode:
         self._pending = None
         self._active = None
         self._stop_motion()
-
-    # --- validation -------------------------------------------------------------------------
-    def _validate(self, seq: list[Pose2D]) -> None:
-        if not seq:
-            raise InvalidGoalError("a goal needs at least one pose (x, y[, yaw]) in map")
-        h, w = self.costmap.shape
-        res = self.costmap.resolution_m
-        o = self.costmap.origin
-        extent = (f"x {o.x:.2f}..{o.x + w * res:.2f} m, y {o.y:.2f}..{o.y + h * res:.2f} m")
-        costs = self.costmap.costs()
-        for k, p in enumerate(seq):
-            which = "the goal" if len(seq) == 1 else f"waypoint {k + 1} of {len(seq)}"
-            if not (math.isfinite(p.x) and math.isfinite(p.y)):
-                raise InvalidGoalError(f"{which} ({p.x}, {p.y}) is not a finite position")
-            r, c = self.costmap.world_to_cell(p.x, p.y)
-            if not self.costmap.in_bounds(r, c):
-                raise GoalOutsideMapError(
-                    f"{which} ({p.x:.2f}, {p.y:.2f}) m is outside the map ({extent})")
-            cost = int(costs[r, c])
-            if cost >= INSCRIBED and not self._free_near(costs, r, c):
-                why = {INSCRIBED: "too close to an obstacle for the rover",
-                       LETHAL: "inside an obstacle"}.get(cost, "in unknown space")
-                near = self.cfg.nav.planner.goal_nearest_free_max_m \
-                    if self.cfg.nav.planner.goal_nearest_free else 0.0
-                raise GoalBlockedError(
-                    f"{which} ({p.x:.2f}, {p.y:.2f}) m is {why}, with no free cell within "
-                    f"{near:g} m (nav.planner.goal_nearest_free_max_m)")
-
-    def _free_near(self, costs: U8, r: int, c: int) -> bool:
-        pcfg = self.cfg.nav.planner
-        if not pcfg.goal_nearest_free:
-            return False
-        rad = int(pcfg.goal_nearest_free_max_m / self.costmap.resolution_m)
-        if rad <= 0:
-            return False
-        h, w = costs.shape
-        win = costs[max(0, r - rad):min(h, r + rad + 1), max(0, c - rad):min(w, c + rad + 1)]
-        return bool((win < INSCRIBED).any())
 
     # --- events and state -------------------------------------------------------------------
     def _event(self, kind: str, handle: GoalHandle | None = None, **detail: Any) -> None:
