@@ -33,7 +33,7 @@ from curio.core.geometry import Pose2D, wrap_angle
 from curio.nav import planner_kernels as kern
 from curio.nav.api import NoPathError
 from curio.nav.costs import INSCRIBED, LETHAL, MAX_NON_OBSTACLE, NO_INFORMATION, cost_at_distance
-from curio.nav.validation import GoalValidator, passable_costs
+from curio.nav.validation import Endpoints, GoalValidator, passable_costs
 
 __all__ = ["GlobalPlanner", "PlanResult", "narrow_cost", "path_length_m", "traversal_lut"]
 
@@ -177,15 +177,28 @@ class GlobalPlanner:
                 f"({ends.goal.x:.2f}, {ends.goal.y:.2f}) m: the goal is cut off from the start "
                 f"in the costmap ({int(expansions)} reachable cells searched)")
         rows, cols = kern.trace_path(parent, w, g_r, g_c)
-        total_cost = float(g[g_r * w + g_c])
+        pts = self._path_points(rows, cols, g, costs, resolution_m, ends, escape_r2)
+        world = origin.transform_points(pts)
+        return PlanResult(poses=_with_headings(world, ends.goal.yaw),
+                          length_m=_polyline_length(world), cost=float(g[g_r * w + g_c]),
+                          expansions=int(expansions), goal=ends.goal, goal_moved=ends.goal_moved,
+                          grid_path=np.stack([rows, cols], axis=1))
+
+    # ------------------------------------------------------------------ helpers
+    def _path_points(self, rows: npt.NDArray[np.int64], cols: npt.NDArray[np.int64],
+                     g: FloatArray, costs: U8Array, res: float, ends: Endpoints,
+                     escape_r2: int) -> FloatArray:
+        """The grid path shortcut, resampled every ``path_step_m`` and smoothed, in grid
+        metres, from the exact start to the (possibly moved) goal."""
+        w = costs.shape[1]
         if self.cfg.smooth and rows.shape[0] > 2:
-            max_span = max(8, round(20.0 / resolution_m))
+            max_span = max(8, round(20.0 / res))
             keep = kern.shortcut(costs, self._lut, rows, cols, g, w, escape_r2, 12, max_span)
             vr, vc = rows[keep], cols[keep]
         else:
             vr, vc = rows, cols
         # Vertices in grid metres (cell centres), with the exact start and goal at the ends.
-        verts = np.stack([(vc + 0.5) * resolution_m, (vr + 0.5) * resolution_m], axis=1)
+        verts = np.stack([(vc + 0.5) * res, (vr + 0.5) * res], axis=1)
         verts = verts.astype(np.float64)
         if verts.shape[0] == 1:
             verts = np.vstack([verts, verts])
@@ -193,14 +206,9 @@ class GlobalPlanner:
         verts[-1] = ends.goal_xy
         pts = _resample(verts, self.cfg.path_step_m)
         if self.cfg.smooth and pts.shape[0] > 4:
-            pts = self._smooth(pts, costs, resolution_m, s_r, s_c, escape_r2)
-        world = origin.transform_points(pts)
-        poses = _with_headings(world, ends.goal.yaw)
-        return PlanResult(poses=poses, length_m=_polyline_length(world), cost=total_cost,
-                          expansions=int(expansions), goal=ends.goal, goal_moved=ends.goal_moved,
-                          grid_path=np.stack([rows, cols], axis=1))
+            pts = self._smooth(pts, costs, res, *ends.start_cell, escape_r2)
+        return pts
 
-    # ------------------------------------------------------------------ helpers
     def _smooth(self, pts: FloatArray, costs: U8Array, res: float, s_r: int, s_c: int,
                 escape_r2: int) -> FloatArray:
         """A few gradient steps pulling points towards their neighbours' mean (ends fixed).
