@@ -38,7 +38,7 @@ from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.geometry import Pose2D
-from curio.core.messages import Event, Path, Twist
+from curio.core.messages import Event, Path, PoseWithCovariance, Twist
 from curio.core.topics import (
     CMD_VEL_NAV,
     ESTOP,
@@ -55,7 +55,6 @@ from curio.nav.api import (
     GoalOutsideMapError,
     GoalState,
     InvalidGoalError,
-    LocalizationLostError,
     NavError,
     NoPathError,
     NoProgressError,
@@ -64,6 +63,7 @@ from curio.nav.api import (
 )
 from curio.nav.controller import ControlStatus, LocalController
 from curio.nav.costs import INSCRIBED, LETHAL, NO_INFORMATION
+from curio.nav.navigator.pose_gate import PoseGate
 from curio.nav.recovery import Recovery
 from curio.nav.validation import GoalValidator
 
@@ -151,8 +151,7 @@ class NavigatorNode:
         self._recovery_rounds = 0
         self._last_error: NavError | None = None
         self._progress_anchor: Pose2D | None = None
-        self._lost_since: float | None = None
-        self._no_pose_since: float | None = None
+        self.pose_gate = PoseGate(cfg.nav.controller.lost_timeout_s)
         self._goal_started_s = 0.0
         self._sent_zero = True
         self.plan_count = 0
@@ -255,16 +254,19 @@ class NavigatorNode:
         self._best_t = now
         self.controller.reset()
 
-    def _hold_or_abort(self, handle: GoalHandle, since_s: float, now: float, what: str,
-                       advice: str, reason: str) -> None:
-        """Hold still without a usable pose; abort the goal once that has lasted
-        ``nav.controller.lost_timeout_s`` since ``since_s``."""
+    def _usable_pose(self, handle: GoalHandle, msg: PoseWithCovariance | None,
+                     now: float) -> Pose2D | None:
+        """The pose to drive on, from the pose gate; None: hold still (the goal is aborted
+        once that has lasted ``nav.controller.lost_timeout_s``)."""
+        verdict = self.pose_gate.check(msg, self.bus.latest(LOCALIZATION), now)
+        if verdict.pose is not None:
+            return verdict.pose
+        if verdict.newly_lost:
+            self._event("nav.holding", handle, reason="localisation lost")
         self._hold(now)
-        lost_timeout = self.cfg.nav.controller.lost_timeout_s
-        if now - since_s > lost_timeout:
-            self._finish(handle, GoalState.ABORTED, LocalizationLostError(
-                f"{what} for {lost_timeout:g} s (nav.controller.lost_timeout_s): {advice}"),
-                reason)
+        if verdict.error is not None:
+            self._finish(handle, GoalState.ABORTED, verdict.error, verdict.reason)
+        return None
 
     def _stop_motion(self) -> None:
         self.bus.publish(CMD_VEL_NAV, Twist(self.clock.now(), 0.0, 0.0, source="navigator"))
@@ -422,8 +424,7 @@ class NavigatorNode:
         self._plan_goal_index = -1
         self._progress_anchor = pose
         self._best_remaining = math.inf
-        self._lost_since = None
-        self._no_pose_since = None
+        self.pose_gate.reset()
         self.keep_out = []
         self.controller.clear_plan()
         self.controller.reset()
@@ -455,22 +456,9 @@ class NavigatorNode:
             if pose is not None:
                 self._start_plan(pose, handle, "after recovery")
             return
-        if pose is None or now - pose_msg.stamp > 1.0:  # type: ignore[union-attr]
-            if self._no_pose_since is None:
-                self._no_pose_since = now
-            self._hold_or_abort(handle, self._no_pose_since, now, "no pose in map",
-                                "localisation is not running", "no pose")
+        pose = self._usable_pose(handle, pose_msg, now)
+        if pose is None:
             return
-        self._no_pose_since = None
-        loc = self.bus.latest(LOCALIZATION)
-        if loc is not None and loc.state == "lost":
-            if self._lost_since is None:
-                self._lost_since = now
-                self._event("nav.holding", handle, reason="localisation lost")
-            self._hold_or_abort(handle, self._lost_since, now, "localisation lost",
-                                "set the pose on the dashboard", "lost")
-            return
-        self._lost_since = None
         # Planning.
         err = self._take_plan_result(handle)
         if err is not None:
