@@ -64,6 +64,7 @@ from curio.nav.api import (
 from curio.nav.controller import ControlStatus, LocalController
 from curio.nav.costs import INSCRIBED, LETHAL, NO_INFORMATION
 from curio.nav.navigator.pose_gate import PoseGate
+from curio.nav.navigator.progress import Progress, ProgressMonitor
 from curio.nav.recovery import Recovery
 from curio.nav.validation import GoalValidator
 
@@ -155,10 +156,8 @@ class NavigatorNode:
         self._goal_started_s = 0.0
         self._sent_zero = True
         self.plan_count = 0
-        self._best_remaining = math.inf
-        self._best_t = 0.0
+        self.progress = ProgressMonitor(cfg.nav.recovery.goal_progress_timeout_s)
         self._rung_remaining = math.inf
-        self._baseline_t = -math.inf
         self.keep_out: list[tuple[float, float, float]] = []  # (x, y, expiry clock s)
         self.on_done: list[Callable[[GoalHandle], None]] = []
 
@@ -251,7 +250,7 @@ class NavigatorNode:
         """Stand still with the goal kept active (no pose, or localisation lost): the time
         held counts neither against the progress checkers nor as a stuck rover."""
         self._stop_motion()
-        self._best_t = now
+        self.progress.pause(now)
         self.controller.reset()
 
     def _usable_pose(self, handle: GoalHandle, msg: PoseWithCovariance | None,
@@ -390,15 +389,7 @@ class NavigatorNode:
             # (nav.planner.goal_nearest_free): drive there, with the requested heading.
             goal = Pose2D(poses[-1].x, poses[-1].y, goal.yaw)
         length = float(sum(a.distance_to(b) for a, b in itertools.pairwise(poses)))
-        now = self.clock.now()
-        timeout = self.cfg.nav.recovery.goal_progress_timeout_s
-        if not math.isfinite(self._best_remaining) or (
-                length > self._best_remaining + 1.0 and now - self._baseline_t > timeout):
-            # The first plan, or a genuine detour (at most once per timeout, so plans that
-            # flicker between two routes cannot keep postponing the verdict).
-            self._best_remaining = length
-            self._best_t = now
-            self._baseline_t = now
+        self.progress.on_plan(length, self.clock.now())
         self._plan = poses
         self._blocked_seen_t = None
         self._plan_goal_index = handle.current_index
@@ -423,7 +414,7 @@ class NavigatorNode:
         self._plan = []
         self._plan_goal_index = -1
         self._progress_anchor = pose
-        self._best_remaining = math.inf
+        self.progress.reset()
         self.pose_gate.reset()
         self.keep_out = []
         self.controller.clear_plan()
@@ -452,7 +443,7 @@ class NavigatorNode:
             self._plan_job = None
             # Motion made by the recovery itself is not progress towards the goal.
             self._progress_anchor = pose
-            self._best_t = self.clock.now()
+            self.progress.pause(self.clock.now())
             if pose is not None:
                 self._start_plan(pose, handle, "after recovery")
             return
@@ -489,16 +480,14 @@ class NavigatorNode:
         if out.status is ControlStatus.GOAL_REACHED:
             self._waypoint_reached(handle)
             return
-        if out.distance_remaining_m < self._best_remaining - 0.3:
-            self._best_remaining = out.distance_remaining_m
-            self._best_t = now
+        progress = self.progress.update(out.distance_remaining_m, now)
+        if progress is Progress.IMPROVED:
             if out.distance_remaining_m < self._rung_remaining - 1.0:
                 # Real progress towards the goal (not just driving back to where it got
                 # stuck after a step back) starts the recovery ladder afresh.
                 self._recovery_rung = 0
                 self._rung_remaining = out.distance_remaining_m
-        elif now - self._best_t > self.cfg.nav.recovery.goal_progress_timeout_s:
-            self._best_t = now
+        elif progress is Progress.STALLED:
             self._add_keep_out(pose)
             self._stuck(handle, NoProgressError(
                 f"no progress towards the goal for "
@@ -522,7 +511,7 @@ class NavigatorNode:
         if idx + 1 < len(handle.poses):
             self._event("nav.waypoint_reached", handle, index=idx)
             handle.current_index += 1
-            self._best_remaining = math.inf
+            self.progress.reset()
             self._plan = []
             self._plan_goal_index = -1
             self.controller.clear_plan()
@@ -562,7 +551,7 @@ class NavigatorNode:
                 return
         step = ladder[self._recovery_rung]
         self._recovery_rung += 1
-        self._rung_remaining = self._best_remaining
+        self._rung_remaining = self.progress.best_remaining_m
         handle.recoveries += 1
         handle.history.append(f"recovery {step}: {err.code}")
         recovery = self.recovery
