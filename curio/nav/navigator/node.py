@@ -63,6 +63,7 @@ from curio.nav.api import (
 )
 from curio.nav.controller import ControlStatus, LocalController
 from curio.nav.costs import INSCRIBED, LETHAL, NO_INFORMATION
+from curio.nav.navigator.ladder import GiveUp, RecoveryLadder
 from curio.nav.navigator.pose_gate import PoseGate
 from curio.nav.navigator.progress import Progress, ProgressMonitor
 from curio.nav.recovery import Recovery
@@ -147,17 +148,13 @@ class NavigatorNode:
         self._plan_goal_index = -1
         self._last_plan_t = -math.inf
         self._blocked_seen_t: float | None = None  # when the current plan was first seen blocked
-        self._recovery_task: asyncio.Task[Any] | None = None
-        self._recovery_rung = 0
-        self._recovery_rounds = 0
-        self._last_error: NavError | None = None
+        self.ladder = RecoveryLadder(cfg.nav.recovery, recovery)
         self._progress_anchor: Pose2D | None = None
         self.pose_gate = PoseGate(cfg.nav.controller.lost_timeout_s)
         self._goal_started_s = 0.0
         self._sent_zero = True
         self.plan_count = 0
         self.progress = ProgressMonitor(cfg.nav.recovery.goal_progress_timeout_s)
-        self._rung_remaining = math.inf
         self.keep_out: list[tuple[float, float, float]] = []  # (x, y, expiry clock s)
         self.on_done: list[Callable[[GoalHandle], None]] = []
 
@@ -242,9 +239,7 @@ class NavigatorNode:
         if self._plan_job is not None:
             self._plan_job.task.cancel()
             self._plan_job = None
-        if self._recovery_task is not None:
-            self._recovery_task.cancel()
-            self._recovery_task = None
+        self.ladder.cancel()
 
     def _hold(self, now: float) -> None:
         """Stand still with the goal kept active (no pose, or localisation lost): the time
@@ -407,10 +402,7 @@ class NavigatorNode:
         handle.state = GoalState.ACTIVE
         handle.history.append("active")
         self._goal_started_s = self.clock.now()
-        self._recovery_rung = 0
-        self._recovery_rounds = 0
-        self._rung_remaining = math.inf
-        self._last_error = None
+        self.ladder.reset()
         self._plan = []
         self._plan_goal_index = -1
         self._progress_anchor = pose
@@ -435,10 +427,9 @@ class NavigatorNode:
                 self._stop_motion()
             return
         # A recovery action owns the wheels while it runs.
-        if self._recovery_task is not None:
-            if not self._recovery_task.done():
+        if self.ladder.busy:
+            if not self.ladder.collect():
                 return
-            self._recovery_task = None
             self.controller.reset()
             self._plan_job = None
             # Motion made by the recovery itself is not progress towards the goal.
@@ -482,11 +473,7 @@ class NavigatorNode:
             return
         progress = self.progress.update(out.distance_remaining_m, now)
         if progress is Progress.IMPROVED:
-            if out.distance_remaining_m < self._rung_remaining - 1.0:
-                # Real progress towards the goal (not just driving back to where it got
-                # stuck after a step back) starts the recovery ladder afresh.
-                self._recovery_rung = 0
-                self._rung_remaining = out.distance_remaining_m
+            self.ladder.note_progress(out.distance_remaining_m)
         elif progress is Progress.STALLED:
             self._add_keep_out(pose)
             self._stuck(handle, NoProgressError(
@@ -527,35 +514,20 @@ class NavigatorNode:
         if isinstance(err, (GoalOutsideMapError, StartOutsideMapError)):
             self._finish(handle, GoalState.ABORTED, err, "cannot plan")
             return
-        if isinstance(err, StartBlockedError) and self.recovery is not None \
-                and self.recovery.costmap is not None:
+        if isinstance(err, StartBlockedError):
             # Marks under the rover: clear them at once and try again before the ladder.
-            self.recovery.clear_costmap()
+            self.ladder.clear_under_rover()
         self._stuck(handle, err, pose)
 
     def _stuck(self, handle: GoalHandle, err: NavError, pose: Pose2D) -> None:
         """Climb the recovery ladder, or abort when it is exhausted."""
-        self._last_error = err
         self._stop_motion()
-        ladder = list(self.cfg.nav.recovery.ladder)
-        if self.recovery is None or not ladder:
-            self._finish(handle, GoalState.ABORTED, err, "stuck, no recovery configured")
+        climbed = self.ladder.climb(err, self.progress.best_remaining_m)
+        if isinstance(climbed, GiveUp):
+            self._finish(handle, GoalState.ABORTED, climbed.error, climbed.note)
             return
-        if self._recovery_rung >= len(ladder):
-            self._recovery_rounds += 1
-            self._recovery_rung = 0
-            if self._recovery_rounds >= self.cfg.nav.recovery.max_rounds:
-                tried = ", ".join(ladder)
-                final = type(err)(f"{err} (after recovery: {tried})")
-                self._finish(handle, GoalState.ABORTED, final, "recovery exhausted")
-                return
-        step = ladder[self._recovery_rung]
-        self._recovery_rung += 1
-        self._rung_remaining = self.progress.best_remaining_m
         handle.recoveries += 1
-        handle.history.append(f"recovery {step}: {err.code}")
-        recovery = self.recovery
-        self._recovery_task = asyncio.ensure_future(recovery.run(step))
+        handle.history.append(f"recovery {climbed}: {err.code}")
 
     # --- task -------------------------------------------------------------------------------
     def _on_operator(self, cmd: Any) -> None:
