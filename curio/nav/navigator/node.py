@@ -22,14 +22,12 @@ Events (``/events``): ``nav.goal_accepted``, ``nav.goal_rejected``, ``nav.waypoi
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import itertools
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -56,16 +54,17 @@ from curio.nav.api import (
     GoalState,
     InvalidGoalError,
     NavError,
-    NoPathError,
     NoProgressError,
     StartBlockedError,
     StartOutsideMapError,
 )
 from curio.nav.controller import ControlStatus, LocalController
-from curio.nav.costs import INSCRIBED, LETHAL, NO_INFORMATION
+from curio.nav.costs import CostGrid
 from curio.nav.navigator.ladder import GiveUp, RecoveryLadder
 from curio.nav.navigator.pose_gate import PoseGate
 from curio.nav.navigator.progress import Progress, ProgressMonitor
+from curio.nav.navigator.replanner import KeepOutSpots, Planner, Replanner
+from curio.nav.planner import path_length_m
 from curio.nav.recovery import Recovery
 from curio.nav.validation import GoalValidator
 
@@ -74,47 +73,6 @@ __all__ = ["InvalidGoalError", "NavigatorNode"]
 log = logging.getLogger("curio.nav.navigator")
 
 U8 = npt.NDArray[np.uint8]
-
-
-class PlanCostmap(Protocol):
-    """What the navigator needs from the costmap."""
-
-    resolution_m: float
-    origin: Pose2D
-
-    def costs(self) -> U8:
-        """Immutable snapshot of the cost grid."""
-        ...
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(rows, cols)."""
-        ...
-
-    def world_to_cell(self, x_m: float, y_m: float) -> tuple[int, int]:
-        """(row, col) of a point."""
-        ...
-
-    def in_bounds(self, row: int, col: int) -> bool:
-        """Whether a cell is on the grid."""
-        ...
-
-
-class Planner(Protocol):
-    """What the navigator needs from the global planner."""
-
-    def plan(self, start: Pose2D, goal: Pose2D, costs: U8, resolution_m: float,
-             origin: Pose2D) -> list[Pose2D]:
-        """A path from start to goal, or a typed NavError."""
-        ...
-
-
-@dataclass
-class _PlanJob:
-    task: asyncio.Future[list[Pose2D]]
-    goal_id: int
-    index: int
-    reason: str
 
 
 class NavigatorNode:
@@ -129,7 +87,7 @@ class NavigatorNode:
         recovery: the recovery actions; None aborts at once when stuck.
     """
 
-    def __init__(self, cfg: Config, clock: Clock, bus: Bus, costmap: PlanCostmap,
+    def __init__(self, cfg: Config, clock: Clock, bus: Bus, costmap: CostGrid,
                  planner: Planner, controller: LocalController,
                  recovery: Recovery | None = None) -> None:
         self.cfg = cfg
@@ -143,22 +101,27 @@ class NavigatorNode:
         self._ids = itertools.count(1)
         self._active: GoalHandle | None = None
         self._pending: GoalHandle | None = None
-        self._plan_job: _PlanJob | None = None
-        self._plan: list[Pose2D] = []
-        self._plan_goal_index = -1
-        self._last_plan_t = -math.inf
-        self._blocked_seen_t: float | None = None  # when the current plan was first seen blocked
+        self.replanner = Replanner(cfg.nav.planner, clock, costmap, planner, controller,
+                                   KeepOutSpots(cfg.nav.recovery, costmap))
         self.ladder = RecoveryLadder(cfg.nav.recovery, recovery)
         self._progress_anchor: Pose2D | None = None
         self.pose_gate = PoseGate(cfg.nav.controller.lost_timeout_s)
         self._goal_started_s = 0.0
         self._sent_zero = True
-        self.plan_count = 0
         self.progress = ProgressMonitor(cfg.nav.recovery.goal_progress_timeout_s)
-        self.keep_out: list[tuple[float, float, float]] = []  # (x, y, expiry clock s)
         self.on_done: list[Callable[[GoalHandle], None]] = []
 
     # --- the action interface -------------------------------------------------------------
+    @property
+    def plan_count(self) -> int:
+        """How many plans were started."""
+        return self.replanner.plan_count
+
+    @property
+    def keep_out(self) -> list[tuple[float, float, float]]:
+        """The live keep-out spots ``(x, y, expiry clock s)`` in ``map``."""
+        return self.replanner.keep_out.spots
+
     @property
     def active(self) -> GoalHandle | None:
         """The goal being executed (or about to be), if any; finished goals are not active."""
@@ -229,16 +192,14 @@ class NavigatorNode:
         if handle is self._active:
             self._cancel_jobs()
             self.controller.clear_plan()
-            self._plan = []
+            self.replanner.forget_plan()
             self.bus.publish(PLAN, Path(self.clock.now(), ()))
             self._stop_motion()
         for cb in list(self.on_done):
             cb(handle)
 
     def _cancel_jobs(self) -> None:
-        if self._plan_job is not None:
-            self._plan_job.task.cancel()
-            self._plan_job = None
+        self.replanner.cancel()
         self.ladder.cancel()
 
     def _hold(self, now: float) -> None:
@@ -267,130 +228,45 @@ class NavigatorNode:
         self._sent_zero = True
 
     # --- planning ---------------------------------------------------------------------------
-    def _start_plan(self, start: Pose2D, handle: GoalHandle, reason: str) -> None:
-        goal = handle.poses[handle.current_index]
-        if not math.isfinite(goal.yaw):
-            # No heading wanted: the planner still needs a number for the last pose.
-            goal = Pose2D(goal.x, goal.y, math.atan2(goal.y - start.y, goal.x - start.x))
-        plain = self.costmap.costs()
-        costs = self._with_keep_out(plain, start, goal)
-        res = self.costmap.resolution_m
-        origin = self.costmap.origin
-        planner = self.planner
-
-        def plan() -> list[Pose2D]:
-            try:
-                return planner.plan(start, goal, costs, res, origin)
-            except NoPathError:
-                if costs is plain:
-                    raise
-                # Keep-out spots are a hint to look for another way, never a reason to give
-                # up: where they cut the goal off (the only door out), plan without them.
-                return planner.plan(start, goal, plain, res, origin)
-
-        task = self.clock.offload(plan)
-        self.plan_count += 1
-        self._plan_job = _PlanJob(task, handle.goal_id, handle.current_index, reason)
-        self._last_plan_t = self.clock.now()
-
     def _with_keep_out(self, costs: U8, start: Pose2D, goal: Pose2D) -> U8:
-        """The costs with the live keep-out spots (where the rover got stuck) made lethal, so a
-        replan looks for another way; spots near the start or the goal are left out."""
-        now = self.clock.now()
-        self.keep_out = [k for k in self.keep_out if k[2] > now]
-        radius = self.cfg.nav.recovery.keep_out_radius_m
-        spots = [(x, y) for x, y, _ in self.keep_out
-                 if math.hypot(x - start.x, y - start.y) > radius + 0.4
-                 and math.hypot(x - goal.x, y - goal.y) > radius + 0.2]
-        if not spots or radius <= 0.0:
-            return costs
-        out = costs.copy()
-        res = self.costmap.resolution_m
-        n = math.ceil(radius / res)
-        h, w = out.shape
-        for x, y in spots:
-            r, c = self.costmap.world_to_cell(x, y)
-            rr, cc = np.mgrid[max(0, r - n):min(h, r + n + 1), max(0, c - n):min(w, c + n + 1)]
-            inside = (rr - r) ** 2 + (cc - c) ** 2 <= n * n
-            out[rr[inside], cc[inside]] = LETHAL
-        return out
+        """``costs`` with the live keep-out spots made lethal (as the next plan sees them)."""
+        return self.replanner.keep_out.apply(costs, start, goal, self.clock.now())
 
-    def _add_keep_out(self, pose: Pose2D, ahead_m: float = 0.5) -> None:
-        """Remember the spot about ``ahead_m`` along the plan as one to route around."""
-        plan = self.controller.plan
-        if len(plan) == 0 or self.cfg.nav.recovery.keep_out_radius_m <= 0.0:
-            return
-        i = self.controller.plan_index
-        d = np.hypot(plan[i:, 0] - pose.x, plan[i:, 1] - pose.y)
-        beyond = np.nonzero(d >= ahead_m)[0]
-        j = i + int(beyond[0]) if len(beyond) else len(plan) - 1
-        x, y = float(plan[j, 0]), float(plan[j, 1])
-        self.keep_out.append((x, y, self.clock.now() + self.cfg.nav.recovery.keep_out_s))
-        self._event("nav.keep_out", self._active, x=round(x, 3), y=round(y, 3))
+    def _add_keep_out(self, pose: Pose2D) -> None:
+        """Remember the spot just ahead on the plan as one to route around."""
+        spot = self.replanner.keep_out.add(self.controller, pose, self.clock.now())
+        if spot is not None:
+            self._event("nav.keep_out", self._active, x=round(spot[0], 3), y=round(spot[1], 3))
 
-    def _plan_blocked_confirmed(self, pose: Pose2D, now: float) -> bool:
-        """Whether the plan has been blocked for ``nav.planner.blocked_confirm_s`` without a
-        break.
-
-        Lidar noise next to walls marks and clears single cells from scan to scan; in a narrow
-        passage such a flicker would swap the plan for a detour and back every second. A
-        blockage counts once it has lasted ``nav.planner.blocked_confirm_s`` (the controller
-        and the safety stage guard the rover meanwhile).
-        """
-        if not self._plan_blocked(pose):
-            self._blocked_seen_t = None
+    def _plan_step(self, handle: GoalHandle, pose: Pose2D, now: float) -> bool:
+        """Follow a finished plan, start the next one when due; whether there is a plan to
+        drive on (False: the cycle ends here)."""
+        result = self.replanner.take_result(handle)
+        if isinstance(result, NavError):
+            self._on_plan_error(handle, result)
             return False
-        if self._blocked_seen_t is None:
-            self._blocked_seen_t = now
-        return now - self._blocked_seen_t >= self.cfg.nav.planner.blocked_confirm_s
+        if result is not None:
+            self._follow(handle, result)
+        have_plan = self.replanner.has_plan(handle.current_index)
+        reason = self.replanner.due(pose, now, have_plan)
+        if reason == Replanner.PATH_BLOCKED:
+            self._event("nav.path_blocked", handle)
+        if reason is not None:
+            self.replanner.start(pose, handle, reason)
+        if not have_plan:
+            self._stop_motion()
+        return have_plan
 
-    def _plan_blocked(self, pose: Pose2D) -> bool:
-        """Whether the plan ahead (about 3 m) crosses a lethal or inscribed cell."""
-        if len(self.controller.plan) == 0:
-            return False
-        plan = self.controller.plan
-        i0 = self.controller.plan_index
-        ahead = plan[i0:i0 + 60]
-        costs = self.costmap.costs()
-        rows = np.empty(len(ahead), dtype=np.int64)
-        cols = np.empty(len(ahead), dtype=np.int64)
-        for k, (x, y, _) in enumerate(ahead):
-            rows[k], cols[k] = self.costmap.world_to_cell(float(x), float(y))
-        h, w = costs.shape
-        ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-        if not ok.all():
-            return True
-        vals = costs[rows, cols]
-        # Ignore the first few poses: the rover itself may sit in an inscribed cell.
-        near = np.hypot(ahead[:, 0] - pose.x, ahead[:, 1] - pose.y) < 0.35
-        return bool(((vals >= INSCRIBED) & (vals != NO_INFORMATION) & ~near).any())
-
-    def _take_plan_result(self, handle: GoalHandle) -> NavError | None:
-        job = self._plan_job
-        if job is None or not job.task.done():
-            return None
-        self._plan_job = None
-        if job.goal_id != handle.goal_id or job.index != handle.current_index:
-            return None
-        try:
-            poses = job.task.result()
-        except asyncio.CancelledError:
-            return None
-        except NavError as exc:
-            return exc
+    def _follow(self, handle: GoalHandle, poses: list[Pose2D]) -> None:
+        """Hand a new plan to the controller (and the progress monitor), publish it."""
         goal = handle.poses[handle.current_index]
         if poses and poses[-1].distance_to(goal) > 0.01:
             # The planner moved a goal too close to an obstacle to the nearest free cell
             # (nav.planner.goal_nearest_free): drive there, with the requested heading.
             goal = Pose2D(poses[-1].x, poses[-1].y, goal.yaw)
-        length = float(sum(a.distance_to(b) for a, b in itertools.pairwise(poses)))
-        self.progress.on_plan(length, self.clock.now())
-        self._plan = poses
-        self._blocked_seen_t = None
-        self._plan_goal_index = handle.current_index
+        self.progress.on_plan(path_length_m(poses), self.clock.now())
         self.controller.set_plan(poses, goal, check_yaw=math.isfinite(goal.yaw))
         self.bus.publish(PLAN, Path(self.clock.now(), tuple(poses)))
-        return None
 
     # --- the cycle --------------------------------------------------------------------------
     def _activate(self, pose: Pose2D | None) -> None:
@@ -403,12 +279,9 @@ class NavigatorNode:
         handle.history.append("active")
         self._goal_started_s = self.clock.now()
         self.ladder.reset()
-        self._plan = []
-        self._plan_goal_index = -1
-        self._progress_anchor = pose
+        self.replanner.reset()
         self.progress.reset()
         self.pose_gate.reset()
-        self.keep_out = []
         self.controller.clear_plan()
         self.controller.reset()
         self._cancel_jobs()
@@ -431,33 +304,16 @@ class NavigatorNode:
             if not self.ladder.collect():
                 return
             self.controller.reset()
-            self._plan_job = None
+            self.replanner.abandon()
             # Motion made by the recovery itself is not progress towards the goal.
-            self._progress_anchor = pose
             self.progress.pause(self.clock.now())
             if pose is not None:
-                self._start_plan(pose, handle, "after recovery")
+                self.replanner.start(pose, handle, "after recovery")
             return
         pose = self._usable_pose(handle, pose_msg, now)
         if pose is None:
             return
-        # Planning.
-        err = self._take_plan_result(handle)
-        if err is not None:
-            self._on_plan_error(handle, err, pose)
-            return
-        have_plan = self._plan_goal_index == handle.current_index and len(self._plan) > 0
-        replan_hz = self.cfg.nav.planner.replan_rate_hz
-        if self._plan_job is None:
-            if not have_plan:
-                self._start_plan(pose, handle, "new goal")
-            elif self._plan_blocked_confirmed(pose, now):
-                self._event("nav.path_blocked", handle)
-                self._start_plan(pose, handle, "path blocked")
-            elif replan_hz > 0 and now - self._last_plan_t >= 1.0 / replan_hz:
-                self._start_plan(pose, handle, "periodic")
-        if not have_plan:
-            self._stop_motion()
+        if not self._plan_step(handle, pose, now):
             return
         # Control.
         out = self.controller.compute(pose, now)
@@ -478,7 +334,7 @@ class NavigatorNode:
             self._add_keep_out(pose)
             self._stuck(handle, NoProgressError(
                 f"no progress towards the goal for "
-                f"{self.cfg.nav.recovery.goal_progress_timeout_s:g} s"), pose)
+                f"{self.cfg.nav.recovery.goal_progress_timeout_s:g} s"))
             return
         if out.status in (ControlStatus.BLOCKED, ControlStatus.NO_PROGRESS):
             if out.status is ControlStatus.BLOCKED:
@@ -487,7 +343,7 @@ class NavigatorNode:
                 "the way ahead is blocked and the local controller finds no admissible motion")
                 if out.status is ControlStatus.BLOCKED else NoProgressError(
                 f"no progress for {self.cfg.nav.controller.progress_timeout_s:g} s"))
-            self._stuck(handle, err2, pose)
+            self._stuck(handle, err2)
             return
         self.bus.publish(CMD_VEL_NAV, Twist(now, out.linear_mps, out.angular_radps,
                                             source="controller"))
@@ -499,27 +355,23 @@ class NavigatorNode:
             self._event("nav.waypoint_reached", handle, index=idx)
             handle.current_index += 1
             self.progress.reset()
-            self._plan = []
-            self._plan_goal_index = -1
+            self.replanner.forget_plan()
             self.controller.clear_plan()
-            if self._plan_job is not None:
-                self._plan_job.task.cancel()
-                self._plan_job = None
             return
         handle.distance_remaining_m = 0.0
         handle.eta_s = 0.0
         self._finish(handle, GoalState.SUCCEEDED, None, "goal reached")
 
-    def _on_plan_error(self, handle: GoalHandle, err: NavError, pose: Pose2D) -> None:
+    def _on_plan_error(self, handle: GoalHandle, err: NavError) -> None:
         if isinstance(err, (GoalOutsideMapError, StartOutsideMapError)):
             self._finish(handle, GoalState.ABORTED, err, "cannot plan")
             return
         if isinstance(err, StartBlockedError):
             # Marks under the rover: clear them at once and try again before the ladder.
             self.ladder.clear_under_rover()
-        self._stuck(handle, err, pose)
+        self._stuck(handle, err)
 
-    def _stuck(self, handle: GoalHandle, err: NavError, pose: Pose2D) -> None:
+    def _stuck(self, handle: GoalHandle, err: NavError) -> None:
         """Climb the recovery ladder, or abort when it is exhausted."""
         self._stop_motion()
         climbed = self.ladder.climb(err, self.progress.best_remaining_m)
