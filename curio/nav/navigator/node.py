@@ -15,19 +15,25 @@ the rover is stuck (controller blocked, no progress, no path) it climbs the reco
 (``nav.recovery``) and then aborts with the reason. The operator's ``goto`` and ``cancel``
 commands (``/operator``) act on it; an engaged e-stop cancels the active goal.
 
+The policies are small classes of their own, each unit-tested: :class:`GoalTracker` (the
+handles, waypoints, feedback and goal events), :class:`PoseGate` (no pose, a stale pose or
+localisation lost: hold, then give up), :class:`Replanner` (when to plan; keep-out spots),
+:class:`ProgressMonitor` (closer to the goal along the plan, or stalled) and
+:class:`RecoveryLadder` (rungs, rounds, the running action). :meth:`NavigatorNode.step` is
+the cycle that ties them together.
+
 Events (``/events``): ``nav.goal_accepted``, ``nav.goal_rejected``, ``nav.waypoint_reached``,
 ``nav.goal_succeeded``, ``nav.goal_aborted``, ``nav.goal_preempted``, ``nav.goal_canceled``,
-``nav.path_blocked``, ``nav.recovery`` (from the recovery actions).
+``nav.holding``, ``nav.path_blocked``, ``nav.keep_out``, ``nav.recovery`` (from the recovery
+actions).
 """
 
 from __future__ import annotations
 
 import contextlib
-import itertools
 import logging
 import math
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -36,17 +42,8 @@ from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.geometry import Pose2D
-from curio.core.messages import Event, Path, PoseWithCovariance, Twist
-from curio.core.topics import (
-    CMD_VEL_NAV,
-    ESTOP,
-    EVENTS,
-    LOCAL_PLAN,
-    LOCALIZATION,
-    OPERATOR,
-    PLAN,
-    POSE,
-)
+from curio.core.messages import OperatorCommand, Path, PoseWithCovariance, Twist
+from curio.core.topics import CMD_VEL_NAV, ESTOP, LOCAL_PLAN, LOCALIZATION, OPERATOR, PLAN, POSE
 from curio.nav.api import (
     ControllerFailedError,
     GoalHandle,
@@ -58,8 +55,9 @@ from curio.nav.api import (
     StartBlockedError,
     StartOutsideMapError,
 )
-from curio.nav.controller import ControlStatus, LocalController
+from curio.nav.controller import ControlOutput, ControlStatus, LocalController
 from curio.nav.costs import CostGrid
+from curio.nav.navigator.goals import GoalTracker
 from curio.nav.navigator.ladder import GiveUp, RecoveryLadder
 from curio.nav.navigator.pose_gate import PoseGate
 from curio.nav.navigator.progress import Progress, ProgressMonitor
@@ -98,20 +96,21 @@ class NavigatorNode:
         self.controller = controller
         self.recovery = recovery
         self.validator = GoalValidator(cfg.nav.planner)
-        self._ids = itertools.count(1)
-        self._active: GoalHandle | None = None
-        self._pending: GoalHandle | None = None
+        self.goals = GoalTracker(clock, bus)
+        self.pose_gate = PoseGate(cfg.nav.controller.lost_timeout_s)
         self.replanner = Replanner(cfg.nav.planner, clock, costmap, planner, controller,
                                    KeepOutSpots(cfg.nav.recovery, costmap))
-        self.ladder = RecoveryLadder(cfg.nav.recovery, recovery)
-        self._progress_anchor: Pose2D | None = None
-        self.pose_gate = PoseGate(cfg.nav.controller.lost_timeout_s)
-        self._goal_started_s = 0.0
-        self._sent_zero = True
         self.progress = ProgressMonitor(cfg.nav.recovery.goal_progress_timeout_s)
+        self.ladder = RecoveryLadder(cfg.nav.recovery, recovery)
+        self._sent_zero = True
         self.on_done: list[Callable[[GoalHandle], None]] = []
 
     # --- the action interface -------------------------------------------------------------
+    @property
+    def active(self) -> GoalHandle | None:
+        """The goal being executed (or about to be), if any; finished goals are not active."""
+        return self.goals.active
+
     @property
     def plan_count(self) -> int:
         """How many plans were started."""
@@ -122,14 +121,6 @@ class NavigatorNode:
         """The live keep-out spots ``(x, y, expiry clock s)`` in ``map``."""
         return self.replanner.keep_out.spots
 
-    @property
-    def active(self) -> GoalHandle | None:
-        """The goal being executed (or about to be), if any; finished goals are not active."""
-        for h in (self._pending, self._active):
-            if h is not None and not h.done:
-                return h
-        return None
-
     def send_goal(self, poses: Pose2D | list[Pose2D], *, tag: str = "") -> GoalHandle:
         """Accept a goal or a waypoint sequence (``map``) and return its handle at once.
 
@@ -138,76 +129,72 @@ class NavigatorNode:
         doing).
         """
         seq = [poses] if isinstance(poses, Pose2D) else list(poses)
-        handle = GoalHandle(next(self._ids), seq, tag=tag)
+        handle = self.goals.new(seq, tag)
         try:
             self.validator.check_goals(seq, self.costmap.costs(), self.costmap.resolution_m,
                                        self.costmap.origin)
         except NavError as exc:
-            handle.state = GoalState.REJECTED
-            handle.error = exc
-            handle.history.append(f"rejected: {exc}")
-            self._event("nav.goal_rejected", handle, code=exc.code, message=str(exc))
+            self.goals.reject(handle, exc)
             return handle
-        for old in (self._pending, self._active):
+        for old in (self.goals.pending, self.goals.current):
             if old is not None and not old.done:
                 self._finish(old, GoalState.PREEMPTED, None,
                              f"preempted by goal {handle.goal_id}")
-        self._pending = handle
-        self._active = None
-        handle.history.append("pending")
+        self.goals.queue(handle)
         return handle
 
     def cancel(self, reason: str = "canceled") -> None:
         """Cancel the active goal (PREEMPTED) and stop the rover."""
-        for h in (self._pending, self._active):
+        for h in (self.goals.pending, self.goals.current):
             if h is not None and not h.done:
                 self._finish(h, GoalState.PREEMPTED, None, reason, kind="nav.goal_canceled")
-        self._pending = None
-        self._active = None
+        self.goals.clear()
         self._stop_motion()
 
-    # --- events and state -------------------------------------------------------------------
-    def _event(self, kind: str, handle: GoalHandle | None = None, **detail: Any) -> None:
-        d: dict[str, Any] = dict(detail)
-        if handle is not None:
-            d.setdefault("goal_id", handle.goal_id)
-            if handle.tag:
-                d.setdefault("tag", handle.tag)
-            d.setdefault("goal", [[round(p.x, 3), round(p.y, 3)] for p in handle.poses])
-        self.bus.publish(EVENTS, Event(self.clock.now(), kind, d))
+    # --- the cycle --------------------------------------------------------------------------
+    def step(self) -> None:
+        """One navigation cycle (synchronous; planning and recovery run as tasks): activate a
+        new goal; wait while a recovery action owns the wheels; pass the pose gate; plan;
+        control."""
+        now = self.clock.now()
+        pose_msg = self.bus.latest(POSE)
+        if self.goals.pending is not None:
+            self._activate()
+        handle = self.goals.current
+        if handle is None or handle.done:
+            if not self._sent_zero:
+                self._stop_motion()
+            return
+        if self.ladder.busy:
+            if self.ladder.collect():
+                self._after_recovery(handle, pose_msg)
+            return
+        pose = self._usable_pose(handle, pose_msg, now)
+        if pose is not None and self._plan_step(handle, pose, now):
+            self._control(handle, pose, now)
 
-    def _finish(self, handle: GoalHandle, state: GoalState, error: NavError | None,
-                note: str, kind: str | None = None) -> None:
-        handle.state = state
-        handle.error = error
-        handle.history.append(f"{state.value}: {note}")
-        kinds = {GoalState.SUCCEEDED: "nav.goal_succeeded", GoalState.ABORTED: "nav.goal_aborted",
-                 GoalState.PREEMPTED: "nav.goal_preempted", GoalState.REJECTED: "nav.goal_rejected"}
-        detail: dict[str, Any] = {"note": note,
-                                  "time_s": round(self.clock.now() - self._goal_started_s, 3)}
-        if error is not None:
-            detail["code"] = error.code
-            detail["message"] = str(error)
-        self._event(kind or kinds[state], handle, **detail)
-        if handle is self._active:
-            self._cancel_jobs()
-            self.controller.clear_plan()
-            self.replanner.forget_plan()
-            self.bus.publish(PLAN, Path(self.clock.now(), ()))
-            self._stop_motion()
-        for cb in list(self.on_done):
-            cb(handle)
-
-    def _cancel_jobs(self) -> None:
-        self.replanner.cancel()
-        self.ladder.cancel()
-
-    def _hold(self, now: float) -> None:
-        """Stand still with the goal kept active (no pose, or localisation lost): the time
-        held counts neither against the progress checkers nor as a stuck rover."""
-        self._stop_motion()
-        self.progress.pause(now)
+    def _activate(self) -> None:
+        """The pending goal becomes the current one; every policy starts afresh."""
+        handle = self.goals.activate()
+        if handle is None:
+            return
+        self.ladder.reset()
+        self.replanner.reset()
+        self.progress.reset()
+        self.pose_gate.reset()
+        self.controller.clear_plan()
         self.controller.reset()
+        self._cancel_jobs()
+        self.goals.event("nav.goal_accepted", handle, waypoints=len(handle.poses))
+
+    def _after_recovery(self, handle: GoalHandle, msg: PoseWithCovariance | None) -> None:
+        """A recovery action has ended: plan afresh from where it left the rover."""
+        self.controller.reset()
+        self.replanner.abandon()
+        # Motion made by the recovery itself is not progress towards the goal.
+        self.progress.pause(self.clock.now())
+        if msg is not None:
+            self.replanner.start(msg.pose, handle, "after recovery")
 
     def _usable_pose(self, handle: GoalHandle, msg: PoseWithCovariance | None,
                      now: float) -> Pose2D | None:
@@ -217,26 +204,11 @@ class NavigatorNode:
         if verdict.pose is not None:
             return verdict.pose
         if verdict.newly_lost:
-            self._event("nav.holding", handle, reason="localisation lost")
+            self.goals.event("nav.holding", handle, reason="localisation lost")
         self._hold(now)
         if verdict.error is not None:
             self._finish(handle, GoalState.ABORTED, verdict.error, verdict.reason)
         return None
-
-    def _stop_motion(self) -> None:
-        self.bus.publish(CMD_VEL_NAV, Twist(self.clock.now(), 0.0, 0.0, source="navigator"))
-        self._sent_zero = True
-
-    # --- planning ---------------------------------------------------------------------------
-    def _with_keep_out(self, costs: U8, start: Pose2D, goal: Pose2D) -> U8:
-        """``costs`` with the live keep-out spots made lethal (as the next plan sees them)."""
-        return self.replanner.keep_out.apply(costs, start, goal, self.clock.now())
-
-    def _add_keep_out(self, pose: Pose2D) -> None:
-        """Remember the spot just ahead on the plan as one to route around."""
-        spot = self.replanner.keep_out.add(self.controller, pose, self.clock.now())
-        if spot is not None:
-            self._event("nav.keep_out", self._active, x=round(spot[0], 3), y=round(spot[1], 3))
 
     def _plan_step(self, handle: GoalHandle, pose: Pose2D, now: float) -> bool:
         """Follow a finished plan, start the next one when due; whether there is a plan to
@@ -250,7 +222,7 @@ class NavigatorNode:
         have_plan = self.replanner.has_plan(handle.current_index)
         reason = self.replanner.due(pose, now, have_plan)
         if reason == Replanner.PATH_BLOCKED:
-            self._event("nav.path_blocked", handle)
+            self.goals.event("nav.path_blocked", handle)
         if reason is not None:
             self.replanner.start(pose, handle, reason)
         if not have_plan:
@@ -268,62 +240,13 @@ class NavigatorNode:
         self.controller.set_plan(poses, goal, check_yaw=math.isfinite(goal.yaw))
         self.bus.publish(PLAN, Path(self.clock.now(), tuple(poses)))
 
-    # --- the cycle --------------------------------------------------------------------------
-    def _activate(self, pose: Pose2D | None) -> None:
-        handle = self._pending
-        if handle is None:
-            return
-        self._pending = None
-        self._active = handle
-        handle.state = GoalState.ACTIVE
-        handle.history.append("active")
-        self._goal_started_s = self.clock.now()
-        self.ladder.reset()
-        self.replanner.reset()
-        self.progress.reset()
-        self.pose_gate.reset()
-        self.controller.clear_plan()
-        self.controller.reset()
-        self._cancel_jobs()
-        self._event("nav.goal_accepted", handle, waypoints=len(handle.poses))
-
-    def step(self) -> None:
-        """One navigation cycle (synchronous; planning and recovery run as tasks)."""
-        now = self.clock.now()
-        pose_msg = self.bus.latest(POSE)
-        pose = pose_msg.pose if pose_msg is not None else None
-        if self._pending is not None:
-            self._activate(pose)
-        handle = self._active
-        if handle is None or handle.done:
-            if not self._sent_zero:
-                self._stop_motion()
-            return
-        # A recovery action owns the wheels while it runs.
-        if self.ladder.busy:
-            if not self.ladder.collect():
-                return
-            self.controller.reset()
-            self.replanner.abandon()
-            # Motion made by the recovery itself is not progress towards the goal.
-            self.progress.pause(self.clock.now())
-            if pose is not None:
-                self.replanner.start(pose, handle, "after recovery")
-            return
-        pose = self._usable_pose(handle, pose_msg, now)
-        if pose is None:
-            return
-        if not self._plan_step(handle, pose, now):
-            return
-        # Control.
+    def _control(self, handle: GoalHandle, pose: Pose2D, now: float) -> None:
+        """Ask the controller for a command; judge progress; drive, or climb the ladder."""
         out = self.controller.compute(pose, now)
         self.bus.publish(LOCAL_PLAN, Path(now, tuple(Pose2D(float(x), float(y), float(t))
                                                      for x, y, t in out.trajectory)))
-        later = sum(handle.poses[k].distance_to(handle.poses[k + 1])
-                    for k in range(handle.current_index, len(handle.poses) - 1))
-        handle.distance_remaining_m = out.distance_remaining_m + later
-        handle.eta_s = handle.distance_remaining_m / max(0.05,
-                                                         self.cfg.nav.controller.max_speed_mps)
+        self.goals.feedback(handle, out.distance_remaining_m,
+                            self.cfg.nav.controller.max_speed_mps)
         if out.status is ControlStatus.GOAL_REACHED:
             self._waypoint_reached(handle)
             return
@@ -333,33 +256,31 @@ class NavigatorNode:
         elif progress is Progress.STALLED:
             self._add_keep_out(pose)
             self._stuck(handle, NoProgressError(
-                f"no progress towards the goal for "
-                f"{self.cfg.nav.recovery.goal_progress_timeout_s:g} s"))
+                f"no progress towards the goal for {self.progress.timeout_s:g} s"))
             return
         if out.status in (ControlStatus.BLOCKED, ControlStatus.NO_PROGRESS):
             if out.status is ControlStatus.BLOCKED:
                 self._add_keep_out(pose)
-            err2: NavError = (ControllerFailedError(
-                "the way ahead is blocked and the local controller finds no admissible motion")
-                if out.status is ControlStatus.BLOCKED else NoProgressError(
-                f"no progress for {self.cfg.nav.controller.progress_timeout_s:g} s"))
-            self._stuck(handle, err2)
+            self._stuck(handle, self._controller_error(out))
             return
         self.bus.publish(CMD_VEL_NAV, Twist(now, out.linear_mps, out.angular_radps,
                                             source="controller"))
         self._sent_zero = False
 
+    def _controller_error(self, out: ControlOutput) -> NavError:
+        """The typed failure for a controller that is BLOCKED or makes NO_PROGRESS."""
+        if out.status is ControlStatus.BLOCKED:
+            return ControllerFailedError(
+                "the way ahead is blocked and the local controller finds no admissible motion")
+        return NoProgressError(
+            f"no progress for {self.cfg.nav.controller.progress_timeout_s:g} s")
+
     def _waypoint_reached(self, handle: GoalHandle) -> None:
-        idx = handle.current_index
-        if idx + 1 < len(handle.poses):
-            self._event("nav.waypoint_reached", handle, index=idx)
-            handle.current_index += 1
+        if self.goals.advance(handle):
             self.progress.reset()
             self.replanner.forget_plan()
             self.controller.clear_plan()
             return
-        handle.distance_remaining_m = 0.0
-        handle.eta_s = 0.0
         self._finish(handle, GoalState.SUCCEEDED, None, "goal reached")
 
     def _on_plan_error(self, handle: GoalHandle, err: NavError) -> None:
@@ -381,12 +302,53 @@ class NavigatorNode:
         handle.recoveries += 1
         handle.history.append(f"recovery {climbed}: {err.code}")
 
+    # --- keep-out spots ---------------------------------------------------------------------
+    def _with_keep_out(self, costs: U8, start: Pose2D, goal: Pose2D) -> U8:
+        """``costs`` with the live keep-out spots made lethal (as the next plan sees them)."""
+        return self.replanner.keep_out.apply(costs, start, goal, self.clock.now())
+
+    def _add_keep_out(self, pose: Pose2D) -> None:
+        """Remember the spot just ahead on the plan as one to route around."""
+        spot = self.replanner.keep_out.add(self.controller, pose, self.clock.now())
+        if spot is not None:
+            self.goals.event("nav.keep_out", self.goals.current, x=round(spot[0], 3),
+                             y=round(spot[1], 3))
+
+    # --- ending goals and motion ------------------------------------------------------------
+    def _finish(self, handle: GoalHandle, state: GoalState, error: NavError | None,
+                note: str, kind: str | None = None) -> None:
+        """End a goal; when it is the current one, stop planning, recovery and the rover."""
+        self.goals.finish(handle, state, error, note, kind)
+        if handle is self.goals.current:
+            self._cancel_jobs()
+            self.controller.clear_plan()
+            self.replanner.forget_plan()
+            self.bus.publish(PLAN, Path(self.clock.now(), ()))
+            self._stop_motion()
+        for cb in list(self.on_done):
+            cb(handle)
+
+    def _cancel_jobs(self) -> None:
+        self.replanner.cancel()
+        self.ladder.cancel()
+
+    def _hold(self, now: float) -> None:
+        """Stand still with the goal kept active (no pose, or localisation lost): the time
+        held counts neither against the progress checkers nor as a stuck rover."""
+        self._stop_motion()
+        self.progress.pause(now)
+        self.controller.reset()
+
+    def _stop_motion(self) -> None:
+        self.bus.publish(CMD_VEL_NAV, Twist(self.clock.now(), 0.0, 0.0, source="navigator"))
+        self._sent_zero = True
+
     # --- task -------------------------------------------------------------------------------
-    def _on_operator(self, cmd: Any) -> None:
+    def _on_operator(self, cmd: OperatorCommand) -> None:
         if cmd.action == "goto":
             if cmd.goal is None:
-                self._event("nav.goal_rejected", None, code="invalid_goal",
-                            message="goto without a goal pose", source=cmd.source)
+                self.goals.event("nav.goal_rejected", None, code="invalid_goal",
+                                 message="goto without a goal pose", source=cmd.source)
                 return
             self.send_goal(cmd.goal, tag=f"{cmd.source or 'operator'} goto")
         elif cmd.action == "cancel":
