@@ -28,7 +28,6 @@ in ``laser`` (``robot.laser_pose`` in ``base_link``). Angles in radians, distanc
 
 from __future__ import annotations
 
-import bisect
 import logging
 import math
 from collections.abc import Callable
@@ -50,6 +49,7 @@ from curio.core.messages import (
     PoseWithCovariance,
     Transform,
 )
+from curio.core.pose_history import PoseHistory
 from curio.core.topics import INITIAL_POSE, LOCALIZATION, MAP_TO_ODOM, ODOM, POSE, SCAN
 from curio.estimation.maps import OccupancyGrid
 
@@ -787,8 +787,7 @@ class LocalizerNode:
         self._working = False  # a worker thread owns the localiser
         self._pending: list[Callable[[], None]] = []  # requests made meanwhile, in order
         self.map_to_odom: Pose2D | None = None
-        self._odom: list[Odometry] = []
-        self._stamps: list[float] = []
+        self._odom = PoseHistory(400, interpolation="se2")  # odometry poses in ``odom``
         self.update_times_s: list[float] = []
 
     def global_localization(self) -> None:
@@ -805,51 +804,34 @@ class LocalizerNode:
             self._pending.append(lambda: self.set_pose(pose, std_xy_m, std_yaw_rad))
             return
         self.localizer.initialize(pose, std_xy_m, std_yaw_rad)
-        if self._odom:
-            self._set_correction(pose, self._odom[-1].pose, self._odom[-1].stamp)
+        latest = self._odom.latest()
+        if latest is not None:
+            self._set_correction(pose, latest[1], latest[0])
 
     def _set_correction(self, pose_in_map: Pose2D, odom_pose: Pose2D, stamp: float) -> None:
         self.map_to_odom = pose_in_map @ odom_pose.inverse()
         self.bus.publish(MAP_TO_ODOM, Transform(stamp, self.map_to_odom))
 
     def _odom_at(self, stamp: float) -> Pose2D | None:
-        """Odometry pose at ``stamp``, interpolated between buffered messages."""
-        if not self._odom:
-            return None
-        i = bisect.bisect_left(self._stamps, stamp)
-        if i <= 0:
-            return self._odom[0].pose
-        if i >= len(self._odom):
-            return self._odom[-1].pose
-        a, b = self._odom[i - 1], self._odom[i]
-        span = b.stamp - a.stamp
-        f = 0.0 if span <= 0 else (stamp - a.stamp) / span
-        d = a.pose.inverse() @ b.pose
-        return a.pose @ Pose2D(d.x * f, d.y * f, d.yaw * f)
+        """Odometry pose at ``stamp``, interpolated along the motion between buffered ones."""
+        return self._odom.at(stamp)
 
     def on_odom(self, odom: Odometry) -> None:
         """Buffer odometry and publish ``POSE`` = map→odom ∘ odom."""
-        if self._stamps and odom.stamp < self._stamps[-1]:
-            self._odom.clear()
-            self._stamps.clear()
-        self._odom.append(odom)
-        self._stamps.append(odom.stamp)
-        if len(self._odom) > 400:
-            del self._odom[:200]
-            del self._stamps[:200]
+        self._odom.add(odom.stamp, odom.pose)
         if self.map_to_odom is None:
             if not self.localizer.initialized:
                 self.localizer.initialize(self.start)
             self._set_correction(self.start, odom.pose, odom.stamp)
             self._publish_status(odom.stamp)
-        self._publish_pose(odom)
+        self._publish_pose(odom.stamp, odom.pose)
 
-    def _publish_pose(self, odom: Odometry) -> None:
-        """``POSE`` = map→odom ∘ ``odom``, stamped with the odometry's time."""
+    def _publish_pose(self, stamp: float, odom_pose: Pose2D) -> None:
+        """``POSE`` = map→odom ∘ ``odom_pose``, stamped with the odometry's time."""
         assert self.map_to_odom is not None
         cov = self.localizer.covariance
         self.bus.publish(POSE, PoseWithCovariance(
-            odom.stamp, self.map_to_odom @ odom.pose,
+            stamp, self.map_to_odom @ odom_pose,
             tuple(float(v) for v in cov.ravel()), frame_id="map"))
 
     def on_scan(self, scan: LaserScan) -> None:
@@ -878,7 +860,9 @@ class LocalizerNode:
             del self.update_times_s[:500]
         if self.localizer.state != "lost" or self.localizer.search is None:
             self._set_correction(self.localizer.pose, odom_pose, scan.stamp)
-            self._publish_pose(self._odom[-1])  # the correction at once, not next odom
+            latest = self._odom.latest()
+            assert latest is not None  # the update used an odometry pose
+            self._publish_pose(*latest)  # the correction at once, not next odom
         self._publish_status(scan.stamp)
 
     def on_initial_pose(self, msg: PoseWithCovariance) -> None:

@@ -544,6 +544,8 @@ class MappingNode:
         and rebuilds the grid, hundreds of milliseconds that must not block the event loop on
         a real clock (a worker thread); on a simulated clock scans are mapped inline, keeping
         runs deterministic."""
+        from curio.core.pose_history import StampedHistory
+
         self._inflight: asyncio.Future[tuple[Pose2D, OccupancyGrid | None]] | None = None
         self.bus = bus
         self.clock = clock
@@ -552,7 +554,7 @@ class MappingNode:
         self.on_map = on_map
         self.publish_period_s = publish_period_s
         self._last_publish = -1e9
-        self._odom: list[Odometry] = []
+        self._odom: StampedHistory[Odometry] = StampedHistory(20)  # a scan takes the nearest
         self.map_to_odom: Pose2D | None = None
 
     def on_odom(self, odom: Odometry) -> None:
@@ -560,9 +562,7 @@ class MappingNode:
         from curio.core.messages import LocalizationStatus, PoseWithCovariance, Transform
         from curio.core.topics import LOCALIZATION, MAP_TO_ODOM, POSE
 
-        self._odom.append(odom)
-        if len(self._odom) > 200:
-            del self._odom[:100]
+        self._odom.add(odom.stamp, odom)
         if self.map_to_odom is None:
             self.map_to_odom = self.mapper.pose @ odom.pose.inverse()
             self.bus.publish(MAP_TO_ODOM, Transform(odom.stamp, self.map_to_odom))
@@ -577,9 +577,7 @@ class MappingNode:
             self._after_scan(scan, odom, *self._map_scan(scan, odom))
 
     def _odom_for(self, scan: LaserScan) -> Odometry | None:
-        if not self._odom:
-            return None
-        return min(self._odom[-20:], key=lambda o: abs(o.stamp - scan.stamp))
+        return self._odom.nearest(scan.stamp)
 
     def _map_scan(self, scan: LaserScan, odom: Odometry) -> tuple[Pose2D, OccupancyGrid | None]:
         """The heavy part (thread-safe off the loop: touches the mapper only): the scan's pose
