@@ -47,10 +47,10 @@ from curio.core.messages import (
     LocalizationStatus,
     Odometry,
     PoseWithCovariance,
-    Transform,
 )
 from curio.core.pose_history import PoseHistory
-from curio.core.topics import INITIAL_POSE, LOCALIZATION, MAP_TO_ODOM, ODOM, POSE, SCAN
+from curio.core.topics import INITIAL_POSE, LOCALIZATION, ODOM, SCAN
+from curio.estimation.correction import MapOdomPublisher
 from curio.estimation.maps import OccupancyGrid
 
 __all__ = [
@@ -768,7 +768,7 @@ class Localizer:
         return math.sqrt(self.covariance[2, 2])
 
 
-class LocalizerNode:
+class LocalizerNode(MapOdomPublisher):
     """Bus adapter: ``SCAN`` + ``ODOM`` (+ ``INITIAL_POSE``) → ``POSE``, ``MAP_TO_ODOM``,
     ``LOCALIZATION``.
 
@@ -780,13 +780,12 @@ class LocalizerNode:
         """Filter updates run through ``clock.offload``: in a worker thread on the real clock,
         so a global-search step or a slow update never blocks the event loop; inline on a
         simulated clock, keeping runs deterministic."""
-        self.bus = bus
+        super().__init__(bus)
         self.clock = clock
         self.localizer = localizer
         self.start = start
         self._working = False  # a worker thread owns the localiser
         self._pending: list[Callable[[], None]] = []  # requests made meanwhile, in order
-        self.map_to_odom: Pose2D | None = None
         self._odom = PoseHistory(400, interpolation="se2")  # odometry poses in ``odom``
         self.update_times_s: list[float] = []
 
@@ -796,7 +795,7 @@ class LocalizerNode:
             self._pending.append(self.global_localization)
             return
         self.localizer.global_localization()
-        self._publish_status(self.clock.now())
+        self.publish_status(self.clock.now())
 
     def set_pose(self, pose: Pose2D, std_xy_m: float, std_yaw_rad: float) -> None:
         """Re-initialise around ``pose`` in ``map``."""
@@ -806,11 +805,7 @@ class LocalizerNode:
         self.localizer.initialize(pose, std_xy_m, std_yaw_rad)
         latest = self._odom.latest()
         if latest is not None:
-            self._set_correction(pose, latest[1], latest[0])
-
-    def _set_correction(self, pose_in_map: Pose2D, odom_pose: Pose2D, stamp: float) -> None:
-        self.map_to_odom = pose_in_map @ odom_pose.inverse()
-        self.bus.publish(MAP_TO_ODOM, Transform(stamp, self.map_to_odom))
+            self.set_correction(pose, latest[1], latest[0])
 
     def _odom_at(self, stamp: float) -> Pose2D | None:
         """Odometry pose at ``stamp``, interpolated along the motion between buffered ones."""
@@ -819,20 +814,17 @@ class LocalizerNode:
     def on_odom(self, odom: Odometry) -> None:
         """Buffer odometry and publish ``POSE`` = map→odom ∘ odom."""
         self._odom.add(odom.stamp, odom.pose)
-        if self.map_to_odom is None:
-            if not self.localizer.initialized:
-                self.localizer.initialize(self.start)
-            self._set_correction(self.start, odom.pose, odom.stamp)
-            self._publish_status(odom.stamp)
-        self._publish_pose(odom.stamp, odom.pose)
+        super().on_odom(odom)
 
-    def _publish_pose(self, stamp: float, odom_pose: Pose2D) -> None:
-        """``POSE`` = map→odom ∘ ``odom_pose``, stamped with the odometry's time."""
-        assert self.map_to_odom is not None
-        cov = self.localizer.covariance
-        self.bus.publish(POSE, PoseWithCovariance(
-            stamp, self.map_to_odom @ odom_pose,
-            tuple(float(v) for v in cov.ravel()), frame_id="map"))
+    def initial_pose(self) -> Pose2D:
+        """The start pose (the filter is initialised around it if it was not yet)."""
+        if not self.localizer.initialized:
+            self.localizer.initialize(self.start)
+        return self.start
+
+    def pose_covariance(self, odom: Odometry | None = None) -> tuple[float, ...]:
+        """The filter's covariance."""
+        return tuple(float(v) for v in self.localizer.covariance.ravel())
 
     def on_scan(self, scan: LaserScan) -> None:
         """Run the filter on one scan and update the correction."""
@@ -859,11 +851,12 @@ class LocalizerNode:
         if len(self.update_times_s) > 1000:
             del self.update_times_s[:500]
         if self.localizer.state != "lost" or self.localizer.search is None:
-            self._set_correction(self.localizer.pose, odom_pose, scan.stamp)
+            self.set_correction(self.localizer.pose, odom_pose, scan.stamp)
             latest = self._odom.latest()
             assert latest is not None  # the update used an odometry pose
-            self._publish_pose(*latest)  # the correction at once, not next odom
-        self._publish_status(scan.stamp)
+            # The correction at once, not with the next odometry.
+            self.publish_pose(*latest, self.pose_covariance())
+        self.publish_status(scan.stamp)
 
     def on_initial_pose(self, msg: PoseWithCovariance) -> None:
         """``INITIAL_POSE``: a huge covariance asks for global localisation."""
@@ -874,9 +867,10 @@ class LocalizerNode:
             self.global_localization()
         else:
             self.set_pose(msg.pose, max(std_xy, 0.01), max(std_yaw, 0.01))
-            self._publish_status(self.clock.now())
+            self.publish_status(self.clock.now())
 
-    def _publish_status(self, stamp: float) -> None:
+    def publish_status(self, stamp: float) -> None:
+        """``LOCALIZATION``: the filter's state and spread."""
         loc = self.localizer
         self.bus.publish(LOCALIZATION, LocalizationStatus(
             stamp, loc.state, len(loc.particles), loc.std_xy_m, loc.std_yaw_rad))

@@ -48,6 +48,7 @@ from scipy.sparse.linalg import spsolve
 
 from curio.core.geometry import Pose2D, wrap_angle, wrap_angles
 from curio.estimation.carmen import LogScan
+from curio.estimation.correction import MapOdomPublisher
 from curio.estimation.localization import DistanceField, scan_match
 from curio.estimation.maps import OccupancyGrid
 
@@ -530,7 +531,7 @@ def build_map_from_log(scans: Iterable[LogScan], params: MapperParams | None = N
     return mapper
 
 
-class MappingNode:
+class MappingNode(MapOdomPublisher):
     """Online mapping while the rover is driven: ``SCAN`` + ``ODOM`` → ``POSE``, ``MAP``.
 
     Publishes the map every ``publish_period_s`` through ``on_map`` (the map server) and the
@@ -546,8 +547,8 @@ class MappingNode:
         runs deterministic."""
         from curio.core.pose_history import StampedHistory
 
+        super().__init__(bus)
         self._inflight: asyncio.Future[tuple[Pose2D, OccupancyGrid | None]] | None = None
-        self.bus = bus
         self.clock = clock
         self.laser = laser
         self.mapper = ScanMapper(params, start)
@@ -555,20 +556,26 @@ class MappingNode:
         self.publish_period_s = publish_period_s
         self._last_publish = -1e9
         self._odom: StampedHistory[Odometry] = StampedHistory(20)  # a scan takes the nearest
-        self.map_to_odom: Pose2D | None = None
 
     def on_odom(self, odom: Odometry) -> None:
-        """Publish ``POSE`` = map→odom ∘ odom."""
-        from curio.core.messages import LocalizationStatus, PoseWithCovariance, Transform
-        from curio.core.topics import LOCALIZATION, MAP_TO_ODOM, POSE
-
+        """Buffer odometry and publish ``POSE`` = map→odom ∘ odom."""
         self._odom.add(odom.stamp, odom)
-        if self.map_to_odom is None:
-            self.map_to_odom = self.mapper.pose @ odom.pose.inverse()
-            self.bus.publish(MAP_TO_ODOM, Transform(odom.stamp, self.map_to_odom))
-            self.bus.publish(LOCALIZATION, LocalizationStatus(odom.stamp, "ok"))
-        self.bus.publish(POSE, PoseWithCovariance(odom.stamp, self.map_to_odom @ odom.pose,
-                                                  (0.0025, 0, 0, 0, 0.0025, 0, 0, 0, 0.001)))
+        super().on_odom(odom)
+
+    def initial_pose(self) -> Pose2D:
+        """The mapper's pose (the start)."""
+        return self.mapper.pose
+
+    def publish_status(self, stamp: float) -> None:
+        """``LOCALIZATION``: ``ok`` (the map is being made around the rover)."""
+        from curio.core.messages import LocalizationStatus
+        from curio.core.topics import LOCALIZATION
+
+        self.bus.publish(LOCALIZATION, LocalizationStatus(stamp, "ok"))
+
+    def pose_covariance(self, odom: Odometry) -> tuple[float, ...]:
+        """A fixed covariance (5 cm, 0.03 rad)."""
+        return (0.0025, 0, 0, 0, 0.0025, 0, 0, 0, 0.001)
 
     def on_scan(self, scan: LaserScan) -> None:
         """Map one scan with the latest odometry."""
@@ -596,11 +603,7 @@ class MappingNode:
     def _after_scan(self, scan: LaserScan, odom: Odometry, pose: Pose2D,
                     grid: OccupancyGrid | None) -> None:
         """Publish the correction and the map (on the loop)."""
-        from curio.core.messages import Transform
-        from curio.core.topics import MAP_TO_ODOM
-
-        self.map_to_odom = pose @ odom.pose.inverse()
-        self.bus.publish(MAP_TO_ODOM, Transform(scan.stamp, self.map_to_odom))
+        self.set_correction(pose, odom.pose, scan.stamp)
         if grid is not None:
             self._last_publish = scan.stamp
             self.on_map(grid)
