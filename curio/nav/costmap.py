@@ -462,17 +462,10 @@ class CostmapNode:
     async def run(self) -> None:
         """Update at ``update_rate_hz`` until cancelled."""
         map_sub = self.bus.subscribe(MAP)
-        period = 1.0 / self.cfg.update_rate_hz
-        next_t = self.clock.now()
-        while True:
+        async for now in self.clock.every(1.0 / self.cfg.update_rate_hz, immediate=True):
             for grid_msg in map_sub.drain():
                 self._take_map(grid_msg)
-            self.step(self.clock.now())
-            next_t += period
-            now = self.clock.now()
-            if next_t < now:  # late: skip ahead, do not try to catch up
-                next_t = now + period
-            await self.clock.sleep_until(next_t)
+            self.step(now)
 
     def _take_map(self, msg: GridMessage) -> None:
         if msg.kind != "map":

@@ -365,19 +365,14 @@ class NavigatorNode:
         if callable(warm_up):
             # Compile the planner's kernels before the first goal (off the loop on real time).
             await self.clock.offload(warm_up)
-        next_t = self.clock.now()
         try:
-            while True:
+            async for _ in self.clock.every(period, immediate=True):
                 for cmd in op.drain():
                     self._on_operator(cmd)
                 for e in estop.drain():
                     if e.engaged and self.active is not None:
                         self.cancel("e-stop engaged")
                 self.step()
-                next_t += period
-                if next_t < self.clock.now():  # late: skip ahead, never catch up
-                    next_t = self.clock.now() + period
-                await self.clock.sleep_until(next_t)
         finally:
             op.close()
             estop.close()
