@@ -31,7 +31,6 @@ actions).
 from __future__ import annotations
 
 import contextlib
-import logging
 import math
 from collections.abc import Callable
 
@@ -58,17 +57,14 @@ from curio.nav.api import (
 from curio.nav.controller import ControlOutput, ControlStatus, LocalController
 from curio.nav.costs import CostGrid
 from curio.nav.navigator.goals import GoalTracker
-from curio.nav.navigator.ladder import GiveUp, RecoveryLadder
+from curio.nav.navigator.ladder import GiveUp, RecoveryActions, RecoveryLadder
 from curio.nav.navigator.pose_gate import PoseGate
 from curio.nav.navigator.progress import Progress, ProgressMonitor
 from curio.nav.navigator.replanner import KeepOutSpots, Planner, Replanner
 from curio.nav.planner import path_length_m
-from curio.nav.recovery import Recovery
 from curio.nav.validation import GoalValidator
 
 __all__ = ["InvalidGoalError", "NavigatorNode"]
-
-log = logging.getLogger("curio.nav.navigator")
 
 U8 = npt.NDArray[np.uint8]
 
@@ -82,19 +78,19 @@ class NavigatorNode:
         costmap: the global costmap (snapshots for planning, blocked-path checks).
         planner: the global planner (runs in a worker thread).
         controller: the local controller.
-        recovery: the recovery actions; None aborts at once when stuck.
+        recovery: the recovery actions (:class:`~curio.nav.recovery.Recovery`); None aborts at
+            once when stuck.
     """
 
     def __init__(self, cfg: Config, clock: Clock, bus: Bus, costmap: CostGrid,
                  planner: Planner, controller: LocalController,
-                 recovery: Recovery | None = None) -> None:
+                 recovery: RecoveryActions | None = None) -> None:
         self.cfg = cfg
         self.clock = clock
         self.bus = bus
         self.costmap = costmap
         self.planner = planner
         self.controller = controller
-        self.recovery = recovery
         self.validator = GoalValidator(cfg.nav.planner)
         self.goals = GoalTracker(clock, bus)
         self.pose_gate = PoseGate(cfg.nav.controller.lost_timeout_s)
