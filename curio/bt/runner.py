@@ -21,7 +21,7 @@ from py_trees.behaviour import Behaviour
 from py_trees.common import Status
 
 from curio.core.bus import Bus
-from curio.core.clock import Clock
+from curio.core.clock import Clock, RateStats
 from curio.core.config import BtConfig
 from curio.core.jsonable import to_jsonable
 from curio.core.messages import Event, OperatorCommand, TreeSnapshot
@@ -70,7 +70,7 @@ class TreeRunner:
         self.period_s = 1.0 / tick_hz
         self.tick_count = 0
         self.snapshots_published = 0
-        self.overruns = 0
+        self.rate = RateStats()  # ticks, overruns, worst lateness
         self._nodes = _preorder(root)
         self._ids = {node.id: i for i, node in enumerate(self._nodes)}
         self._last_signature: tuple[Any, ...] | None = None
@@ -79,6 +79,11 @@ class TreeRunner:
         self._closed = False
         for node in self._nodes:
             node.setup()
+
+    @property
+    def overruns(self) -> int:
+        """Ticks that started more than a period late (the missed ones were skipped)."""
+        return self.rate.overruns
 
     # --- ticking ----------------------------------------------------------------------------
 
@@ -96,16 +101,9 @@ class TreeRunner:
         if warning:
             self.ctx.bus.publish(EVENTS, Event(self.ctx.clock.now(), "paths.load_failed",
                                                {"message": warning}))
-        clock = self.ctx.clock
-        due = clock.now()
-        while True:
-            await clock.sleep_until(due)
+        # An overrun skips the missed ticks instead of bursting (counted in ``rate``).
+        async for _ in self.ctx.clock.every(self.period_s, self.rate):
             self.tick()
-            due += self.period_s
-            now = clock.now()
-            if due <= now:  # overrun: skip the missed ticks instead of bursting
-                self.overruns += 1
-                due = now + self.period_s
 
     def inject(self, cmd: OperatorCommand) -> None:
         """Hand a command to the tree as if it came from OPERATOR (next tick)."""

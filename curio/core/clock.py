@@ -97,7 +97,8 @@ class Clock(Protocol):
         ...
 
     def every(
-        self, period_s: float, stats: RateStats | None = None, *, phase_s: float = 0.0
+        self, period_s: float, stats: RateStats | None = None, *, phase_s: float = 0.0,
+        immediate: bool = False,
     ) -> AsyncIterator[float]:
         """Yield the clock time once every ``period_s`` seconds, without drift."""
         ...
@@ -134,18 +135,25 @@ class _ClockMixin(ABC):
         """Sleep until ``now() >= t_s``."""
 
     async def every(
-        self, period_s: float, stats: RateStats | None = None, *, phase_s: float = 0.0
+        self, period_s: float, stats: RateStats | None = None, *, phase_s: float = 0.0,
+        immediate: bool = False,
     ) -> AsyncIterator[float]:
         """Yield the clock time once every ``period_s`` seconds, without drift.
 
-        A late iteration is not repeated to catch up: the next due time skips ahead, and the
-        miss is counted in ``stats.overruns``.
+        The first iteration is due ``phase_s`` from now; like any sleep, waiting for it lets
+        the other tasks run first. With ``immediate`` it runs at once instead, before any other
+        task (as a loop that does its work, then sleeps), and the next ones follow every
+        ``period_s`` from then. A late iteration is not repeated to catch up: the next due time
+        skips ahead, and the miss is counted in ``stats.overruns``.
         """
         if period_s <= 0:
             raise ValueError(f"period_s must be > 0, got {period_s}")
         due = self.now() + phase_s
+        wait = not immediate
         while True:
-            await self.sleep_until(due)
+            if wait:
+                await self.sleep_until(due)
+            wait = True
             now = self.now()
             if stats is not None:
                 stats.ticks += 1

@@ -386,12 +386,7 @@ class EkfNode:
         wheel_sub = self.bus.subscribe(WHEEL_ODOM, maxsize=256)
         imu_sub = self.bus.subscribe(IMU, maxsize=512)
         try:
-            period = 1.0 / self.ekf.cfg.rate_hz
-            due = self.clock.now()
-            while True:
-                await self.clock.sleep_until(due)
-                t = self.clock.now()
-                due = max(due + period, t)
+            async for t in self.clock.every(1.0 / self.ekf.cfg.rate_hz):
                 self._drain(wheel_sub, imu_sub)
                 if self.ekf.t_s is None:
                     continue

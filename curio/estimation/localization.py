@@ -28,7 +28,6 @@ in ``laser`` (``robot.laser_pose`` in ``base_link``). Angles in radians, distanc
 
 from __future__ import annotations
 
-import bisect
 import logging
 import math
 from collections.abc import Callable
@@ -48,9 +47,10 @@ from curio.core.messages import (
     LocalizationStatus,
     Odometry,
     PoseWithCovariance,
-    Transform,
 )
-from curio.core.topics import INITIAL_POSE, LOCALIZATION, MAP_TO_ODOM, ODOM, POSE, SCAN
+from curio.core.pose_history import PoseHistory
+from curio.core.topics import INITIAL_POSE, LOCALIZATION, ODOM, SCAN
+from curio.estimation.correction import MapOdomPublisher
 from curio.estimation.maps import OccupancyGrid
 
 __all__ = [
@@ -780,7 +780,7 @@ class Localizer:
         return math.sqrt(self.covariance[2, 2])
 
 
-class LocalizerNode:
+class LocalizerNode(MapOdomPublisher):
     """Bus adapter: ``SCAN`` + ``ODOM`` (+ ``INITIAL_POSE``) → ``POSE``, ``MAP_TO_ODOM``,
     ``LOCALIZATION``.
 
@@ -792,15 +792,13 @@ class LocalizerNode:
         """Filter updates run through ``clock.offload``: in a worker thread on the real clock,
         so a global-search step or a slow update never blocks the event loop; inline on a
         simulated clock, keeping runs deterministic."""
-        self.bus = bus
+        super().__init__(bus)
         self.clock = clock
         self.localizer = localizer
         self.start = start
         self._working = False  # a worker thread owns the localiser
         self._pending: list[Callable[[], None]] = []  # requests made meanwhile, in order
-        self.map_to_odom: Pose2D | None = None
-        self._odom: list[Odometry] = []
-        self._stamps: list[float] = []
+        self._odom = PoseHistory(400, interpolation="se2")  # odometry poses in ``odom``
         self.update_times_s: list[float] = []
 
     def global_localization(self) -> None:
@@ -809,7 +807,7 @@ class LocalizerNode:
             self._pending.append(self.global_localization)
             return
         self.localizer.global_localization()
-        self._publish_status(self.clock.now())
+        self.publish_status(self.clock.now())
 
     def set_pose(self, pose: Pose2D, std_xy_m: float, std_yaw_rad: float) -> None:
         """Re-initialise around ``pose`` in ``map``."""
@@ -817,52 +815,28 @@ class LocalizerNode:
             self._pending.append(lambda: self.set_pose(pose, std_xy_m, std_yaw_rad))
             return
         self.localizer.initialize(pose, std_xy_m, std_yaw_rad)
-        if self._odom:
-            self._set_correction(pose, self._odom[-1].pose, self._odom[-1].stamp)
-
-    def _set_correction(self, pose_in_map: Pose2D, odom_pose: Pose2D, stamp: float) -> None:
-        self.map_to_odom = pose_in_map @ odom_pose.inverse()
-        self.bus.publish(MAP_TO_ODOM, Transform(stamp, self.map_to_odom))
+        latest = self._odom.latest()
+        if latest is not None:
+            self.set_correction(pose, latest[1], latest[0])
 
     def _odom_at(self, stamp: float) -> Pose2D | None:
-        """Odometry pose at ``stamp``, interpolated between buffered messages."""
-        if not self._odom:
-            return None
-        i = bisect.bisect_left(self._stamps, stamp)
-        if i <= 0:
-            return self._odom[0].pose
-        if i >= len(self._odom):
-            return self._odom[-1].pose
-        a, b = self._odom[i - 1], self._odom[i]
-        span = b.stamp - a.stamp
-        f = 0.0 if span <= 0 else (stamp - a.stamp) / span
-        d = a.pose.inverse() @ b.pose
-        return a.pose @ Pose2D(d.x * f, d.y * f, d.yaw * f)
+        """Odometry pose at ``stamp``, interpolated along the motion between buffered ones."""
+        return self._odom.at(stamp)
 
     def on_odom(self, odom: Odometry) -> None:
         """Buffer odometry and publish ``POSE`` = map→odom ∘ odom."""
-        if self._stamps and odom.stamp < self._stamps[-1]:
-            self._odom.clear()
-            self._stamps.clear()
-        self._odom.append(odom)
-        self._stamps.append(odom.stamp)
-        if len(self._odom) > 400:
-            del self._odom[:200]
-            del self._stamps[:200]
-        if self.map_to_odom is None:
-            if not self.localizer.initialized:
-                self.localizer.initialize(self.start)
-            self._set_correction(self.start, odom.pose, odom.stamp)
-            self._publish_status(odom.stamp)
-        self._publish_pose(odom)
+        self._odom.add(odom.stamp, odom.pose)
+        super().on_odom(odom)
 
-    def _publish_pose(self, odom: Odometry) -> None:
-        """``POSE`` = map→odom ∘ ``odom``, stamped with the odometry's time."""
-        assert self.map_to_odom is not None
-        cov = self.localizer.covariance
-        self.bus.publish(POSE, PoseWithCovariance(
-            odom.stamp, self.map_to_odom @ odom.pose,
-            tuple(float(v) for v in cov.ravel()), frame_id="map"))
+    def initial_pose(self) -> Pose2D:
+        """The start pose (the filter is initialised around it if it was not yet)."""
+        if not self.localizer.initialized:
+            self.localizer.initialize(self.start)
+        return self.start
+
+    def pose_covariance(self, odom: Odometry | None = None) -> tuple[float, ...]:
+        """The filter's covariance."""
+        return tuple(float(v) for v in self.localizer.covariance.ravel())
 
     def on_scan(self, scan: LaserScan) -> None:
         """Run the filter on one scan and update the correction."""
@@ -889,9 +863,12 @@ class LocalizerNode:
         if len(self.update_times_s) > 1000:
             del self.update_times_s[:500]
         if self.localizer.state != "lost" or self.localizer.search is None:
-            self._set_correction(self.localizer.pose, odom_pose, scan.stamp)
-            self._publish_pose(self._odom[-1])  # the correction at once, not next odom
-        self._publish_status(scan.stamp)
+            self.set_correction(self.localizer.pose, odom_pose, scan.stamp)
+            latest = self._odom.latest()
+            assert latest is not None  # the update used an odometry pose
+            # The correction at once, not with the next odometry.
+            self.publish_pose(*latest, self.pose_covariance())
+        self.publish_status(scan.stamp)
 
     def on_initial_pose(self, msg: PoseWithCovariance) -> None:
         """``INITIAL_POSE``: a huge covariance asks for global localisation."""
@@ -902,9 +879,10 @@ class LocalizerNode:
             self.global_localization()
         else:
             self.set_pose(msg.pose, max(std_xy, 0.01), max(std_yaw, 0.01))
-            self._publish_status(self.clock.now())
+            self.publish_status(self.clock.now())
 
-    def _publish_status(self, stamp: float) -> None:
+    def publish_status(self, stamp: float) -> None:
+        """``LOCALIZATION``: the filter's state and spread."""
         loc = self.localizer
         self.bus.publish(LOCALIZATION, LocalizationStatus(
             stamp, loc.state, len(loc.particles), loc.std_xy_m, loc.std_yaw_rad))

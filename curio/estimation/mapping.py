@@ -50,6 +50,7 @@ import numpy.typing as npt
 
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.estimation.carmen import LogScan
+from curio.estimation.correction import MapOdomPublisher
 from curio.estimation.log_odds_kernel import integrate_rays
 from curio.estimation.loop_closure import Keyframe, LoopCloser, LoopParams
 from curio.estimation.maps import OccupancyGrid
@@ -502,7 +503,7 @@ def build_map_from_log(scans: Iterable[LogScan], params: MapperParams | None = N
     return mapper
 
 
-class MappingNode:
+class MappingNode(MapOdomPublisher):
     """Online mapping while the rover is driven: ``SCAN`` + ``ODOM`` → ``POSE``, ``MAP``.
 
     Publishes the map every ``publish_period_s`` through ``on_map`` (the map server) and the
@@ -517,32 +518,38 @@ class MappingNode:
         from every keyframe (hundreds), neither of which may block the event loop on a real
         clock (worker threads), and the drawing must not hold up the next scan; on a simulated
         clock both run inline, keeping runs deterministic."""
+        from curio.core.pose_history import StampedHistory
+
+        super().__init__(bus)
         self._inflight: asyncio.Future[tuple[Pose2D, MapSnapshot | None]] | None = None
         self._drawing: asyncio.Future[OccupancyGrid] | None = None
-        self.bus = bus
         self.clock = clock
         self.laser = laser
         self.mapper = ScanMapper(params, start)
         self.on_map = on_map
         self.publish_period_s = publish_period_s
         self._last_publish = -1e9
-        self._odom: list[Odometry] = []
-        self.map_to_odom: Pose2D | None = None
+        self._odom: StampedHistory[Odometry] = StampedHistory(20)  # a scan takes the nearest
 
     def on_odom(self, odom: Odometry) -> None:
-        """Publish ``POSE`` = map→odom ∘ odom."""
-        from curio.core.messages import LocalizationStatus, PoseWithCovariance, Transform
-        from curio.core.topics import LOCALIZATION, MAP_TO_ODOM, POSE
+        """Buffer odometry and publish ``POSE`` = map→odom ∘ odom."""
+        self._odom.add(odom.stamp, odom)
+        super().on_odom(odom)
 
-        self._odom.append(odom)
-        if len(self._odom) > 200:
-            del self._odom[:100]
-        if self.map_to_odom is None:
-            self.map_to_odom = self.mapper.pose @ odom.pose.inverse()
-            self.bus.publish(MAP_TO_ODOM, Transform(odom.stamp, self.map_to_odom))
-            self.bus.publish(LOCALIZATION, LocalizationStatus(odom.stamp, "ok"))
-        self.bus.publish(POSE, PoseWithCovariance(odom.stamp, self.map_to_odom @ odom.pose,
-                                                  (0.0025, 0, 0, 0, 0.0025, 0, 0, 0, 0.001)))
+    def initial_pose(self) -> Pose2D:
+        """The mapper's pose (the start)."""
+        return self.mapper.pose
+
+    def publish_status(self, stamp: float) -> None:
+        """``LOCALIZATION``: ``ok`` (the map is being made around the rover)."""
+        from curio.core.messages import LocalizationStatus
+        from curio.core.topics import LOCALIZATION
+
+        self.bus.publish(LOCALIZATION, LocalizationStatus(stamp, "ok"))
+
+    def pose_covariance(self, odom: Odometry) -> tuple[float, ...]:
+        """A fixed covariance (5 cm, 0.03 rad)."""
+        return (0.0025, 0, 0, 0, 0.0025, 0, 0, 0, 0.001)
 
     def on_scan(self, scan: LaserScan) -> None:
         """Map one scan with the latest odometry."""
@@ -551,9 +558,7 @@ class MappingNode:
             self._after_scan(scan, odom, *self._map_scan(scan, odom))
 
     def _odom_for(self, scan: LaserScan) -> Odometry | None:
-        if not self._odom:
-            return None
-        return min(self._odom[-20:], key=lambda o: abs(o.stamp - scan.stamp))
+        return self._odom.nearest(scan.stamp)
 
     def _map_scan(self, scan: LaserScan, odom: Odometry) -> tuple[Pose2D, MapSnapshot | None]:
         """The heavy part (thread-safe off the loop: touches the mapper only): the scan's pose
@@ -572,11 +577,7 @@ class MappingNode:
     def _after_scan(self, scan: LaserScan, odom: Odometry, pose: Pose2D,
                     snap: MapSnapshot | None) -> None:
         """Publish the correction (on the loop) and start drawing the map if one is due."""
-        from curio.core.messages import Transform
-        from curio.core.topics import MAP_TO_ODOM
-
-        self.map_to_odom = pose @ odom.pose.inverse()
-        self.bus.publish(MAP_TO_ODOM, Transform(scan.stamp, self.map_to_odom))
+        self.set_correction(pose, odom.pose, scan.stamp)
         if snap is not None and self._draw(snap):
             self._last_publish = scan.stamp
 

@@ -30,12 +30,11 @@ from curio.core.messages import (
     GridMessage,
     LocalizationStatus,
     Odometry,
-    PoseWithCovariance,
-    Transform,
 )
 from curio.core.parts import Part, Parts
-from curio.core.topics import LOCALIZATION, MAP, MAP_TO_ODOM, ODOM, POSE, WHEEL_ODOM
+from curio.core.topics import LOCALIZATION, MAP, ODOM, WHEEL_ODOM
 from curio.drivers.modes import driver_mode
+from curio.estimation.correction import MapOdomPublisher
 from curio.estimation.ekf import EkfNode, OdomEkf
 from curio.estimation.localization import Localizer, LocalizerNode
 from curio.estimation.mapping import MapperParams, MappingNode
@@ -96,7 +95,7 @@ def start_pose(cfg: Config, robot: RobotModel) -> Pose2D:
     return robot.home
 
 
-class OdomRelay:
+class OdomRelay(MapOdomPublisher):
     """Pass wheel odometry through as ``ODOM`` and compose ``POSE`` with a fixed ``map → odom``.
 
     Used when both the EKF and localisation are disabled (pure dead reckoning); ``map → odom``
@@ -104,28 +103,33 @@ class OdomRelay:
     """
 
     def __init__(self, bus: Bus, start: Pose2D, *, relay_odom: bool, compose_pose: bool) -> None:
-        self._bus = bus
+        super().__init__(bus)
         self._start = start
         self._relay_odom = relay_odom
         self._compose_pose = compose_pose
-        self.map_to_odom: Pose2D | None = None
 
     def on_odom(self, odom: Odometry) -> None:
         """Handle one wheel-odometry message."""
         if self._relay_odom:
-            self._bus.publish(ODOM, odom)
-        if not self._compose_pose:
-            return
-        if self.map_to_odom is None:
-            self.map_to_odom = self._start @ odom.pose.inverse()
-            self._bus.publish(MAP_TO_ODOM, Transform(odom.stamp, self.map_to_odom))
-            self._bus.publish(LOCALIZATION, LocalizationStatus(odom.stamp, "off"))
-        self._bus.publish(POSE, PoseWithCovariance(odom.stamp, self.map_to_odom @ odom.pose,
-                                                   odom.covariance))
+            self.bus.publish(ODOM, odom)
+        if self._compose_pose:
+            super().on_odom(odom)
+
+    def initial_pose(self) -> Pose2D:
+        """The start pose."""
+        return self._start
+
+    def publish_status(self, stamp: float) -> None:
+        """``LOCALIZATION``: ``off``."""
+        self.bus.publish(LOCALIZATION, LocalizationStatus(stamp, "off"))
+
+    def pose_covariance(self, odom: Odometry) -> tuple[float, ...]:
+        """The odometry's own covariance."""
+        return odom.covariance
 
     async def run(self) -> None:
         """Relay every odometry message (``WHEEL_ODOM``, or ``ODOM`` when only composing)."""
-        sub = self._bus.subscribe(WHEEL_ODOM if self._relay_odom else ODOM, maxsize=8)
+        sub = self.bus.subscribe(WHEEL_ODOM if self._relay_odom else ODOM, maxsize=8)
         try:
             async for odom in sub:
                 self.on_odom(odom)

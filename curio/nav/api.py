@@ -20,6 +20,7 @@ __all__ = [
     "GoalHandle",
     "GoalOutsideMapError",
     "GoalState",
+    "InvalidGoalError",
     "LocalizationLostError",
     "NavError",
     "Navigator",
@@ -46,6 +47,12 @@ class StartBlockedError(NavError):
     """The rover's pose is inside an obstacle in the costmap."""
 
     code = "start_blocked"
+
+
+class InvalidGoalError(NavError):
+    """The goal is not a usable pose (empty, not finite)."""
+
+    code = "invalid_goal"
 
 
 class GoalOutsideMapError(NavError):

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -57,6 +57,12 @@ __all__ = [
     "ControlStatus",
     "LocalController",
     "ProgressChecker",
+    "lookahead_m",
+    "pursuit_curvature",
+    "regulated_speed",
+    "rollout",
+    "rotate_hysteresis",
+    "to_base_link",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -139,6 +145,93 @@ def rollout(pose: Pose2D, linear_mps: float, angular_radps: float, horizon_s: fl
     out[:, 1] = pose.y + s * local[:, 0] + c * local[:, 1]
     out[:, 2] = pose.yaw + local[:, 2]
     return out
+
+
+def to_base_link(pose: Pose2D, x_m: float, y_m: float) -> tuple[float, float]:
+    """A ``map`` point in the rover's frame (``base_link``) at ``pose``."""
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    dx, dy = x_m - pose.x, y_m - pose.y
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+def lookahead_m(cfg: ControllerConfig, dist_goal_m: float, narrow: bool) -> tuple[float, float]:
+    """The lookahead distance (m) and the heading error above which to turn in place (rad):
+    ``lookahead_m`` (no nearer than ``min_lookahead_m``, no farther than the goal) and
+    ``rotate_enter_rad``; ``narrow_lookahead_m`` and ``narrow_rotate_enter_rad`` at most
+    before a ``narrow`` passage."""
+    lookahead = max(cfg.min_lookahead_m, min(cfg.lookahead_m, dist_goal_m))
+    rotate_enter = cfg.rotate_enter_rad
+    if narrow:
+        lookahead = min(lookahead, cfg.narrow_lookahead_m)
+        rotate_enter = min(rotate_enter, cfg.narrow_rotate_enter_rad)
+    return lookahead, rotate_enter
+
+
+def rotate_hysteresis(rotating: bool, heading_err_rad: float, enter_rad: float,
+                      exit_rad: float) -> bool:
+    """Whether to turn in place: start above ``enter_rad`` (never below ``exit_rad``) of
+    heading error, keep turning until it is under ``exit_rad``."""
+    if rotating:
+        return not abs(heading_err_rad) < exit_rad
+    return abs(heading_err_rad) > max(enter_rad, exit_rad)
+
+
+def pursuit_curvature(x_r: float, y_r: float, kmax: float) -> float:
+    """Pure pursuit: the curvature (1/m) of the arc through the lookahead point ``(x_r, y_r)``
+    in ``base_link``, ``2·y / L²``, clamped to ``±kmax``."""
+    l2 = x_r * x_r + y_r * y_r
+    kappa = 2.0 * y_r / l2 if l2 > 1e-9 else 0.0
+    return max(-kmax, min(kmax, kappa))
+
+
+def regulated_speed(cfg: ControllerConfig, robot: RobotModel, kappa: float, clearance_m: float,
+                    dist_goal_m: float, settling: bool) -> tuple[float, str]:
+    """The target forward speed (m/s) on an arc of curvature ``kappa`` and why it is lower
+    than ``max_speed_mps``: the fastest wheel, the yaw-rate limit, the clearance to
+    obstacles, the approach profile to the goal, the steering servos ``settling``."""
+    detail = ""
+    # Fastest wheel on this arc (hardware.md §2.2): |v|·max hypot(x κ, 1 − y κ).
+    v_target = min(cfg.max_speed_mps, robot.max_speed_on_arc_mps(kappa))
+    # Angular limit on the arc.
+    if abs(kappa) > 1e-9:
+        v_target = min(v_target, cfg.max_angular_radps / abs(kappa))
+    if clearance_m < cfg.slow_clearance_m and cfg.slow_clearance_m > 0:
+        frac = max(cfg.slow_min_fraction, clearance_m / cfg.slow_clearance_m)
+        v_target *= frac
+        detail = "near an obstacle"
+    d_stop = max(0.0, dist_goal_m - 0.5 * cfg.xy_goal_tolerance_m)
+    v_goal = math.sqrt(2.0 * cfg.approach_decel_mps2 * d_stop)
+    if v_goal < v_target:
+        v_target = max(cfg.min_speed_mps, v_goal)
+        detail = detail or "approaching the goal"
+    if settling:
+        v_target = 0.0
+        detail = "steering servos settling"
+    return v_target, detail
+
+
+@dataclass(frozen=True)
+class _Cycle:
+    """Where one control cycle finds the rover: ``pose`` in ``map`` at clock ``now_s``, the
+    nearest plan index ``i``, straight-line and along-plan distances to the goal (m)."""
+
+    pose: Pose2D
+    now_s: float
+    i: int
+    dist_goal: float
+    remaining: float
+
+
+@dataclass(frozen=True)
+class _Aim:
+    """Where the rover steers: the lookahead ``point`` in ``map``, the same in ``base_link``
+    (``x_r``, ``y_r``), the heading error to it and the turn-in-place threshold (rad)."""
+
+    point: tuple[float, float]
+    x_r: float
+    y_r: float
+    heading_err: float
+    rotate_enter_rad: float
 
 
 class LocalController:
@@ -343,7 +436,7 @@ class LocalController:
             return False, int(costs[0])
         return bool((costs[1:] >= LETHAL).any()), int(costs.max())
 
-    # --- the control law --------------------------------------------------------------------
+    # --- the control law: a pipeline of stages -------------------------------------------
     def compute(self, pose: Pose2D, now_s: float,
                 velocity: tuple[float, float] | None = None) -> ControlOutput:
         """One control cycle from the rover's ``pose`` in ``map`` at clock time ``now_s``.
@@ -351,113 +444,110 @@ class LocalController:
         ``velocity`` (measured v, ω) is accepted for interface symmetry; the controller uses
         its own last command as the state of its acceleration limits (open loop, as the safety
         stage).
+
+        The stages: where the rover is on the plan (:meth:`_track`); at the goal, turn to the
+        final heading (:meth:`_final_heading`); otherwise choose the lookahead point
+        (:meth:`_aim`, shorter before a narrow passage), decide whether to turn in place
+        (:func:`rotate_hysteresis`), and either go on backing out, turn in place
+        (:meth:`_rotate_in_place`) or follow the arc (:meth:`_pursue`: pure pursuit, speed
+        regulation, then :meth:`_guard`: collision check, sampled avoidance, reversing).
         """
-        cfg = self.cfg
         if self.goal is None or len(self.plan) == 0:
             self._v = self._w = 0.0
             return ControlOutput(0.0, 0.0, ControlStatus.IDLE)
-        goal = self.goal
-        dist_goal = pose.distance_to(goal)
+        cyc = self._track(pose, now_s)
+        if self._xy_reached:
+            return self._final_heading(cyc, self.goal)
+        aim = self._aim(cyc)
+        rotating = rotate_hysteresis(self._rotating, aim.heading_err, aim.rotate_enter_rad,
+                                     self.cfg.rotate_exit_rad)
+        if self._rotating and not rotating:
+            self._settle_until = now_s + self.cfg.steer_settle_s
+        self._rotating = rotating
+        if now_s < self._reverse_until:
+            out = self._continue_reverse(cyc)
+            if out is not None:
+                return out
+        if self._rotating:
+            return self._rotate_in_place(cyc, aim)
+        return self._pursue(cyc, aim)
+
+    def _track(self, pose: Pose2D, now_s: float) -> _Cycle:
+        """Stage 0: the nearest plan pose, the distances left, the goal checker's xy latch."""
+        assert self.goal is not None
+        dist_goal = pose.distance_to(self.goal)
         i = self._nearest_index(pose)
         remaining = float(self._cum[-1] - self._cum[i]) + float(
             math.hypot(self.plan[i, 0] - pose.x, self.plan[i, 1] - pose.y))
         if remaining < self._best_remaining - 0.3:
             self._best_remaining = remaining
             self._reverses = 0
-        if dist_goal <= cfg.xy_goal_tolerance_m:
+        if dist_goal <= self.cfg.xy_goal_tolerance_m:
             self._xy_reached = True
-        # --- goal: rotate to the final heading, then done.
-        if self._xy_reached:
-            yaw_err = wrap_angle(goal.yaw - pose.yaw) if self.check_yaw else 0.0
-            if abs(yaw_err) <= cfg.yaw_goal_tolerance_rad:
-                self._v = self._w = 0.0
-                return ControlOutput(0.0, 0.0, ControlStatus.GOAL_REACHED,
-                                     distance_to_goal_m=dist_goal, distance_remaining_m=0.0)
-            v, w = self._turn(yaw_err)
-            return self._finish(pose, v, w, ControlStatus.ROTATING, dist_goal, 0.0, now_s,
-                                "final heading")
-        # --- the lookahead point (short in and before a narrow passage: track the centred
-        # plan tightly and turn in place sooner, so the square footprint enters aligned).
-        lookahead = max(cfg.min_lookahead_m, min(cfg.lookahead_m, dist_goal))
-        rotate_enter = cfg.rotate_enter_rad
-        if self._narrow_ahead(i):
-            lookahead = min(lookahead, cfg.narrow_lookahead_m)
-            rotate_enter = min(rotate_enter, cfg.narrow_rotate_enter_rad)
-        lx, ly = self._lookahead_point(pose, i, lookahead)
-        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        dx, dy = lx - pose.x, ly - pose.y
-        x_r = c * dx + s * dy
-        y_r = -s * dx + c * dy
-        heading_err = math.atan2(y_r, x_r)
-        if self._rotating:
-            if abs(heading_err) < cfg.rotate_exit_rad:
-                self._rotating = False
-                self._settle_until = now_s + cfg.steer_settle_s
-        elif abs(heading_err) > max(rotate_enter, cfg.rotate_exit_rad):
-            self._rotating = True
-        lx_ly = (lx, ly)
-        if now_s < self._reverse_until:
-            out_r = self._continue_reverse(pose, dist_goal, remaining, now_s)
-            if out_r is not None:
-                return out_r
-        if self._rotating:
-            if abs(self._v) < 1e-3 and self._rotation_blocked(pose, heading_err):
-                # The corners cannot swing round here: back out to make room.
-                out_r = self._start_reverse(pose, lx_ly, dist_goal, remaining, now_s)
-                if out_r is not None:
-                    return out_r
-                return self._blocked(pose, dist_goal, remaining, now_s)
-            v, w = self._turn(heading_err)
-            out = self._finish(pose, v, w, ControlStatus.ROTATING, dist_goal, remaining, now_s,
-                               "turning towards the path")
-            return out
-        # --- pure pursuit.
-        l2 = x_r * x_r + y_r * y_r
-        kappa = 2.0 * y_r / l2 if l2 > 1e-9 else 0.0
+        return _Cycle(pose, now_s, i, dist_goal, remaining)
+
+    def _final_heading(self, cyc: _Cycle, goal: Pose2D) -> ControlOutput:
+        """Stage 1, at the goal: turn in place to its heading, then report it reached."""
+        yaw_err = wrap_angle(goal.yaw - cyc.pose.yaw) if self.check_yaw else 0.0
+        if abs(yaw_err) <= self.cfg.yaw_goal_tolerance_rad:
+            self._v = self._w = 0.0
+            return ControlOutput(0.0, 0.0, ControlStatus.GOAL_REACHED,
+                                 distance_to_goal_m=cyc.dist_goal, distance_remaining_m=0.0)
+        v, w = self._turn(yaw_err)
+        return self._finish(replace(cyc, remaining=0.0), v, w, ControlStatus.ROTATING,
+                            "final heading")
+
+    def _aim(self, cyc: _Cycle) -> _Aim:
+        """Stage 2: the lookahead point (short in and before a narrow passage: track the
+        centred plan tightly and turn in place sooner, so the square footprint enters
+        aligned), in ``base_link``."""
+        lookahead, rotate_enter = lookahead_m(self.cfg, cyc.dist_goal, self._narrow_ahead(cyc.i))
+        lx, ly = self._lookahead_point(cyc.pose, cyc.i, lookahead)
+        x_r, y_r = to_base_link(cyc.pose, lx, ly)
+        return _Aim((lx, ly), x_r, y_r, math.atan2(y_r, x_r), rotate_enter)
+
+    def _rotate_in_place(self, cyc: _Cycle, aim: _Aim) -> ControlOutput:
+        """Stage 3: turn towards the lookahead point; where the corners cannot swing round,
+        back out to make room (or report blocked)."""
+        if abs(self._v) < 1e-3 and self._rotation_blocked(cyc.pose, aim.heading_err):
+            return self._start_reverse(cyc, aim.point) or self._blocked(cyc)
+        v, w = self._turn(aim.heading_err)
+        return self._finish(cyc, v, w, ControlStatus.ROTATING, "turning towards the path")
+
+    def _pursue(self, cyc: _Cycle, aim: _Aim) -> ControlOutput:
+        """Stage 4: pure pursuit on the arc to the lookahead point at the regulated speed,
+        within the curvature-rate and acceleration limits."""
+        cfg = self.cfg
         kmax = 1.0 / cfg.min_turning_radius_m if cfg.min_turning_radius_m > 0 else 1e9
-        kappa = max(-kmax, min(kmax, kappa))
-        v_target = cfg.max_speed_mps
-        detail = ""
-        # Fastest wheel on this arc (hardware.md §2.2): |v|·max hypot(x κ, 1 − y κ).
-        v_target = min(v_target, self.robot.max_speed_on_arc_mps(kappa))
-        # Angular limit on the arc.
-        if abs(kappa) > 1e-9:
-            v_target = min(v_target, cfg.max_angular_radps / abs(kappa))
-        # Clearance regulation.
-        clearance = self._clearance_m(pose)
-        if clearance < cfg.slow_clearance_m and cfg.slow_clearance_m > 0:
-            frac = max(cfg.slow_min_fraction, clearance / cfg.slow_clearance_m)
-            v_target *= frac
-            detail = "near an obstacle"
-        # Approach profile to the goal.
-        d_stop = max(0.0, dist_goal - 0.5 * cfg.xy_goal_tolerance_m)
-        v_goal = math.sqrt(2.0 * cfg.approach_decel_mps2 * d_stop)
-        if v_goal < v_target:
-            v_target = max(cfg.min_speed_mps, v_goal)
-            detail = detail or "approaching the goal"
-        if now_s < self._settle_until:
-            v_target = 0.0
-            detail = "steering servos settling"
-        # Curvature rate and acceleration.
+        kappa = pursuit_curvature(aim.x_r, aim.y_r, kmax)
+        v_target, detail = regulated_speed(cfg, self.robot, kappa, self._clearance_m(cyc.pose),
+                                           cyc.dist_goal, cyc.now_s < self._settle_until)
         if abs(self._v) < 1e-3 and abs(self._w) < 1e-3:
             self._kappa = kappa  # standing still: the servos swing while the speed ramps up
         else:
             self._kappa = approach(self._kappa, kappa, cfg.max_curvature_rate_per_s * self.dt_s)
         v = approach(self._v, v_target, cfg.max_accel_mps2 * self.dt_s)
+        return self._guard(cyc, aim, kmax, v, v_target, detail)
+
+    def _guard(self, cyc: _Cycle, aim: _Aim, kmax: float, v: float, v_target: float,
+               detail: str) -> ControlOutput:
+        """Stage 5: check the arc against the costmap; when it collides, drive the best
+        sampled arc instead, or back out, or report blocked."""
+        cfg = self.cfg
         w = v * self._kappa
         status = ControlStatus.FOLLOWING
         # Check the arc over a distance, not a time: creeping slowly must not make it look safe.
         check_v = max(v, v_target, 0.5 * cfg.max_speed_mps)
-        traj = rollout(pose, check_v, check_v * self._kappa, cfg.collision_horizon_s, 0.1)
+        traj = rollout(cyc.pose, check_v, check_v * self._kappa, cfg.collision_horizon_s, 0.1)
         hit, _ = self._collides(traj)
         if hit:
-            alt = self._sample(pose, x_r, y_r, kmax)
+            alt = self._sample(cyc.pose, aim.x_r, aim.y_r, kmax)
             if alt is None:
-                if abs(self._v) < 0.05 and abs(heading_err) > cfg.rotate_exit_rad:
-                    out_r = self._start_reverse(pose, lx_ly, dist_goal, remaining, now_s)
-                    if out_r is not None:
-                        return out_r
-                return self._blocked(pose, dist_goal, remaining, now_s)
+                if abs(self._v) < 0.05 and abs(aim.heading_err) > cfg.rotate_exit_rad:
+                    out = self._start_reverse(cyc, aim.point)
+                    if out is not None:
+                        return out
+                return self._blocked(cyc)
             v_alt, k_alt = alt
             status = ControlStatus.AVOIDING
             detail = "avoiding an obstacle"
@@ -465,7 +555,7 @@ class LocalController:
             v = approach(self._v, v_alt, cfg.max_accel_mps2 * self.dt_s)
             w = v * self._kappa
         self._blocked_since = None
-        return self._finish(pose, v, w, status, dist_goal, remaining, now_s, detail)
+        return self._finish(cyc, v, w, status, detail)
 
     def _rotation_blocked(self, pose: Pose2D, err: float) -> bool:
         """Whether turning in place towards ``err`` would sweep a corner into an obstacle."""
@@ -479,8 +569,7 @@ class LocalController:
     REVERSE_TIME_S = 1.5
     MAX_REVERSES = 4  # per 0.3 m of progress along the plan
 
-    def _start_reverse(self, pose: Pose2D, target: tuple[float, float], dist_goal: float,
-                       remaining: float, now_s: float) -> ControlOutput | None:
+    def _start_reverse(self, cyc: _Cycle, target: tuple[float, float]) -> ControlOutput | None:
         """Back out along the admissible arc that best turns the rover towards ``target``
         (a three-point turn where it cannot turn in place); None if none is admissible."""
         if self.costmap is None or self._reverses >= self.MAX_REVERSES:
@@ -488,7 +577,7 @@ class LocalController:
         kmax = 1.0 / max(self.cfg.min_turning_radius_m, 0.05)
         kappas = np.linspace(-kmax, kmax, 9)
         v = -self.REVERSE_SPEED_MPS
-        trajs = np.stack([rollout(pose, v, v * float(k), 1.0, 0.1) for k in kappas])
+        trajs = np.stack([rollout(cyc.pose, v, v * float(k), 1.0, 0.1) for k in kappas])
         costs = self.trajectory_costs(trajs)
         ok = ~(costs[:, 1:] >= LETHAL).any(axis=1)
         if not ok.any():
@@ -501,15 +590,16 @@ class LocalController:
         err[~ok] = np.inf
         j = int(np.argmin(err))
         self._reverse_kappa = float(kappas[j])
-        self._reverse_until = now_s + self.REVERSE_TIME_S
+        self._reverse_until = cyc.now_s + self.REVERSE_TIME_S
         self._reverses += 1
         self._rotating = False
-        return self._continue_reverse(pose, dist_goal, remaining, now_s)
+        return self._continue_reverse(cyc)
 
-    def _continue_reverse(self, pose: Pose2D, dist_goal: float, remaining: float,
-                          now_s: float) -> ControlOutput | None:
+    def _continue_reverse(self, cyc: _Cycle) -> ControlOutput | None:
+        """Go on backing out along the chosen arc; None (and stop reversing) when it
+        collides."""
         v_target = -self.REVERSE_SPEED_MPS
-        traj = rollout(pose, v_target, v_target * self._reverse_kappa, 0.6, 0.1)
+        traj = rollout(cyc.pose, v_target, v_target * self._reverse_kappa, 0.6, 0.1)
         hit, _ = self._collides(traj)
         if hit:
             self._reverse_until = -math.inf
@@ -518,8 +608,7 @@ class LocalController:
         v = approach(self._v, v_target, self.cfg.max_accel_mps2 * self.dt_s)
         w = v * self._kappa
         self._blocked_since = None
-        return self._finish(pose, v, w, ControlStatus.AVOIDING, dist_goal, remaining, now_s,
-                            "backing out to make room to turn")
+        return self._finish(cyc, v, w, ControlStatus.AVOIDING, "backing out to make room to turn")
 
     def _turn(self, err: float) -> tuple[float, float]:
         """In place towards ``err`` (radians): first stop driving, then turn."""
@@ -577,26 +666,28 @@ class LocalController:
             return float(vs[j]), float(ks[j])
         return None
 
-    def _blocked(self, pose: Pose2D, dist_goal: float, remaining: float,
-                 now_s: float) -> ControlOutput:
+    def _blocked(self, cyc: _Cycle) -> ControlOutput:
+        """No admissible motion: brake; BLOCKED once that has lasted ``blocked_timeout_s``."""
         if self._blocked_since is None:
-            self._blocked_since = now_s
+            self._blocked_since = cyc.now_s
         v = approach(self._v, 0.0, 2.0 * self.cfg.max_accel_mps2 * self.dt_s)
         w = v * self._kappa
         self._v, self._w = v, w
         status = (ControlStatus.BLOCKED
-                  if now_s - self._blocked_since >= self.cfg.blocked_timeout_s
+                  if cyc.now_s - self._blocked_since >= self.cfg.blocked_timeout_s
                   else ControlStatus.AVOIDING)
-        traj = rollout(pose, v, w, self.cfg.collision_horizon_s, 0.1)
-        self.progress.update(pose, now_s)
-        return ControlOutput(v, w, status, traj, dist_goal, remaining,
+        traj = rollout(cyc.pose, v, w, self.cfg.collision_horizon_s, 0.1)
+        self.progress.update(cyc.pose, cyc.now_s)
+        return ControlOutput(v, w, status, traj, cyc.dist_goal, cyc.remaining,
                              "no admissible motion: the way is blocked")
 
-    def _finish(self, pose: Pose2D, v: float, w: float, status: ControlStatus,
-                dist_goal: float, remaining: float, now_s: float, detail: str) -> ControlOutput:
+    def _finish(self, cyc: _Cycle, v: float, w: float, status: ControlStatus,
+                detail: str) -> ControlOutput:
+        """Command ``(v, w)``: remember it, predict its trajectory, feed the progress
+        checker (NO_PROGRESS and zero when it reports the rover stuck)."""
         self._v, self._w = v, w
-        traj = rollout(pose, v, w, self.cfg.collision_horizon_s, 0.1)
-        if not self.progress.update(pose, now_s):
-            return ControlOutput(0.0, 0.0, ControlStatus.NO_PROGRESS, traj, dist_goal,
-                                 remaining, "no progress")
-        return ControlOutput(v, w, status, traj, dist_goal, remaining, detail)
+        traj = rollout(cyc.pose, v, w, self.cfg.collision_horizon_s, 0.1)
+        if not self.progress.update(cyc.pose, cyc.now_s):
+            return ControlOutput(0.0, 0.0, ControlStatus.NO_PROGRESS, traj, cyc.dist_goal,
+                                 cyc.remaining, "no progress")
+        return ControlOutput(v, w, status, traj, cyc.dist_goal, cyc.remaining, detail)

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,8 +35,9 @@ from scipy import ndimage
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import CostmapConfig
-from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.geometry import Pose2D
 from curio.core.messages import GridMessage, LaserScan
+from curio.core.pose_history import PoseHistory
 from curio.core.topics import COSTMAP, LOCAL_COSTMAP, MAP, POSE, SCAN
 from curio.estimation.maps import OccupancyGrid
 from curio.nav.costmap_kernels import trace_scan
@@ -429,30 +429,16 @@ class CostmapNode:
         self._last_global_publish = -math.inf
         self._last_scan_stamp = -math.inf
         self._pose_sub = bus.subscribe(POSE, maxsize=256)
-        self._poses: deque[tuple[float, Pose2D]] = deque(maxlen=256)
+        self._poses = PoseHistory(256, interpolation="linear")
 
     def pose_at(self, stamp: float) -> Pose2D | None:
         """The rover's pose in ``map`` at ``stamp``, from the recent ``POSE`` history."""
         for msg in self._pose_sub.drain():
-            if self._poses and msg.stamp < self._poses[-1][0]:
-                self._poses.clear()  # time went backwards (a reset): start over
-            self._poses.append((msg.stamp, msg.pose))
+            self._poses.add(msg.stamp, msg.pose)
         if not self._poses:
             latest = self.bus.latest(POSE)
             return None if latest is None else latest.pose
-        t_last, p_last = self._poses[-1]
-        if stamp >= t_last or len(self._poses) == 1:
-            return p_last
-        if stamp <= self._poses[0][0]:
-            return self._poses[0][1]
-        t1, p1 = self._poses[-1]
-        for t0, p0 in reversed(self._poses):
-            if t0 <= stamp:
-                a = 0.0 if t1 == t0 else (stamp - t0) / (t1 - t0)
-                return Pose2D(p0.x + a * (p1.x - p0.x), p0.y + a * (p1.y - p0.y),
-                              wrap_angle(p0.yaw + a * wrap_angle(p1.yaw - p0.yaw)))
-            t1, p1 = t0, p0
-        return p_last
+        return self._poses.at(stamp)
 
     def step(self, now: float) -> None:
         """One update: apply the newest scan (if new) and publish."""
@@ -476,17 +462,10 @@ class CostmapNode:
     async def run(self) -> None:
         """Update at ``update_rate_hz`` until cancelled."""
         map_sub = self.bus.subscribe(MAP)
-        period = 1.0 / self.cfg.update_rate_hz
-        next_t = self.clock.now()
-        while True:
+        async for now in self.clock.every(1.0 / self.cfg.update_rate_hz, immediate=True):
             for grid_msg in map_sub.drain():
                 self._take_map(grid_msg)
-            self.step(self.clock.now())
-            next_t += period
-            now = self.clock.now()
-            if next_t < now:  # late: skip ahead, do not try to catch up
-                next_t = now + period
-            await self.clock.sleep_until(next_t)
+            self.step(now)
 
     def _take_map(self, msg: GridMessage) -> None:
         if msg.kind != "map":

@@ -253,11 +253,5 @@ class ObstacleNode:
 
     async def run(self) -> None:
         """Publish at ``rate_hz`` until cancelled."""
-        period = 1.0 / self.cfg.rate_hz
-        next_t = self.clock.now()
-        while True:
+        async for _ in self.clock.every(1.0 / self.cfg.rate_hz, immediate=True):
             self.step()
-            next_t += period
-            if next_t < self.clock.now():
-                next_t = self.clock.now() + period
-            await self.clock.sleep_until(next_t)

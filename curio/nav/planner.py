@@ -11,8 +11,9 @@ pose carries the goal's heading (a NaN goal heading means "any": it keeps the pa
 
 Errors are the typed :mod:`curio.nav.api` ones with a sentence saying where and why:
 :class:`StartOutsideMapError`, :class:`StartBlockedError`, :class:`GoalOutsideMapError`,
-:class:`GoalBlockedError`, :class:`NoPathError`. With ``goal_nearest_free`` a blocked goal is
-moved to the nearest traversable cell within ``goal_nearest_free_max_m``.
+:class:`GoalBlockedError` (from the goal validator the navigator uses too,
+:mod:`curio.nav.validation`), :class:`NoPathError`. With ``goal_nearest_free`` a blocked goal
+is moved to the nearest traversable cell within ``goal_nearest_free_max_m``.
 
 :meth:`GlobalPlanner.plan` keeps no state between calls and releases the GIL in its search,
 so it is meant to run in a worker thread (``asyncio.to_thread``) while the loop goes on.
@@ -30,20 +31,9 @@ import numpy.typing as npt
 from curio.core.config import PlannerConfig
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.nav import planner_kernels as kern
-from curio.nav.api import (
-    GoalBlockedError,
-    GoalOutsideMapError,
-    NoPathError,
-    StartBlockedError,
-    StartOutsideMapError,
-)
-from curio.nav.costs import (
-    INSCRIBED,
-    LETHAL,
-    MAX_NON_OBSTACLE,
-    NO_INFORMATION,
-    cost_at_distance,
-)
+from curio.nav.api import NoPathError
+from curio.nav.costs import INSCRIBED, LETHAL, MAX_NON_OBSTACLE, NO_INFORMATION, cost_at_distance
+from curio.nav.validation import Endpoints, GoalValidator, passable_costs
 
 __all__ = ["GlobalPlanner", "PlanResult", "narrow_cost", "path_length_m", "traversal_lut"]
 
@@ -66,9 +56,8 @@ def traversal_lut(cost_penalty: float, allow_unknown: bool, narrow_cost: int | N
         v = np.arange(narrow_cost, INSCRIBED, dtype=np.float64)
         lut[narrow_cost:INSCRIBED] += narrow_penalty * (v - narrow_cost + 1.0) / (
             INSCRIBED - narrow_cost)
-    lut[INSCRIBED] = -1.0
-    lut[LETHAL] = -1.0
-    lut[NO_INFORMATION] = 1.0 + cost_penalty * 0.5 if allow_unknown else -1.0
+    lut[NO_INFORMATION] = 1.0 + cost_penalty * 0.5
+    lut[~passable_costs(allow_unknown)] = -1.0
     return lut
 
 
@@ -81,6 +70,18 @@ def narrow_cost(inscribed_m: float, circumscribed_m: float, cost_scaling_factor:
 def path_length_m(poses: list[Pose2D]) -> float:
     """Length of a path along its poses, metres."""
     return float(sum(a.distance_to(b) for a, b in itertools.pairwise(poses)))
+
+
+def _read_only_grid(costs: U8Array, resolution_m: float) -> U8Array:
+    """``costs`` as a contiguous read-only uint8 view (one compiled signature for every
+    caller; never written), after checking the grid and the resolution."""
+    costs = np.ascontiguousarray(costs, dtype=np.uint8).view()
+    if costs.ndim != 2 or costs.size == 0:
+        raise ValueError(f"costs must be a non-empty 2-D uint8 grid, got shape {costs.shape}")
+    costs.setflags(write=False)
+    if not resolution_m > 0.0:
+        raise ValueError(f"resolution_m must be > 0, got {resolution_m}")
+    return costs
 
 
 def _polyline_length(xy: FloatArray) -> float:
@@ -131,6 +132,7 @@ class GlobalPlanner:
         self._lut = traversal_lut(cfg.cost_penalty, cfg.allow_unknown, narrow_cost,
                                   cfg.narrow_penalty)
         self._lut.setflags(write=False)
+        self.validator = GoalValidator(cfg)
 
     def warm_up(self) -> None:
         """Compile the kernels now (first use otherwise pays a few seconds; cached on disk)."""
@@ -159,122 +161,53 @@ class GlobalPlanner:
     def plan_detailed(self, start: Pose2D, goal: Pose2D, costs: U8Array, resolution_m: float,
                       origin: Pose2D) -> PlanResult:
         """Like :meth:`plan`, returning the figures of the search too."""
-        costs = np.ascontiguousarray(costs, dtype=np.uint8).view()
-        if costs.ndim != 2 or costs.size == 0:
-            raise ValueError(f"costs must be a non-empty 2-D uint8 grid, got shape {costs.shape}")
-        costs.setflags(write=False)  # one compiled signature for every caller; never written
-        if not resolution_m > 0.0:
-            raise ValueError(f"resolution_m must be > 0, got {resolution_m}")
-        h, w = costs.shape
-        inv = origin.inverse()
-        lut = self._lut
-
-        if not (math.isfinite(start.x) and math.isfinite(start.y)):
-            raise StartOutsideMapError(f"the start ({start.x}, {start.y}) is not a finite "
-                                       f"position; x and y (m) must be numbers")
-        if not (math.isfinite(goal.x) and math.isfinite(goal.y)):
-            raise GoalOutsideMapError(f"the goal ({goal.x}, {goal.y}) is not a finite "
-                                      f"position; x and y (m) must be numbers")
-        sx, sy = inv.transform_point(start.x, start.y)
-        s_r, s_c = math.floor(sy / resolution_m), math.floor(sx / resolution_m)
-        if not (0 <= s_r < h and 0 <= s_c < w):
-            raise StartOutsideMapError(
-                f"the start ({start.x:.2f}, {start.y:.2f}) m is outside the costmap, which "
-                f"covers {_extent(origin, resolution_m, h, w)}")
-        s_cost = int(costs[s_r, s_c])
-        if s_cost == LETHAL or (s_cost == NO_INFORMATION and lut[NO_INFORMATION] < 0):
-            what = "an obstacle" if s_cost == LETHAL else "unknown space"
-            raise StartBlockedError(
-                f"the start ({start.x:.2f}, {start.y:.2f}) m is in {what} (cost {s_cost}); "
-                f"clear the costmap around the rover or move it away")
+        costs = _read_only_grid(costs, resolution_m)
+        ends = self.validator.endpoints(start, goal, costs, resolution_m, origin)
+        (s_r, s_c), (g_r, g_c) = ends.start_cell, ends.goal_cell
         escape_cells = self.escape_radius_m / resolution_m
-        escape_r2 = int(escape_cells * escape_cells) if s_cost == INSCRIBED else 0
-
-        gx, gy = inv.transform_point(goal.x, goal.y)
-        g_r, g_c = math.floor(gy / resolution_m), math.floor(gx / resolution_m)
-        if not (0 <= g_r < h and 0 <= g_c < w):
-            raise GoalOutsideMapError(
-                f"the goal ({goal.x:.2f}, {goal.y:.2f}) m is outside the costmap, which "
-                f"covers {_extent(origin, resolution_m, h, w)}")
-        goal_moved = False
-        plan_goal = goal
-        if lut[costs[g_r, g_c]] < 0:
-            g_cost = int(costs[g_r, g_c])
-            moved = self._nearest_free(costs, g_r, g_c, resolution_m) \
-                if self.cfg.goal_nearest_free else None
-            if moved is None:
-                why = {INSCRIBED: "too close to an obstacle for the rover (inscribed cost 253)",
-                       LETHAL: "inside an obstacle (cost 254)",
-                       NO_INFORMATION: "in unknown space (cost 255)"}[g_cost]
-                extra = (f" and no free cell lies within goal_nearest_free_max_m="
-                         f"{self.cfg.goal_nearest_free_max_m:g} m"
-                         if self.cfg.goal_nearest_free else
-                         " (goal_nearest_free is off)")
-                raise GoalBlockedError(
-                    f"the goal ({goal.x:.2f}, {goal.y:.2f}) m is {why}{extra}")
-            g_r, g_c = moved
-            cx, cy = origin.transform_point((g_c + 0.5) * resolution_m,
-                                            (g_r + 0.5) * resolution_m)
-            plan_goal = Pose2D(cx, cy, goal.yaw)
-            goal_moved = True
-
-        n = h * w
-        g = np.zeros(n, dtype=np.float64)
-        parent = np.zeros(n, dtype=np.uint8)
-        found, expansions = kern.astar(costs, lut, s_r, s_c, g_r, g_c,
+        escape_r2 = int(escape_cells * escape_cells) if ends.start_cost == INSCRIBED else 0
+        h, w = costs.shape
+        g = np.zeros(h * w, dtype=np.float64)
+        parent = np.zeros(h * w, dtype=np.uint8)
+        found, expansions = kern.astar(costs, self._lut, s_r, s_c, g_r, g_c,
                                        float(self.cfg.heuristic_weight), escape_r2, g, parent)
         if not found:
             raise NoPathError(
                 f"no collision-free path from ({start.x:.2f}, {start.y:.2f}) to "
-                f"({plan_goal.x:.2f}, {plan_goal.y:.2f}) m: the goal is cut off from the start "
+                f"({ends.goal.x:.2f}, {ends.goal.y:.2f}) m: the goal is cut off from the start "
                 f"in the costmap ({int(expansions)} reachable cells searched)")
         rows, cols = kern.trace_path(parent, w, g_r, g_c)
-        total_cost = float(g[g_r * w + g_c])
+        pts = self._path_points(rows, cols, g, costs, resolution_m, ends, escape_r2)
+        world = origin.transform_points(pts)
+        return PlanResult(poses=_with_headings(world, ends.goal.yaw),
+                          length_m=_polyline_length(world), cost=float(g[g_r * w + g_c]),
+                          expansions=int(expansions), goal=ends.goal, goal_moved=ends.goal_moved,
+                          grid_path=np.stack([rows, cols], axis=1))
+
+    # ------------------------------------------------------------------ helpers
+    def _path_points(self, rows: npt.NDArray[np.int64], cols: npt.NDArray[np.int64],
+                     g: FloatArray, costs: U8Array, res: float, ends: Endpoints,
+                     escape_r2: int) -> FloatArray:
+        """The grid path shortcut, resampled every ``path_step_m`` and smoothed, in grid
+        metres, from the exact start to the (possibly moved) goal."""
+        w = costs.shape[1]
         if self.cfg.smooth and rows.shape[0] > 2:
-            max_span = max(8, round(20.0 / resolution_m))
-            keep = kern.shortcut(costs, lut, rows, cols, g, w, escape_r2, 12, max_span)
+            max_span = max(8, round(20.0 / res))
+            keep = kern.shortcut(costs, self._lut, rows, cols, g, w, escape_r2, 12, max_span)
             vr, vc = rows[keep], cols[keep]
         else:
             vr, vc = rows, cols
         # Vertices in grid metres (cell centres), with the exact start and goal at the ends.
-        verts = np.stack([(vc + 0.5) * resolution_m, (vr + 0.5) * resolution_m], axis=1)
+        verts = np.stack([(vc + 0.5) * res, (vr + 0.5) * res], axis=1)
         verts = verts.astype(np.float64)
         if verts.shape[0] == 1:
             verts = np.vstack([verts, verts])
-        verts[0] = (sx, sy)
-        if goal_moved:
-            verts[-1] = ((g_c + 0.5) * resolution_m, (g_r + 0.5) * resolution_m)
-        else:
-            verts[-1] = (gx, gy)
+        verts[0] = ends.start_xy
+        verts[-1] = ends.goal_xy
         pts = _resample(verts, self.cfg.path_step_m)
         if self.cfg.smooth and pts.shape[0] > 4:
-            pts = self._smooth(pts, costs, resolution_m, s_r, s_c, escape_r2)
-        world = origin.transform_points(pts)
-        poses = _with_headings(world, plan_goal.yaw)
-        return PlanResult(poses=poses, length_m=_polyline_length(world), cost=total_cost,
-                          expansions=int(expansions), goal=plan_goal, goal_moved=goal_moved,
-                          grid_path=np.stack([rows, cols], axis=1))
-
-    # ------------------------------------------------------------------ helpers
-    def _nearest_free(self, costs: U8Array, r: int, c: int, res: float
-                      ) -> tuple[int, int] | None:
-        rad = math.floor(self.cfg.goal_nearest_free_max_m / res)
-        if rad <= 0:
-            return None
-        h, w = costs.shape
-        r0, r1, c0, c1 = max(0, r - rad), min(h, r + rad + 1), max(0, c - rad), min(w, c + rad + 1)
-        window = costs[r0:r1, c0:c1]
-        free = self._lut[window] >= 0.0
-        rr, cc = np.mgrid[r0:r1, c0:c1]
-        d2 = (rr - r) ** 2 + (cc - c) ** 2
-        free &= d2 <= rad * rad
-        if not free.any():
-            return None
-        # nearest first, then the cheapest among equally near cells
-        score = d2.astype(np.float64) + window.astype(np.float64) / 1000.0
-        score[~free] = np.inf
-        k = int(np.argmin(score))
-        return (r0 + k // window.shape[1], c0 + k % window.shape[1])
+            pts = self._smooth(pts, costs, res, *ends.start_cell, escape_r2)
+        return pts
 
     def _smooth(self, pts: FloatArray, costs: U8Array, res: float, s_r: int, s_c: int,
                 escape_r2: int) -> FloatArray:
@@ -318,13 +251,6 @@ class GlobalPlanner:
             bad[1:] |= ~seg_ok
             cur[bad] = orig[bad]
         return orig
-
-
-def _extent(origin: Pose2D, res: float, h: int, w: int) -> str:
-    if origin.yaw == 0.0:
-        return (f"x {origin.x:.2f}..{origin.x + w * res:.2f} m, "
-                f"y {origin.y:.2f}..{origin.y + h * res:.2f} m")
-    return f"{w} × {h} cells of {res:g} m from ({origin.x:.2f}, {origin.y:.2f}) m"
 
 
 def _resample(verts: FloatArray, step_m: float) -> FloatArray:

@@ -161,12 +161,11 @@ class Recovery:
         start = self._odom_pose()
         if start is None:
             return RecoveryOutcome("step_back", False, "no odometry: cannot measure the reverse")
-        period = 1.0 / cfg.rate_hz
         t0 = self.clock.now()
         travelled = 0.0
         reason = "reversed the full distance"
         ok = True
-        while True:
+        async for now in self.clock.every(1.0 / cfg.rate_hz, immediate=True):
             pose = self._odom_pose() or start
             travelled = pose.distance_to(start)
             if travelled >= cfg.step_back_distance_m:
@@ -177,7 +176,7 @@ class Recovery:
                 reason = f"stopped: something within {behind:.2f} m behind"
                 ok = travelled > 0.05
                 break
-            if self.clock.now() - t0 > cfg.step_back_timeout_s:
+            if now - t0 > cfg.step_back_timeout_s:
                 reason = "stopped: step-back timeout"
                 ok = travelled > 0.05
                 break
@@ -185,7 +184,6 @@ class Recovery:
             left = cfg.step_back_distance_m - travelled
             speed = min(cfg.step_back_speed_mps, max(0.08, 2.0 * left))
             self._send(-speed, 0.0)
-            await self.clock.sleep(period)
         self._send(0.0, 0.0)
         return RecoveryOutcome("step_back", ok, f"{reason} ({travelled:.2f} m)")
 
@@ -222,23 +220,22 @@ class Recovery:
                 break
         if angle == 0.0:
             return RecoveryOutcome("rotate", False, "no room to turn in place")
-        start_yaw = (self._odom_pose() or pose).yaw
         turned = 0.0
-        last_yaw = start_yaw
-        period = 1.0 / cfg.rate_hz
+        last_yaw = (self._odom_pose() or pose).yaw
         t0 = self.clock.now()
-        while abs(turned) < abs(angle) - 0.05:
-            if self.clock.now() - t0 > cfg.rotate_timeout_s:
+        async for now in self.clock.every(1.0 / cfg.rate_hz, immediate=True):
+            yaw = (self._odom_pose() or pose).yaw
+            turned += wrap_angle(yaw - last_yaw)
+            last_yaw = yaw
+            if abs(turned) >= abs(angle) - 0.05:
+                break
+            if now - t0 > cfg.rotate_timeout_s:
                 self._send(0.0, 0.0)
                 return RecoveryOutcome("rotate", False,
                                        f"turned {math.degrees(turned):.0f} deg before timeout")
             left = abs(angle) - abs(turned)
             w = math.copysign(min(cfg.rotate_speed_radps, max(0.2, 1.5 * left)), angle)
             self._send(0.0, w)
-            await self.clock.sleep(period)
-            yaw = (self._odom_pose() or pose).yaw
-            turned += wrap_angle(yaw - last_yaw)
-            last_yaw = yaw
         self._send(0.0, 0.0)
         return RecoveryOutcome("rotate", True, f"turned {math.degrees(turned):.0f} deg in place")
 
@@ -246,6 +243,7 @@ class Recovery:
         """Hold still for ``wait_s``."""
         period = 1.0 / self.cfg.rate_hz
         end = self.clock.now() + self.cfg.wait_s
+        # Not a fixed-rate loop: the last sleep is cut short to end exactly at the deadline.
         while self.clock.now() < end:
             self._send(0.0, 0.0)
             await self.clock.sleep(min(period, max(0.0, end - self.clock.now())) or period)

@@ -70,6 +70,32 @@ async def test_every_does_not_drift_and_counts_overruns() -> None:
     assert all(abs(t * 10 - round(t * 10)) < 1e-9 for t in stamps)
 
 
+async def test_every_immediate_runs_its_first_iteration_before_any_other_task() -> None:
+    clock = SimClock()
+    order: list[str] = []
+
+    async def loop(name: str, immediate: bool) -> None:
+        async for t in clock.every(0.25, immediate=immediate):
+            order.append(f"{name}@{t}")
+
+    async def other() -> None:
+        order.append("other")
+
+    async def start(immediate: bool) -> list[str]:
+        order.clear()
+        tasks = [asyncio.create_task(loop("loop", immediate))]
+        tasks.append(asyncio.create_task(other()))
+        await clock.advance(0.5)
+        for t in tasks:
+            t.cancel()
+        return list(order)
+
+    # Plain, the loop waits for its first due time (now) like any sleep: others go first.
+    assert (await start(False))[:2] == ["other", "loop@0.0"]
+    # Immediate, it runs at once; then every period from there.
+    assert await start(True) == ["loop@0.5", "other", "loop@0.75", "loop@1.0"]
+
+
 async def test_wait_for_times_out_in_simulated_time() -> None:
     clock = SimClock()
 
