@@ -189,6 +189,16 @@ class TourStore:
                            "which no longer exists.")
         return out
 
+    def schedule_problem(self, tour_id: int) -> str | None:
+        """Why ``tour_id`` cannot be scheduled (unknown, no stops), or None."""
+        try:
+            tour = self.get(tour_id)
+        except TourError as exc:
+            return str(exc)
+        if not tour.stops:
+            return f"Tour {tour.id} ({tour.name}) has no stops; add stops before scheduling it."
+        return None
+
     # --- checks used by edits ---------------------------------------------------------------
 
     def _editable(self, tour_id: Any, expect_revision: int | None) -> Tour:
