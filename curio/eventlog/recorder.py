@@ -87,13 +87,13 @@ class EventRecorder:
 
     def poll(self) -> None:
         """Move everything received to the log."""
+        for cmd in self._operator.drain():  # commands first: they cause the events
+            self._command(cmd)
         for ev in self._events.drain():
             if not self._ignored(ev.kind):
                 source = ev.detail.get("source", "")
                 self._append(ev.stamp, ev.kind, dict(ev.detail),
                              source if isinstance(source, str) else "")
-        for cmd in self._operator.drain():
-            self._command(cmd)
         for es in self._estop.drain():
             if es.engaged != self._estop_engaged:
                 if es.engaged or self._estop_engaged is not None:

@@ -239,7 +239,7 @@ async def test_battery_and_localisation_gate_a_start(setup: dict[str, Any], reas
 
 
 async def test_a_refusal_by_the_tree_is_a_skip_with_its_message() -> None:
-    sched, tree, bus, clock, seen, loop = make(  # type: ignore[misc]
+    sched, _tree, bus, clock, seen, loop = make(  # type: ignore[misc]
         "09:59", reject="The rover is paused: press Resume first, then start the tour.")
     ready(bus)
     await run_for(clock, 90.0, sched.run, loop)
@@ -258,7 +258,7 @@ async def test_a_wall_clock_jump_over_a_start_skips_it_as_missed() -> None:
 
 
 async def test_a_simulated_day_runs_every_start_in_order() -> None:
-    sched, tree, bus, clock, seen, loop = make(  # type: ignore[misc]
+    sched, _tree, bus, clock, seen, loop = make(  # type: ignore[misc]
         "08:00", loop_s=10.0, check_period_s=10.0)
     sched.schedules.set_closed(["2025-06-03"], "closed")
     ready(bus)

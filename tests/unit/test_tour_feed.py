@@ -227,7 +227,7 @@ def test_the_service_refuses_to_start_what_cannot_run() -> None:
     with pytest.raises(TourError, match="No tour is running"):
         svc.stop_tour()
     svc.enabled = False
-    with pytest.raises(TourError, match="bt.tree = 'tour'"):
+    with pytest.raises(TourError, match=r"bt\.tree = 'tour'"):
         svc.start_tour(2)
     assert not h.nav.goals
 
