@@ -41,7 +41,7 @@ from .follower import TOUR_ROUTE_ID, Route, Stop
 from .paths import PathError, PathManager
 
 if TYPE_CHECKING:
-    from .behaviours import TreeContext
+    from .context import TreeContext
     from .speech import Speaker
 
 __all__ = ["TourRoute", "Tours2BB", "tour_route"]

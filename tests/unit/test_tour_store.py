@@ -60,7 +60,7 @@ def test_crud_and_ids_are_never_reused(tmp_path: Path) -> None:
     assert s.duplicate(a.id).name == "Best of (copy 2)"
     s.delete(a.id)
     assert s.create("New").id == 5
-    with pytest.raises(TourError, match=r"There is no tour 2. The tours are: 1 \\(Tour\\)"):
+    with pytest.raises(TourError, match=r"There is no tour 2\. The tours are: 1 \(Tour\)"):
         s.get(2)
     with pytest.raises(TourError, match="already a tour called 'New'"):
         s.create("new")
