@@ -1,17 +1,18 @@
 """Tours wiring: the tour and schedule stores, the service and the scheduler part.
 
 Built before the behaviour tree (the tour tree reads the tour store) and after estimation (a
-stop is checked against the navigation map). The path manager is passed in so tours can follow
-its paths between stops.
+stop is checked against the navigation map). The path manager is passed in (as the small
+:class:`PathLookup` interface: tours sit below the behaviour tree and do not import it) so
+tours can follow its paths between stops.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 from zoneinfo import ZoneInfo
 
-from curio.bt.paths import PathError, PathManager
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
@@ -26,7 +27,33 @@ from .scheduler import Scheduler
 from .service import TourService, estimate
 from .store import TourStore
 
-__all__ = ["Tours", "build_tours"]
+__all__ = ["PathLookup", "Tours", "build_tours"]
+
+
+class _Point(Protocol):
+    @property
+    def x_m(self) -> float: ...
+
+    @property
+    def y_m(self) -> float: ...
+
+
+class _Path(Protocol):
+    @property
+    def waypoints(self) -> Sequence[_Point]: ...
+
+
+class PathLookup(Protocol):
+    """What tours need of the path manager (``curio/bt/paths.py``): its ids and a path's
+    waypoints (``get`` raises ``ValueError`` for an unknown id)."""
+
+    def ids(self) -> list[int]:
+        """The ids of every path."""
+        ...
+
+    def get(self, path_id: int) -> _Path:
+        """Path ``path_id``."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -42,7 +69,7 @@ class Tours:
 
 
 def build_tours(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
-                grid: Callable[[], OccupancyGrid], paths: PathManager) -> Tours:
+                grid: Callable[[], OccupancyGrid], paths: PathLookup) -> Tours:
     """Construct the stores, the service and the scheduler; register the scheduler.
 
     Raises:
@@ -58,7 +85,7 @@ def build_tours(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     def path_points(path_id: int) -> list[tuple[float, float]]:
         try:
             return [(w.x_m, w.y_m) for w in paths.get(path_id).waypoints]
-        except PathError:
+        except ValueError:  # PathError: deleted since
             return []
 
     store = TourStore(cfg.data_path(tcfg.file), cfg.bt.tour_stops, placement, path_exists)

@@ -106,3 +106,13 @@ def test_no_event_log_is_one_line_and_exit_2(tmp_path: Path,
     assert cli(tmp_path, "--day", "2025-06-02") == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "there is no event log at" in err
+
+
+def test_curio_run_refuses_a_corrupt_tours_file_with_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "tours.json").write_text('{"version": 2, "tours": [')
+    code = main(["run", "--set", f'data_dir="{tmp_path}"', "--set", "web.enabled=false"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert f"the tours file {tmp_path / 'tours.json'} cannot be used: it is not valid JSON" in err
+    assert (tmp_path / "tours.json").read_text() == '{"version": 2, "tours": ['
