@@ -6,8 +6,10 @@ objects by constructor injection, registers its running pieces on a
 (``curio/sim/wiring.py``), ``build_drivers`` (``curio/drivers/wiring.py``),
 ``build_estimation`` (``curio/estimation/wiring.py``), ``build_safety``
 (``curio/safety/wiring.py``), ``build_navigation`` (``curio/nav/wiring.py``),
-``build_behaviour`` (``curio/bt/wiring.py``) and ``build_web`` (``curio/web/wiring.py``). The
-order of the calls below is the order of dependencies. Nothing below this module imports it,
+``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``) and
+``build_web`` (``curio/web/wiring.py``), with ``build_eventlog`` (``curio/eventlog/wiring.py``)
+first so the event log sees every message. The order of the calls below is the order of
+dependencies. Nothing below this module imports it,
 and nothing is a module-level singleton: two ``App`` objects can run side by side (tests do).
 
 Shutdown order: the rover is stopped first (a zero velocity goes to the base and the base's
@@ -34,6 +36,8 @@ from curio.drivers.base import BaseDriver
 from curio.drivers.wiring import build_drivers
 from curio.estimation.ekf import EkfNode
 from curio.estimation.wiring import Localiser, MapServer, build_estimation
+from curio.eventlog.store import EventLog
+from curio.eventlog.wiring import build_eventlog
 from curio.nav.controller import LocalController
 from curio.nav.costmap import Costmap
 from curio.nav.navigator import NavigatorNode
@@ -45,6 +49,7 @@ from curio.safety.stage import SafetyStage
 from curio.safety.wiring import build_safety
 from curio.sim.wiring import Simulator, build_sim
 from curio.sim.world import World
+from curio.tours.wiring import Tours, build_tours
 from curio.web.wiring import WebServer, build_web
 
 __all__ = ["App"]
@@ -67,6 +72,8 @@ class App:
         self._registry = Parts()
         self._tasks: list[asyncio.Task[None]] = []
         reg = self._registry
+        logging_ = build_eventlog(cfg, self.bus, clock, reg)
+        self.eventlog: EventLog | None = logging_.log if logging_ else None
         sim = build_sim(cfg, self.bus, clock, reg, self.robot)
         self.world: World | None = sim.world if sim else None
         self.simulator: Simulator | None = sim.simulator if sim else None
@@ -88,7 +95,10 @@ class App:
         self.navigator: NavigatorNode = nav.navigator
         self.obstacles: ObstacleNode = nav.obstacles
         self.blocked: BlockedDetector = nav.obstacles.detector
-        behaviour = build_behaviour(cfg, self.bus, clock, reg, nav)
+        paths = PathManager(cfg.bt.paths, cfg.data_path(cfg.bt.paths_file))
+        self.tours: Tours = build_tours(cfg, self.bus, clock, reg, self.robot,
+                                        lambda: est.map_server.grid, paths)
+        behaviour = build_behaviour(cfg, self.bus, clock, reg, nav, paths, self.tours.store)
         self.paths: PathManager = behaviour.paths
         self.tree: TreeRunner = behaviour.tree
         self.web: WebServer | None = None

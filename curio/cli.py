@@ -1,7 +1,8 @@
 """The ``curio`` command.
 
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
-``curio emulate DEVICE``, ``curio map ...`` and ``curio bench NAME``. Exit codes: 0 success,
+``curio emulate DEVICE``, ``curio map ...``, ``curio report --day YYYY-MM-DD`` and
+``curio bench NAME``. Exit codes: 0 success,
 1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
 can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
 """
@@ -103,6 +104,12 @@ def _build_parser() -> argparse.ArgumentParser:
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
+
+    report = sub.add_parser("report", help="the daily report from the event log")
+    from curio.commands.report import add_arguments as report_arguments
+
+    report_arguments(report)
+    _add_config_args(report)
 
     bench = sub.add_parser("bench", help="run a benchmark and print its table")
     bench.add_argument("name", help="one of: " + ", ".join(available_benchmarks()))
@@ -317,6 +324,10 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_config(args)
         if args.command == "bench":
             return _cmd_bench(args)
+        if args.command == "report":
+            from curio.commands.report import run as report_run
+
+            return report_run(_load(args), args)
         return _delegate(args.command, args.rest)
     except ConfigError as exc:
         print(f"curio: {exc}", file=sys.stderr)

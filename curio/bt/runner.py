@@ -22,10 +22,11 @@ from py_trees.common import Status
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock, RateStats
-from curio.core.config import BtConfig
+from curio.core.config import BtConfig, ToursConfig
 from curio.core.jsonable import to_jsonable
 from curio.core.messages import Event, OperatorCommand, TreeSnapshot
 from curio.core.topics import EVENTS, TREE
+from curio.tours.store import TourStore
 
 from .context import BB_DEFAULTS, TreeContext
 from .feeds import Follower2BB, Operator2BB
@@ -33,6 +34,7 @@ from .follower import PathFollower, StatusSink
 from .paths import PathManager
 from .probe import WayProbe
 from .speech import Speaker
+from .tour_feed import Tours2BB, tour_route
 from .trees import build_root, tour_route_from_config
 
 __all__ = ["TreeRunner", "build_tree_runner"]
@@ -117,6 +119,9 @@ class TreeRunner:
         self.root.stop(Status.INVALID)
         self.ctx.follower.stop()
         self.operator_feed.close()
+        for node in self._nodes:
+            if isinstance(node, Tours2BB):
+                node.close()
         clients = {id(c): c for c in self.ctx.clients}
         for node in self._nodes:
             clients.update((id(c), c) for c in node.blackboards)
@@ -184,6 +189,8 @@ def build_tree_runner(
     *,
     autostart_path: int | None = None,
     probe: WayProbe | None = None,
+    tours: TourStore | None = None,
+    tours_cfg: ToursConfig | None = None,
 ) -> TreeRunner:
     """Build the configured tree (``cfg.tree``) and its runner.
 
@@ -196,6 +203,9 @@ def build_tree_runner(
         probe: judges "the way is clear" while asking for help (None: by BLOCKED).
         autostart_path: a path to select at the first tick (``cfg.autostart_path``); the
             original drove path 1 at launch unasked (§9.16), Curio only when configured.
+        tours: the tour store: the tour tree's ``start_tour`` runs the tour it names (None: the
+            configured ``bt.tour_stops``).
+        tours_cfg: ``[tours]`` (defaults when None).
     """
     sink = StatusSink(bus, clock)
     follower = PathFollower(navigator, sink, clock,
@@ -210,7 +220,12 @@ def build_tree_runner(
         init.register_key(key=key, access=py_trees.common.Access.WRITE)
         init.set(key, value, overwrite=True)
     operator_feed = Operator2BB(ctx)
-    root = build_root(ctx, operator_feed)
+    tour_feed = None
+    if tours is not None and cfg.tree == "tour":
+        tour_feed = Tours2BB(ctx, tours, tours_cfg or ToursConfig(), speaker)
+        first = tours.first()
+        ctx.tour_route = tour_route(first, paths) if first is not None and first.stops else None
+    root = build_root(ctx, operator_feed, tour_feed)
     runner = TreeRunner(root, ctx, operator_feed, cfg.tick_hz)
     start = cfg.autostart_path if autostart_path is None else autostart_path
     if start is not None:

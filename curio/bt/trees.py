@@ -122,13 +122,17 @@ def _two_step_priorities(ctx: TreeContext) -> list[Behaviour]:
     ]
 
 
-def build_root(ctx: TreeContext, operator_feed: Operator2BB) -> Behaviour:
+def build_root(ctx: TreeContext, operator_feed: Operator2BB,
+               tour_feed: Behaviour | None = None) -> Behaviour:
     """The root of the tree named by ``ctx.tree_kind``.
 
     Args:
         ctx: the shared context (its ``tree_kind`` picks the tree).
         operator_feed: the OPERATOR feed (the runner keeps it to inject autostart commands and
             to close its subscription).
+        tour_feed: the tour store's feed (``curio/bt/tour_feed.py``), ticked before the
+            operator feed so that ``start_tour`` runs the tour it names; None: the configured
+            ``bt.tour_stops``.
     """
     kind = ctx.tree_kind
     if kind == "two_step":
@@ -140,5 +144,6 @@ def build_root(ctx: TreeContext, operator_feed: Operator2BB) -> Behaviour:
     selector = py_trees.composites.Selector("Priorities", memory=False, children=priorities)
     root = py_trees.composites.Parallel(
         "Root", policy=ParallelPolicy.SuccessOnAll(synchronise=False),
-        children=[*_feeds(ctx, operator_feed, battery=kind == "tour"), selector])
+        children=[*([tour_feed] if tour_feed is not None else []),
+                  *_feeds(ctx, operator_feed, battery=kind == "tour"), selector])
     return root

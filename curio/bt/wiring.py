@@ -19,6 +19,7 @@ from curio.core.messages import Event
 from curio.core.parts import Part, Parts
 from curio.core.topics import EVENTS
 from curio.nav.wiring import Navigation
+from curio.tours.store import TourStore
 
 __all__ = ["Behaviour", "build_behaviour"]
 
@@ -32,9 +33,11 @@ class Behaviour:
 
 
 def build_behaviour(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
-                    nav: Navigation) -> Behaviour:
-    """Construct the path manager and the configured tree; register the tree as a part."""
-    paths = PathManager(cfg.bt.paths, cfg.data_path(cfg.bt.paths_file))
+                    nav: Navigation, paths: PathManager | None = None,
+                    tours: TourStore | None = None) -> Behaviour:
+    """Construct the path manager (unless given) and the configured tree; register the tree
+    as a part. With ``tours`` the tour tree runs the tours of the tour store."""
+    paths = paths or PathManager(cfg.bt.paths, cfg.data_path(cfg.bt.paths_file))
 
     def on_paths_changed(what: str, path_id: int) -> None:
         bus.publish(EVENTS, Event(clock.now(), "paths.changed",
@@ -43,7 +46,8 @@ def build_behaviour(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
     paths.add_listener(on_paths_changed)
     speaker = Speaker(enabled=cfg.bt.speak)
     probe = WayProbe(nav.planner, nav.costmap, bus, clock)
-    runner = build_tree_runner(cfg.bt, bus, clock, nav.navigator, paths, speaker, probe=probe)
+    runner = build_tree_runner(cfg.bt, bus, clock, nav.navigator, paths, speaker, probe=probe,
+                               tours=tours, tours_cfg=cfg.tours)
 
     async def close() -> None:
         await runner.close()

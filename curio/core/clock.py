@@ -284,6 +284,15 @@ class SimClock(_ClockMixin):
             fut.set_exception(exc)
         return fut
 
+    def jump_wall(self, dt_s: float) -> None:
+        """Move the simulated wall clock (``wall_time()``) forward by ``dt_s`` seconds without
+        moving ``now()``: a scenario's time-lapse over a stretch in which nothing happens (the
+        control stack never reads wall time; schedules and logs do), or a test of a wall clock
+        that jumps."""
+        if not dt_s >= 0.0:
+            raise ValueError(f"the wall clock only jumps forward, got {dt_s}")
+        self._epoch_wall_s += dt_s
+
     def pending_timers(self) -> int:
         """Number of live sleepers (cancelled ones are pruned lazily)."""
         return sum(1 for _, _, f in self._timers if not f.done())

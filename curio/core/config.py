@@ -530,6 +530,61 @@ class BtConfig(Section):
     tour_loop: bool = False
 
 
+class ToursConfig(Section):
+    """Tours as data, their schedules and the tour guide's product behaviour (curio/tours)."""
+
+    file: str = Field("tours.json", description="the tours, in data_dir (a .bak beside it)")
+    schedules_file: str = Field("schedules.json", description="the schedules, in data_dir")
+    timezone: str = Field("UTC", description="the building's IANA time zone for schedules "
+                          "and daily reports, e.g. Europe/London")
+    start_window_s: float = Field(
+        120.0, ge=0.0, le=3600.0,
+        description="a scheduled tour whose rover is not ready at its time may still start "
+        "this long after it; then it is skipped with the reason")
+    min_battery_v: float = Field(7.0, ge=0.0, description="scheduled tours start only at or "
+                                 "above this supply voltage")
+    schedule_gap_s: float = Field(
+        300.0, ge=0.0, le=7200.0,
+        description="two scheduled tours overlap when the second starts before the first's "
+        "estimated duration plus this gap (time to get home) has passed")
+    check_period_s: float = Field(1.0, gt=0.0, le=60.0, description="scheduler check period")
+    return_home: bool = Field(True, description="drive home when a tour has finished")
+    announce_next_stop: bool = Field(True, description="say where the rover goes next when "
+                                     "it leaves a stop")
+    estimate_speed_mps: float = Field(0.2, gt=0.0, le=2.0, description="average speed for "
+                                      "tour duration estimates (stops included separately)")
+    estimate_detour_factor: float = Field(1.4, ge=1.0, le=5.0, description="route length / "
+                                          "straight-line distance, for duration estimates")
+
+    @field_validator("timezone")
+    @classmethod
+    def _known_zone(cls, value: str) -> str:
+        from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+
+        try:
+            ZoneInfo(value)
+        except (ZoneInfoNotFoundError, ValueError):
+            raise ValueError(f"unknown time zone {value!r}; use an IANA name such as "
+                             "'Europe/London' or 'UTC' (the names under /usr/share/zoneinfo)"
+                             ) from None
+        return value
+
+
+class EventLogConfig(Section):
+    """The lasting event log (SQLite in data_dir; curio/eventlog)."""
+
+    enabled: bool = True
+    file: str = Field("events.sqlite3", description="the database, in data_dir")
+    max_age_days: float = Field(400.0, gt=0.0, description="older records are deleted")
+    max_rows: int = Field(500_000, ge=1000, description="the oldest records beyond this are "
+                          "deleted")
+    batch_rows: int = Field(500, ge=1, le=100_000, description="most records per transaction")
+    motion_summary_s: float = Field(60.0, gt=0.0, le=3600.0, description="distance and time "
+                                    "moving are logged this often while they change")
+    ignore_kinds: list[str] = Field(default_factory=list, description="event kinds (or "
+                                    "prefixes ending in '.') that are not logged")
+
+
 class WebConfig(Section):
     """The dashboard server."""
 
@@ -556,6 +611,8 @@ class Config(Section):
     nav: NavConfig = Field(default_factory=NavConfig)
     bt: BtConfig = Field(default_factory=BtConfig)
     web: WebConfig = Field(default_factory=WebConfig)
+    tours: ToursConfig = Field(default_factory=ToursConfig)
+    eventlog: EventLogConfig = Field(default_factory=EventLogConfig)
 
     # Where relative paths are resolved; not a config key.
     base_dir: Path = Field(default_factory=lambda: REPO_ROOT, exclude=True)

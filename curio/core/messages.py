@@ -275,8 +275,10 @@ class OperatorCommand:
         action: what to do.
         path_id: with ``select_path``: the path number (0 = home).
         goal: with ``goto``: a single goal pose in ``map``.
-        source: who sent it (``web``, ``cli``, ``scenario``, ``tree``).
+        source: who sent it (``web``, ``cli``, ``scenario``, ``tree``, ``scheduler``,
+            ``kiosk``).
         request_id: an id the sender can match against the reply event.
+        tour_id: with ``start_tour``: which tour of the tour store (None = the first).
     """
 
     stamp: float
@@ -285,6 +287,7 @@ class OperatorCommand:
     goal: Pose2D | None = None
     source: str = ""
     request_id: str = ""
+    tour_id: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -360,3 +363,34 @@ class LocalizationStatus:
     particles: int = 0
     std_xy_m: float = 0.0
     std_yaw_rad: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class TourState:
+    """The running tour, for the kiosk and the scheduler (published when it changes).
+
+    Attributes:
+        tour_id: the tour of the tour store, or None when no tour runs.
+        name: the tour's name.
+        source: who started it (``kiosk``, ``scheduler``, ``web``, ...).
+        phase: ``moving`` (to ``stop_index``), ``dwelling`` (at it), ``held`` (paused,
+            e-stop, help), ``failed`` (waiting for Resume) or ``idle`` (no tour).
+        stop_index: the tour stop being driven to or dwelt at (0-based), or None.
+        stop_name, message: that stop's name and visitor message.
+        next_stop_name: the stop after it ("" at the last one).
+        stops_total: the tour's number of stops.
+        eta_s: seconds until the rover reaches ``stop_index`` (moving) or leaves it (dwelling),
+            an estimate at ``stamp``; None when unknown.
+    """
+
+    stamp: float
+    tour_id: int | None = None
+    name: str = ""
+    source: str = ""
+    phase: str = "idle"
+    stop_index: int | None = None
+    stop_name: str = ""
+    message: str = ""
+    next_stop_name: str = ""
+    stops_total: int = 0
+    eta_s: float | None = None

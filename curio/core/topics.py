@@ -27,6 +27,7 @@ from curio.core.messages import (
     Progress,
     ServoCommand,
     StatusText,
+    TourState,
     Transform,
     TreeSnapshot,
     Twist,
@@ -79,6 +80,8 @@ PROGRESS = Topic(
 EVENTS = Topic("/events", Event, kind="reliable", doc="everyone: reliable events for reports")
 TREE = Topic("/tree", TreeSnapshot, latched=True, doc="tree runner: snapshot after a change")
 HEALTH = Topic("/health", DriverHealth, doc="every driver/component: health, counters")
+TOUR = Topic("/tour", TourState, kind="reliable", latched=True,
+             doc="tour feed (curio/bt/tour_feed.py): the running tour, its stop and the next")
 
 ALL_TOPICS: list[Topic[Any]] = [
     SCAN,
@@ -110,6 +113,7 @@ ALL_TOPICS: list[Topic[Any]] = [
     EVENTS,
     TREE,
     HEALTH,
+    TOUR,
 ]
 
 

@@ -18,6 +18,7 @@ SCENARIOS: dict[str, str] = {
     "operator-demo": "curio.scenarios.operator_demo:OperatorDemoScenario",
     "blocked-door": "curio.scenarios.blocked_door:BlockedDoorScenario",
     "guided-tour": "curio.scenarios.guided_tour:GuidedTourScenario",
+    "tour-day": "curio.scenarios.tour_day:TourDayScenario",
 }
 
 

@@ -183,6 +183,11 @@ class Scenario(ABC):
         """Return the config this scenario runs with (default: unchanged)."""
         return cfg
 
+    def wall_epoch_s(self, cfg: Config) -> float | None:
+        """The UNIX time the simulated wall clock starts at (None: the clock's fixed default);
+        a scenario set on a given day and time of day overrides it."""
+        return None
+
     @abstractmethod
     async def run(self, ctx: ScenarioContext) -> None:
         """The script. Raise :class:`ScenarioFailed` (or record failed checks) to fail."""
@@ -279,7 +284,9 @@ async def run_scenario(
     """
     cfg = _fresh_data_dir(scenario.configure(_apply_common_args(cfg, args), args), scenario.name)
     settle = 3 if driver_mode(cfg).emulated else 0  # pty bytes take a few loop turns
-    clock = SimClock(speed=args.speed, settle_polls=settle)
+    epoch = scenario.wall_epoch_s(cfg)
+    clock = SimClock(speed=args.speed, settle_polls=settle,
+                     **({"epoch_wall_s": epoch} if epoch is not None else {}))
     wall_start = wall_perf_counter()
     app = App(cfg, clock, web=args.web)
     ctx = ScenarioContext(app, clock, args)

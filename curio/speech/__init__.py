@@ -1,0 +1,1 @@
+"""Speech for the visitors: one engine interface (espeak-ng today) behind a non-blocking queue."""
