@@ -11,10 +11,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import logging
 import math
-import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -215,6 +213,7 @@ def _announce(mode: str, web_url: str | None) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from curio.app import App
+    from curio.commands.signals import stop_on_signals
     from curio.core.clock import Clock, RealClock, SimClock
     from curio.drivers.modes import driver_mode
 
@@ -229,11 +228,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     async def main() -> int:
         app = App(cfg, clock)
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(NotImplementedError):
-                loop.add_signal_handler(sig, stop.set)
+        stop = stop_on_signals()
         await app.start()
         _announce(cfg.drivers.mode, app.web_url)
         runner = asyncio.create_task(sim_clock.run(stop=stop.is_set)) if sim_clock else None

@@ -22,10 +22,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import signal
 import sys
 from pathlib import Path
 
+from curio.commands.signals import stop_on_signals
 from curio.core.clock import RealClock
 from curio.core.config import Config, ConfigError, load_config
 from curio.core.errors import SetupError
@@ -57,11 +57,7 @@ def _parser() -> argparse.ArgumentParser:
 async def _serve(args: argparse.Namespace, cfg: Config) -> int:
     from curio.sim.world import World
 
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):  # clean up the pty and its folder on both
-        with contextlib.suppress(NotImplementedError):
-            loop.add_signal_handler(sig, stop.set)
+    stop = stop_on_signals()
     clock = RealClock()
     world = World.from_config(cfg)
     link = Path(args.link).expanduser().absolute() if args.link else None

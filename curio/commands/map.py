@@ -35,6 +35,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
+from curio.commands.signals import stop_on_signals
 from curio.core.fileio import atomic_write_text
 from curio.estimation.carmen import LogError, read_log
 from curio.estimation.maps import MapError, load_map, map_stats, save_map
@@ -238,8 +239,6 @@ def _score(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
 
 def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     import asyncio
-    import contextlib
-    import signal
 
     from curio.app import App
     from curio.core.clock import Clock, RealClock, SimClock
@@ -290,11 +289,7 @@ def _record(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
                         counts["scans"] += 1
 
             app.add(Part("map.record", run=write))
-            stop = asyncio.Event()
-            loop = asyncio.get_running_loop()
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                with contextlib.suppress(NotImplementedError):
-                    loop.add_signal_handler(sig, stop.set)
+            stop = stop_on_signals()
             await app.start()
             if sim_clock is not None:
                 await sim_clock.run(until_s=float(args.duration),

@@ -33,7 +33,6 @@ Scans are paired with the odometry interpolated at their time.
 
 from __future__ import annotations
 
-import bisect
 import json
 import math
 from collections.abc import Iterator
@@ -45,6 +44,7 @@ import numpy as np
 import numpy.typing as npt
 
 from curio.core.geometry import Pose2D
+from curio.core.pose_history import PoseHistory
 
 __all__ = ["LogError", "LogScan", "RunRecorder", "read_carmen", "read_log", "read_run"]
 
@@ -187,13 +187,11 @@ def read_carmen(path: Path | str, bad_lines: list[str] | None = None) -> Iterato
         fh = p.open("r", encoding="utf-8", errors="replace")
     except OSError as exc:
         raise LogError(f"{p}: cannot open the log ({exc})") from None
-    odom_t: list[float] = []
-    odom_p: list[Pose2D] = []
     found = False
     with fh:
         for lineno, line in enumerate(fh, start=1):
             try:
-                scan = _carmen_line(p, lineno, line.split(), odom_t, odom_p)
+                scan = _carmen_line(p, lineno, line.split())
             except LogError as exc:
                 if bad_lines is None:
                     raise
@@ -206,9 +204,9 @@ def read_carmen(path: Path | str, bad_lines: list[str] | None = None) -> Iterato
         raise LogError(f"{p}: no FLASER or ROBOTLASER lines: nothing to map")
 
 
-def _carmen_line(p: Path, lineno: int, tok: list[str], odom_t: list[float],
-                 odom_p: list[Pose2D]) -> LogScan | None:
-    """One CARMEN line: a scan, or None (odometry is appended to ``odom_t``/``odom_p``)."""
+def _carmen_line(p: Path, lineno: int, tok: list[str]) -> LogScan | None:
+    """One CARMEN line: a scan, or None (other messages; ODOM lines are checked, but a laser
+    line carries its own odometry)."""
     if not tok or tok[0].startswith("#"):
         return None
     kind = tok[0]
@@ -217,31 +215,13 @@ def _carmen_line(p: Path, lineno: int, tok: list[str], odom_t: list[float],
     if kind in ("ROBOTLASER1", "ROBOTLASER2"):
         return _parse_robotlaser(p, lineno, tok)
     if kind == "ODOM":
-        vals = _floats(p, lineno, tok[1:8], "ODOM")
-        if len(vals) < 7:
+        if len(_floats(p, lineno, tok[1:8], "ODOM")) < 7:
             raise LogError(f"{p}:{lineno}: ODOM needs x y theta tv rv accel timestamp")
-        odom_t.append(vals[6])
-        odom_p.append(Pose2D(vals[0], vals[1], vals[2]))
         return None
     if kind.isupper() and kind.replace("_", "").isalnum():
         return None  # another CARMEN message
     raise LogError(f"{p}:{lineno}: not a CARMEN message: starts with {kind[:20]!r} "
                    "(expected FLASER, ROBOTLASER1, ODOM, ... or a # comment)")
-
-
-def _interp(ts: list[float], poses: list[Pose2D], t: float) -> Pose2D | None:
-    if not ts:
-        return None
-    i = bisect.bisect_left(ts, t)
-    if i <= 0:
-        return poses[0]
-    if i >= len(ts):
-        return poses[-1]
-    a, b = poses[i - 1], poses[i]
-    span = ts[i] - ts[i - 1]
-    f = 0.0 if span <= 0 else (t - ts[i - 1]) / span
-    d = a.inverse() @ b
-    return a @ Pose2D(d.x * f, d.y * f, d.yaw * f)
 
 
 def read_run(path: Path | str, bad_lines: list[str] | None = None) -> Iterator[LogScan]:
@@ -270,11 +250,11 @@ def read_run(path: Path | str, bad_lines: list[str] | None = None) -> Iterator[L
             bad_lines.append(str(exc))
     if not run.scans:
         raise LogError(f"{p}: no scan records: nothing to map")
-    if not run.odom_t:
+    if not len(run.odom):
         raise LogError(f"{p}: no odom records: scans need odometry")
     for lineno, rec in run.scans:
         t = float(rec["t"])
-        odom = _interp(run.odom_t, run.odom_p, t)
+        odom = run.odom.at(t)
         assert odom is not None
         try:
             r = np.array([np.inf if v is None else float(v) for v in rec["ranges"]])
@@ -295,8 +275,7 @@ class _RunRecords:
 
     def __init__(self) -> None:
         self.laser = Pose2D()
-        self.odom_t: list[float] = []
-        self.odom_p: list[Pose2D] = []
+        self.odom = PoseHistory(None, "se2")  # base_link in odom, every record
         self.scans: list[tuple[int, dict[str, Any]]] = []
 
     def add(self, p: Path, lineno: int, line: str) -> None:
@@ -328,11 +307,11 @@ class _RunRecords:
             self.laser = Pose2D(float(lp[0]), float(lp[1]), float(lp[2]))
         elif kind == "odom":
             t = float(rec["t"])
-            if self.odom_t and t < self.odom_t[-1]:
+            newest = self.odom.latest()
+            if newest is not None and t < newest[0]:
                 raise LogError(f"{p}:{lineno}: odom time {t} goes backwards")
             pose = Pose2D(float(rec["x"]), float(rec["y"]), float(rec["yaw"]))
-            self.odom_t.append(t)
-            self.odom_p.append(pose)
+            self.odom.add(t, pose)
         elif kind == "scan":
             for key in ("t", "angle_min", "angle_increment", "range_max"):
                 float(rec[key])
