@@ -6,9 +6,11 @@ objects by constructor injection, registers its running pieces on a
 (``curio/sim/wiring.py``), ``build_drivers`` (``curio/drivers/wiring.py``),
 ``build_estimation`` (``curio/estimation/wiring.py``), ``build_safety``
 (``curio/safety/wiring.py``), ``build_navigation`` (``curio/nav/wiring.py``),
-``build_behaviour`` (``curio/bt/wiring.py``) and ``build_web`` (``curio/web/wiring.py``). The
-order of the calls below is the order of dependencies. Nothing below this module imports it,
-and nothing is a module-level singleton: two ``App`` objects can run side by side (tests do).
+``build_behaviour`` (``curio/bt/wiring.py``) and ``build_web`` (``curio/web/wiring.py``); the
+flight recorder (``build_recorder``, ``curio/record/wiring.py``) comes first, so its bus tap
+sees every message. The order of the calls below is the order of dependencies. Nothing below
+this module imports it, and nothing is a module-level singleton: two ``App`` objects can run
+side by side (tests do).
 
 Shutdown order: the rover is stopped first (a zero velocity goes to the base and the base's
 ``halt()`` is awaited), then every task is cancelled and each part's ``close()`` runs.
@@ -39,6 +41,8 @@ from curio.nav.navigator import NavigatorNode
 from curio.nav.obstacles import BlockedDetector, ObstacleNode
 from curio.nav.planner import GlobalPlanner
 from curio.nav.wiring import build_navigation
+from curio.record.recorder import Recorder
+from curio.record.wiring import build_recorder
 from curio.robot import RobotModel
 from curio.safety.stage import SafetyStage
 from curio.safety.wiring import build_safety
@@ -58,7 +62,15 @@ class App:
     ``ekf.enabled`` is false, ``web`` without the dashboard).
     """
 
-    def __init__(self, cfg: Config, clock: Clock, *, web: bool | None = None) -> None:
+    def __init__(self, cfg: Config, clock: Clock, *, web: bool | None = None,
+                 inputs: Callable[[Bus, Clock, Parts], None] | None = None) -> None:
+        """Build every part.
+
+        Args:
+            web: serve the dashboard (default: ``web.enabled``).
+            inputs: instead of the simulator and the device drivers, registers the parts that
+                publish the sensor streams (``curio replay``); ``drivers.mode`` must be ``sim``.
+        """
         self.cfg = cfg
         self.clock = clock
         self.bus: Bus = make_bus()
@@ -66,7 +78,14 @@ class App:
         self._registry = Parts()
         self._tasks: list[asyncio.Task[None]] = []
         reg = self._registry
-        sim = build_sim(cfg, self.bus, clock, reg, self.robot)
+        self.recorder: Recorder | None = build_recorder(cfg, self.bus, clock, reg, self.robot)
+        if inputs is None:
+            sim = build_sim(cfg, self.bus, clock, reg, self.robot)
+        elif cfg.drivers.mode != "sim":
+            raise ValueError("App(inputs=...) replaces the drivers: drivers.mode must be 'sim'")
+        else:
+            sim = None
+            inputs(self.bus, clock, reg)
         self.world: World | None = sim.world if sim else None
         self.simulator: Simulator | None = sim.simulator if sim else None
         drivers = build_drivers(cfg, self.bus, clock, reg, self.robot, world=self.world,
