@@ -187,7 +187,14 @@ async def _run_app(cfg: Config, clock: SimClock, source: ReplaySource, web: bool
     """Build and run the application on the replayed inputs; return what it published."""
     from curio.app import App
 
-    app = App(cfg, clock, web=web, inputs=source.register)
+    captured: list[_Capture] = []
+
+    def inputs(bus: Bus, clock_: Any, parts: Any) -> None:
+        captured.append(_Capture(bus, clock))  # before any part is built: sees it all
+        source.register(bus, clock_, parts)
+
+    app = App(cfg, clock, web=web, inputs=inputs)
+    capture = captured[0]
 
     def give_goal(goal: NavGoal) -> None:
         if goal.action == "cancel":
@@ -197,7 +204,6 @@ async def _run_app(cfg: Config, clock: SimClock, source: ReplaySource, web: bool
             app.navigator.send_goal(poses, tag=goal.tag)
 
     source.on_goal = give_goal
-    capture = _Capture(app.bus, clock)
     await app.start()
     if app.web_url:
         out.write(f"dashboard: {app.web_url}\n")

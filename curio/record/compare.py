@@ -14,7 +14,9 @@ recording was.
   ``cmd_tol_mps`` / ``cmd_tol_radps``.
 
 Every figure is reported with the first time (seconds from the replay's start) it went over its
-tolerance, and how often.
+tolerance, and how often. Recorded messages older than the replay's first (a replay started
+mid-run needs a moment for its first pose) are counted in ``before_first_replayed``, not
+compared.
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ def _held(series: Series[T], t: float, k: int = 0) -> T | None:
 
 
 def _scan(recorded: Series[T], replayed: Series[T], t0: float,
-          errors: Callable[[T, T | None], tuple[float, ...]],
+          errors: Callable[[T, T], tuple[float, ...]],
           limits: tuple[float, ...]) -> dict[str, Any]:
     """Compare every recorded message with the replayed one in effect; per error: max and RMS;
     overall: how many went over a limit and when first."""
@@ -69,9 +71,14 @@ def _scan(recorded: Series[T], replayed: Series[T], t0: float,
     over = 0
     first: float | None = None
     same = 0  # how many recorded messages came before this one at the same instant
+    before_first = 0  # recorded before the replay published any: nothing to compare with
     for i, (t, rec) in enumerate(recorded):
         same = same + 1 if i and recorded[i - 1][0] == t else 0
-        errs = errors(rec, _held(replayed, t, same))
+        held = _held(replayed, t, same)
+        if held is None:
+            before_first += 1
+            continue
+        errs = errors(rec, held)
         for k, e in enumerate(errs):
             worst[k] = max(worst[k], e)
             sq[k] += e * e if math.isfinite(e) else 0.0
@@ -81,6 +88,7 @@ def _scan(recorded: Series[T], replayed: Series[T], t0: float,
                 first = t - t0
     n = max(1, len(recorded))
     return {"recorded": len(recorded), "replayed": len(replayed), "over_tolerance": over,
+            "before_first_replayed": before_first,
             "first_divergence_s": None if first is None else round(first, 3),
             "max": [_r(w) for w in worst], "rms": [_r(math.sqrt(s / n)) for s in sq]}
 
@@ -92,9 +100,7 @@ def _r(v: float) -> float | None:
 def compare_poses(recorded: Series[PoseWithCovariance], replayed: Series[PoseWithCovariance],
                   t0: float, tol: Tolerances) -> dict[str, Any]:
     """Pose errors: ``max_error_m``, ``rms_error_m``, ``max_yaw_error_rad`` and the rest."""
-    def errors(a: PoseWithCovariance, b: PoseWithCovariance | None) -> tuple[float, float]:
-        if b is None:
-            return math.inf, math.inf
+    def errors(a: PoseWithCovariance, b: PoseWithCovariance) -> tuple[float, float]:
         return a.pose.distance_to(b.pose), abs(angle_diff(a.pose.yaw, b.pose.yaw))
 
     out = _scan(recorded, replayed, t0, errors, (tol.pose_tol_m, tol.pose_tol_rad))
@@ -102,10 +108,9 @@ def compare_poses(recorded: Series[PoseWithCovariance], replayed: Series[PoseWit
     return {**out, "max_error_m": max_m, "rms_error_m": rms_m, "max_yaw_error_rad": max_rad}
 
 
-def _hausdorff(a: Path, b: Path | None) -> float:
-    if b is None or not a.poses or not b.poses:
-        same = b is not None and not a.poses and not b.poses
-        return 0.0 if same else math.inf
+def _hausdorff(a: Path, b: Path) -> float:
+    if not a.poses or not b.poses:
+        return 0.0 if not a.poses and not b.poses else math.inf
     pa = np.array([(p.x, p.y) for p in a.poses])
     pb = np.array([(p.x, p.y) for p in b.poses])
     d = np.sqrt(((pa[:, None, :] - pb[None, :, :]) ** 2).sum(axis=2))
@@ -123,9 +128,7 @@ def compare_paths(recorded: Series[Path], replayed: Series[Path], t0: float,
 def compare_twists(recorded: Series[Twist], replayed: Series[Twist], t0: float,
                    tol: Tolerances) -> dict[str, Any]:
     """Command differences: ``max_linear_diff_mps``, ``max_angular_diff_radps``."""
-    def errors(a: Twist, b: Twist | None) -> tuple[float, float]:
-        if b is None:
-            return abs(a.linear_mps), abs(a.angular_radps)
+    def errors(a: Twist, b: Twist) -> tuple[float, float]:
         return abs(a.linear_mps - b.linear_mps), abs(a.angular_radps - b.angular_radps)
 
     out = _scan(recorded, replayed, t0, errors, (tol.cmd_tol_mps, tol.cmd_tol_radps))
