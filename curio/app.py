@@ -48,6 +48,7 @@ from curio.safety.stage import SafetyStage
 from curio.safety.wiring import build_safety
 from curio.sim.wiring import Simulator, build_sim
 from curio.sim.world import World
+from curio.web.auth import load_or_create_token
 from curio.web.wiring import WebServer, build_web
 
 __all__ = ["App"]
@@ -78,7 +79,9 @@ class App:
         self._registry = Parts()
         self._tasks: list[asyncio.Task[None]] = []
         reg = self._registry
-        self.recorder: Recorder | None = build_recorder(cfg, self.bus, clock, reg, self.robot)
+        self.recorder: Recorder | None = build_recorder(
+            cfg, self.bus, clock, reg, self.robot,
+            operator_token=lambda: load_or_create_token(cfg.data_path(cfg.web.token_file)))
         if inputs is None:
             sim = build_sim(cfg, self.bus, clock, reg, self.robot)
         elif cfg.drivers.mode != "sim":

@@ -31,13 +31,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
 
+from curio.commands.common import run_command
 from curio.core.errors import SetupError
 from curio.core.geometry import Pose2D, quat_to_yaw
 from curio.core.messages import (
@@ -51,7 +51,6 @@ from curio.core.messages import (
 from curio.core.messages import (
     Path as PathMsg,
 )
-from curio.estimation.carmen import LogError
 from curio.estimation.rosbag import Ros2BagWriter
 from curio.record.codec import decode
 from curio.record.reader import RecordedMessage, open_recording
@@ -193,20 +192,14 @@ def export_ros2(src: Path, out: Path, storage: str = "mcap") -> dict[str, int]:
     return dict(writer.counts)
 
 
-def main(argv: list[str] | None = None, out: TextIO | None = None,
-         err: TextIO | None = None) -> int:
-    """Run ``curio export`` with ``argv`` (without the ``export`` word); return the exit code."""
-    out = out or sys.stdout
-    err = err or sys.stderr
-    try:
-        args = _parser().parse_args(argv)
-    except SystemExit as exc:
-        return 0 if exc.code == 0 else 2
-    try:
-        counts = export_ros2(args.file, args.out, args.storage)
-    except (SetupError, LogError) as exc:
-        err.write(f"curio export: error: {' '.join(str(exc).split())}\n")
-        return 2
+def _run(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    counts = export_ros2(args.file, args.out, args.storage)
     out.write(f"wrote the ROS 2 bag {args.out} ({args.storage}): "
               + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) + "\n")
     return 0
+
+
+def main(argv: list[str] | None = None, out: TextIO | None = None,
+         err: TextIO | None = None) -> int:
+    """Run ``curio export`` with ``argv`` (without the ``export`` word); return the exit code."""
+    return run_command("export", _parser(), argv, out, err, _run)

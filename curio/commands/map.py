@@ -28,7 +28,8 @@ from pathlib import Path
 from typing import TextIO
 
 from curio.core.fileio import atomic_write_text
-from curio.estimation.carmen import LogError, read_log
+from curio.estimation.carmen import LogError
+from curio.estimation.logs import read_log  # ROS bags and recordings too
 from curio.estimation.maps import MapError, load_map, map_stats, save_map
 
 __all__ = ["main"]

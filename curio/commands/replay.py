@@ -35,12 +35,12 @@ import asyncio
 import itertools
 import math
 import shutil
-import sys
 import tempfile
 from collections import Counter
 from pathlib import Path
 from typing import Any, TextIO
 
+from curio.commands.common import run_command
 from curio.core.bus import Bus, Topic
 from curio.core.clock import SimClock, wall_perf_counter
 from curio.core.config import Config, config_from_data, load_config
@@ -57,7 +57,6 @@ from curio.core.topics import (
     SCAN,
     WHEEL_ODOM,
 )
-from curio.estimation.carmen import LogError
 from curio.record.compare import (
     Tolerances,
     compare_paths,
@@ -124,23 +123,15 @@ def _check_times(args: argparse.Namespace) -> None:
 
 def _replay_config(base: Config, web: bool, data_dir: Path, recorded_mode: str) -> Config:
     """The config a replay runs with: the recorded one, drivers replaced, nothing recorded."""
-    updates: dict[str, Any] = {"data_dir": str(data_dir)}
-    drivers = base.drivers.model_copy()
-    drivers.mode = "sim"
-    updates["drivers"] = drivers
+    def section(name: str, **changes: Any) -> Any:
+        return getattr(base, name).model_copy(update=changes)
+
+    updates: dict[str, Any] = {
+        "data_dir": str(data_dir), "drivers": section("drivers", mode="sim"),
+        "record": section("record", enabled=False),
+        "foxglove": section("foxglove", enabled=False), "web": section("web", enabled=web)}
     if recorded_mode == "real":  # the real rover started at home, whatever sim.start says
-        sim = base.sim.model_copy()
-        sim.start = None
-        updates["sim"] = sim
-    record = base.record.model_copy()
-    record.enabled = False
-    updates["record"] = record
-    fox = base.foxglove.model_copy()
-    fox.enabled = False
-    updates["foxglove"] = fox
-    web_cfg = base.web.model_copy()
-    web_cfg.enabled = web
-    updates["web"] = web_cfg
+        updates["sim"] = section("sim", start=None)
     return base.model_copy(update=updates)
 
 
@@ -397,26 +388,20 @@ def _bag_report(args: argparse.Namespace, path: Path, source: ReplaySource, capt
     return 0
 
 
+def _run(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
+    from curio.estimation.rosbag import is_bag
+
+    _check_times(args)
+    _speed(args)
+    path = Path(args.file)
+    if not path.exists():
+        raise SetupError(f"no such file: {path}")
+    if is_bag(path):
+        return _replay_bag(args, out, err)
+    return _replay_recording(args, out, err)
+
+
 def main(argv: list[str] | None = None, out: TextIO | None = None,
          err: TextIO | None = None) -> int:
     """Run ``curio replay`` with ``argv`` (without the ``replay`` word); return the exit code."""
-    from curio.estimation.rosbag import is_bag
-
-    out = out or sys.stdout
-    err = err or sys.stderr
-    try:
-        args = _parser().parse_args(argv)
-    except SystemExit as exc:
-        return 0 if exc.code == 0 else 2
-    try:
-        _check_times(args)
-        _speed(args)
-        path = Path(args.file)
-        if not path.exists():
-            raise SetupError(f"no such file: {path}")
-        if is_bag(path):
-            return _replay_bag(args, out, err)
-        return _replay_recording(args, out, err)
-    except (SetupError, LogError) as exc:
-        err.write(f"curio replay: error: {' '.join(str(exc).split())}\n")
-        return 2
+    return run_command("replay", _parser(), argv, out, err, _run)

@@ -303,14 +303,8 @@ def read_run(path: Path | str) -> Iterator[LogScan]:
 
 
 def read_log(path: Path | str) -> Iterator[LogScan]:
-    """A run log (``.jsonl``/``.json``), a ROS bag or Curio recording (``.bag``, ``.db3``,
-    ``.mcap``, a rosbag2 directory: :mod:`curio.estimation.rosbag`) or a CARMEN log (anything
-    else), by file name."""
+    """A run log (``.jsonl``/``.json``) or a CARMEN log (anything else), by file name."""
     p = Path(path)
-    if p.suffix.lower() in (".bag", ".db3", ".mcap") or p.is_dir():
-        from curio.estimation.rosbag import read_bag
-
-        return read_bag(p)
     if p.suffix.lower() in (".jsonl", ".json"):
         return read_run(p)
     return read_carmen(p)

@@ -24,7 +24,9 @@ from __future__ import annotations
 import json
 import logging
 import math
+import secrets
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from curio.core.bus import Bus
@@ -34,7 +36,6 @@ from curio.core.errors import SetupError
 from curio.core.messages import Twist
 from curio.core.topics import CMD_VEL_TELEOP
 from curio.record.codec import ChannelSpec
-from curio.web.auth import load_or_create_token, token_matches
 
 try:
     import foxglove
@@ -84,11 +85,15 @@ class _Listener(ServerListener):  # type: ignore[misc]
 class FoxgloveSink:
     """The live server, as a recorder sink (see the module docstring).
 
+    Args:
+        operator_token: returns the dashboard's control token (asked once, when teleop is on).
+
     Raises:
         SetupError: the extra is not installed, or the port cannot be bound.
     """
 
-    def __init__(self, cfg: Config, bus: Bus, clock: Clock) -> None:
+    def __init__(self, cfg: Config, bus: Bus, clock: Clock,
+                 operator_token: Callable[[], str]) -> None:
         if not HAVE_SDK:
             raise SetupError("foxglove.enabled = true needs the optional extra: "
                              "pip install 'curio[foxglove]'")
@@ -96,8 +101,7 @@ class FoxgloveSink:
         self.clock = clock
         fc = cfg.foxglove
         self.teleop = fc.teleop
-        self._token = (load_or_create_token(cfg.data_path(cfg.web.token_file))
-                       if fc.teleop else None)
+        self._token = operator_token() if fc.teleop else None
         self._lock = threading.Lock()
         self._authorized: set[int] = set()
         self._client_topics: dict[tuple[int, int], str] = {}
@@ -169,8 +173,8 @@ class FoxgloveSink:
 
     def authorize(self, client_id: int, presented: Any) -> None:
         """The client set ``operator_token``: allow its teleop if the token matches."""
-        ok = (self._token is not None and isinstance(presented, str)
-              and token_matches(presented, self._token))
+        ok = (self._token is not None and isinstance(presented, str) and bool(presented)
+              and secrets.compare_digest(presented.encode(), self._token.encode()))
         with self._lock:
             if ok:
                 self._authorized.add(client_id)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -89,9 +90,12 @@ def _mcap_sink(cfg: Config, clock: Clock, offset: float) -> McapSink:
                     max_total_bytes=int(rc.max_total_mb * 1e6), compression=rc.compression)
 
 
-def build_recorder(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
-                   robot: RobotModel) -> Recorder | None:
+def build_recorder(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
+                   operator_token: Callable[[], str]) -> Recorder | None:
     """Construct the recorder (and the live Foxglove server) and register its part.
+
+    Args:
+        operator_token: returns the dashboard's control token (Foxglove teleop needs it).
 
     Raises:
         SetupError: ``foxglove.enabled`` without the ``curio[foxglove]`` extra installed.
@@ -107,7 +111,7 @@ def build_recorder(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
     if cfg.foxglove.enabled:
         from curio.record.foxglove_live import FoxgloveSink
 
-        sinks.append(FoxgloveSink(cfg, bus, clock))
+        sinks.append(FoxgloveSink(cfg, bus, clock, operator_token))
     queue = RecordQueue(rc.queue_messages, int(rc.queue_mb * 1e6),
                         "wait" if isinstance(clock, SimClock) else "drop_oldest")
     statics = codec.statics(clock.now(), {"laser": robot.laser_in_base,

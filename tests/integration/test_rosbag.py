@@ -19,7 +19,8 @@ from curio.commands.map import main as map_main
 from curio.core.config import REPO_ROOT
 from curio.core.geometry import Pose2D
 from curio.core.messages import LaserScan, Odometry
-from curio.estimation.carmen import LogError, LogScan, read_carmen, read_log
+from curio.estimation.carmen import LogError, LogScan, read_carmen
+from curio.estimation.logs import read_log
 from curio.estimation.mapping import build_map_from_log
 from curio.estimation.maps import OccupancyGrid, load_map
 from curio.estimation.rosbag import Ros2BagWriter, is_bag
