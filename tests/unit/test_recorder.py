@@ -31,9 +31,11 @@ class ListSink:
         self.fail = False
         self.gate = threading.Event()
         self.gate.set()
+        self.entered = threading.Event()
 
     def write(self, spec: ChannelSpec, log_ns: int, publish_ns: int, seq: int,
               data: bytes) -> None:
+        self.entered.set()
         self.gate.wait(10.0)
         if self.fail:
             raise OSError(28, "No space left on device")
@@ -50,7 +52,9 @@ class ListSink:
 
 
 def make(bus: Bus, clock: SimClock, sink: ListSink, **kw: Any) -> Recorder:
-    queue = kw.pop("queue", None) or RecordQueue(1000, 10**8, "drop_oldest")
+    queue = kw.pop("queue", None)
+    if queue is None:
+        queue = RecordQueue(1000, 10**8, "drop_oldest")
     return Recorder(bus, clock, Codec(100.0), [sink], queue=queue, **kw)
 
 
@@ -92,11 +96,15 @@ async def test_a_stalled_disk_drops_the_oldest_and_never_blocks_the_loop() -> No
     rec.start_writer()
     sink.gate.clear()  # the disk hangs
     bus.publish(WHEELS, WheelEncoders(0.0, (0, 0, 0, 0, 0, 0)))
+    rec.queue._ready.acquire()
+    rec.queue._ready.notify()  # wake the writer: it takes the message and hangs writing it
+    rec.queue._ready.release()
+    assert sink.entered.wait(5.0)
     t0 = wall_perf_counter()
     for i in range(2000):
         bus.publish(WHEELS, WheelEncoders(0.0, (i, 0, 0, 0, 0, 0)))
     assert wall_perf_counter() - t0 < 1.0  # the loop went on
-    assert rec.queue.dropped_total > 500 and rec.health(0.0).state == "degraded"
+    assert rec.queue.dropped_total == 2000 - 50 and rec.health(0.0).state == "degraded"
     sink.gate.set()
     await rec.close()
     health = rec.health(1.0)
