@@ -286,6 +286,9 @@ def _replay_recording(args: argparse.Namespace, out: TextIO, err: TextIO) -> int
         shutil.rmtree(data_dir, ignore_errors=True)
     if source.error is not None:
         raise SetupError(f"{rec.path}: {source.error}")
+    if recorded.last_t is None:
+        raise SetupError(f"--from {args.t_from:g}: the recording holds nothing from there on "
+                         f"(it starts at 0 s and has no inputs or outputs after {args.t_from:g} s)")
     if failed:
         err.write(f"curio replay: part {failed[0][0]} failed: {failed[0][1]}\n")
         return 1

@@ -7,6 +7,11 @@ records checks. :func:`run_scenario` builds the :class:`~curio.app.App` on a
 :class:`~curio.core.clock.SimClock`, runs the script, and returns the report of DESIGN.md's
 contract.
 
+Scenarios do not record unless asked: ``ScenarioArgs.record`` (``curio sim … --record
+FILE.mcap``) turns the flight recorder on for that one file. Goals a script gives the navigator
+through :meth:`ScenarioContext.navigator_ready`'s handle are published on ``/goal`` too, so
+``curio replay`` can give them again.
+
 Report fields: ``scenario``, ``seed``, ``success``, ``sim_time_s``, ``wall_time_s``,
 ``goals_reached``, ``goals_total``, ``collisions``, ``path_length_m`` (ground-truth distance
 driven), ``localization_rmse_m`` (null when localisation is off), ``events``
