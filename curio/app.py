@@ -7,10 +7,11 @@ objects by constructor injection, registers its running pieces on a
 ``build_estimation`` (``curio/estimation/wiring.py``), ``build_safety``
 (``curio/safety/wiring.py``), ``build_navigation`` (``curio/nav/wiring.py``),
 ``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``) and
-``build_web`` (``curio/web/wiring.py``), with ``build_eventlog`` (``curio/eventlog/wiring.py``)
-first so the event log sees every message. The order of the calls below is the order of
-dependencies. Nothing below this module imports it,
-and nothing is a module-level singleton: two ``App`` objects can run side by side (tests do).
+``build_web`` (``curio/web/wiring.py``); the flight recorder (``build_recorder``,
+``curio/record/wiring.py``) comes first, so its bus tap sees every message, then the event log
+(``build_eventlog``, ``curio/eventlog/wiring.py``). The order of the calls below is the order of
+dependencies. Nothing below this module imports it, and nothing is a module-level singleton:
+two ``App`` objects can run side by side (tests do).
 
 Shutdown order: the rover is stopped first (a zero velocity goes to the base and the base's
 ``halt()`` is awaited), then every task is cancelled and each part's ``close()`` runs.
@@ -33,6 +34,7 @@ from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
 from curio.core.topics import CMD_VEL, make_bus
 from curio.drivers.base import BaseDriver
+from curio.drivers.modes import driver_mode
 from curio.drivers.wiring import build_drivers
 from curio.estimation.ekf import EkfNode
 from curio.estimation.wiring import Localiser, MapServer, build_estimation
@@ -44,12 +46,15 @@ from curio.nav.navigator import NavigatorNode
 from curio.nav.obstacles import BlockedDetector, ObstacleNode
 from curio.nav.planner import GlobalPlanner
 from curio.nav.wiring import build_navigation
+from curio.record.recorder import Recorder
+from curio.record.wiring import build_recorder
 from curio.robot import RobotModel
 from curio.safety.stage import SafetyStage
 from curio.safety.wiring import build_safety
 from curio.sim.wiring import Simulator, build_sim
 from curio.sim.world import World
 from curio.tours.wiring import Tours, build_tours
+from curio.web.auth import load_or_create_token
 from curio.web.wiring import WebServer, build_web
 
 __all__ = ["App"]
@@ -64,7 +69,15 @@ class App:
     ``ekf.enabled`` is false, ``web`` without the dashboard).
     """
 
-    def __init__(self, cfg: Config, clock: Clock, *, web: bool | None = None) -> None:
+    def __init__(self, cfg: Config, clock: Clock, *, web: bool | None = None,
+                 inputs: Callable[[Bus, Clock, Parts], None] | None = None) -> None:
+        """Build every part.
+
+        Args:
+            web: serve the dashboard (default: ``web.enabled``).
+            inputs: instead of the simulator and the device drivers, registers the parts that
+                publish the sensor streams (``curio replay``); ``drivers.mode`` must be ``sim``.
+        """
         self.cfg = cfg
         self.clock = clock
         self.bus: Bus = make_bus()
@@ -72,9 +85,18 @@ class App:
         self._registry = Parts()
         self._tasks: list[asyncio.Task[None]] = []
         reg = self._registry
+        self.recorder: Recorder | None = build_recorder(
+            cfg, self.bus, clock, reg, self.robot,
+            operator_token=lambda: load_or_create_token(cfg.data_path(cfg.web.token_file)))
         logging_ = build_eventlog(cfg, self.bus, clock, reg)
         self.eventlog: EventLog | None = logging_.log if logging_ else None
-        sim = build_sim(cfg, self.bus, clock, reg, self.robot)
+        if inputs is None:
+            sim = build_sim(cfg, self.bus, clock, reg, self.robot)
+        elif not driver_mode(cfg).simulated:
+            raise ValueError("App(inputs=...) replaces the drivers: drivers.mode must be 'sim'")
+        else:
+            sim = None
+            inputs(self.bus, clock, reg)
         self.world: World | None = sim.world if sim else None
         self.simulator: Simulator | None = sim.simulator if sim else None
         drivers = build_drivers(cfg, self.bus, clock, reg, self.robot, world=self.world,

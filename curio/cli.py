@@ -1,7 +1,8 @@
 """The ``curio`` command.
 
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
-``curio emulate DEVICE``, ``curio map ...``, ``curio report --day YYYY-MM-DD`` and
+``curio emulate DEVICE``, ``curio map ...``, ``curio report --day YYYY-MM-DD``,
+``curio replay FILE``, ``curio export ...`` and
 ``curio bench NAME``. Exit codes: 0 success,
 1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
 can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
@@ -88,6 +89,8 @@ def _build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--duration", type=float, help="time limit, simulated seconds")
     sim.add_argument("--report", type=Path, help="write the JSON report here")
     sim.add_argument("--web", action="store_true", help="serve the dashboard (real time)")
+    sim.add_argument("--record", type=Path, metavar="FILE.mcap",
+                     help="record the run (every topic) to this MCAP file")
     _add_config_args(sim)
 
     config = sub.add_parser("config", help="configuration tools")
@@ -99,6 +102,9 @@ def _build_parser() -> argparse.ArgumentParser:
         ("check", "diagnose the hardware and say how to fix what is wrong"),
         ("emulate", "serve a device emulator (arduino, rplidar) on a pseudo-terminal"),
         ("map", "build, save and inspect maps"),
+        ("replay", "replay a recording (or a ROS bag) through estimation and navigation and "
+                   "report where it diverges"),
+        ("export", "convert a recording: --ros2 writes a ROS 2 bag (ros2 bag play)"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -160,10 +166,13 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         raise UsageError(f"--duration takes simulated seconds > 0, got {args.duration}")
     if args.map_yaml is not None and not Path(args.map_yaml).is_file():
         raise UsageError(f"--map: no such file: {args.map_yaml}")
+    if args.record is not None and args.record.is_dir():
+        raise UsageError(f"--record takes a file to write (FILE.mcap), got the directory "
+                         f"{args.record}")
     cfg = _load(args)
     sargs = ScenarioArgs(
         map_yaml=args.map_yaml, start=start, goal=goal, seed=args.seed, speed=speed,
-        duration_s=args.duration, web=args.web,
+        duration_s=args.duration, web=args.web, record=args.record,
     )
 
     async def announce(app: Any) -> None:
@@ -186,6 +195,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         print(f"  [{mark}] {check['name']} {check['detail']}")
     if args.report:
         print(f"  report: {args.report}")
+    if args.record:
+        print(f"  recording: {args.record}")
     return 0 if report["success"] else 1
 
 
@@ -279,13 +290,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _delegate(command: str, rest: list[str]) -> int:
-    """Hand ``check``, ``emulate`` and ``map`` to the modules that own them."""
+    """Hand ``check``, ``emulate``, ``map``, ``replay`` and ``export`` to the modules that own
+    them."""
     import importlib
 
     module_name = {
         "check": "curio.commands.check",
         "emulate": "curio.commands.emulate",
         "map": "curio.commands.map",
+        "replay": "curio.commands.replay",
+        "export": "curio.commands.export",
     }[command]
     try:
         module = importlib.import_module(module_name)
@@ -337,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-_DELEGATED = ("check", "emulate", "map")
+_DELEGATED = ("check", "emulate", "map", "replay", "export")
 
 
 def _setup_logging(verbose: bool) -> None:

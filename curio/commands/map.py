@@ -37,7 +37,8 @@ from typing import TYPE_CHECKING, TextIO
 
 from curio.commands.signals import stop_on_signals
 from curio.core.fileio import atomic_write_text
-from curio.estimation.carmen import LogError, read_log
+from curio.estimation.carmen import LogError
+from curio.estimation.logs import read_log  # ROS bags and recordings too
 from curio.estimation.maps import MapError, load_map, map_stats, save_map
 
 if TYPE_CHECKING:
@@ -93,7 +94,7 @@ def _build(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     from curio.estimation.mapping import MapperParams, build_map_from_log
 
     log_path = Path(args.log)
-    if not log_path.is_file():
+    if not log_path.exists():  # a file, or a rosbag2 directory
         err.write(f"curio map build: --log: no such file: {log_path}\n")
         return 2
     if args.resolution <= 0 or args.max_range <= 0:
@@ -316,7 +317,8 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="cmd", required=True, metavar="ACTION",
                            title="actions (build, info, score, convert, record)")
     b = sub.add_parser("build", help="build a map from a CARMEN log or a Curio run log")
-    b.add_argument("--log", required=True, help="CARMEN .clf/.log or Curio .jsonl run log")
+    b.add_argument("--log", required=True, help="CARMEN .clf/.log, Curio .jsonl run log or "
+                   ".mcap recording, or a ROS bag (.bag, rosbag2 directory, .db3, .mcap)")
     b.add_argument("--out", required=True, help="map YAML to write (image beside it)")
     b.add_argument("--trajectory", help="write the corrected trajectory as CSV t,x,y,yaw")
     b.add_argument("--resolution", type=float, default=0.05, help="metres per cell (0.05)")

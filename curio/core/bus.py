@@ -9,19 +9,22 @@
 * ``latched`` topics hand the last message to every new subscriber at once.
 * :meth:`Bus.publish` never awaits and never runs subscriber code, so a slow subscriber can never
   stall a publisher. Driver threads use :meth:`Bus.publish_threadsafe`.
+* A *tap* (:meth:`Bus.add_tap`) sees every message of every topic at the moment it is published,
+  before any conflation: the flight recorder uses one. A tap is a plain function called inside
+  ``publish``; it must be quick (queue the message and return), never raise and never publish.
 """
 
 from __future__ import annotations
 
 import asyncio
 from collections import deque
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from typing import Any, Generic, Literal, TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["Bus", "Subscription", "Topic", "TopicStats"]
+__all__ = ["Bus", "Subscription", "Tap", "Topic", "TopicStats"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,6 +127,10 @@ class _Channel:
     stats: TopicStats = field(default_factory=TopicStats)
 
 
+Tap = Callable[[Topic[Any], Any], None]
+"""A function that sees every published message: ``tap(topic, msg)`` (see :meth:`Bus.add_tap`)."""
+
+
 class Bus:
     """Routes messages from publishers to subscribers inside one event loop.
 
@@ -135,6 +142,7 @@ class Bus:
     def __init__(self, topics: list[Topic[Any]] | None = None) -> None:
         self._channels: dict[str, _Channel] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._taps: list[Tap] = []
         for topic in topics or []:
             self.declare(topic)
 
@@ -172,9 +180,24 @@ class Bus:
         ch.stats.published += 1
         ch.last = msg
         ch.has_last = True
+        for tap in self._taps:
+            tap(topic, msg)
         for sub in ch.subscribers:
             if sub._put(msg):
                 ch.stats.dropped += 1
+
+    def add_tap(self, tap: Tap) -> None:
+        """Call ``tap(topic, msg)`` for every message published from now on, on any topic.
+
+        The tap runs inside :meth:`publish`, on the loop: it must only queue the message (no
+        I/O, no waiting), never raise and never publish.
+        """
+        self._taps.append(tap)
+
+    def remove_tap(self, tap: Tap) -> None:
+        """Stop calling ``tap`` (no error if it was not added)."""
+        if tap in self._taps:
+            self._taps.remove(tap)
 
     def publish_threadsafe(self, topic: Topic[T], msg: T) -> None:
         """Publish from another thread (device I/O threads)."""

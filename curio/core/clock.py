@@ -61,6 +61,11 @@ def process_cpu_time() -> float:
     return time.process_time()
 
 
+def thread_cpu_time() -> float:
+    """Return CPU seconds used by the calling thread (a worker thread's own cost)."""
+    return time.thread_time()
+
+
 @dataclass
 class RateStats:
     """Timing statistics of a fixed-rate loop (``Clock.every``).

@@ -8,6 +8,7 @@ resolved against the directory of the config file.
 
 from __future__ import annotations
 
+import copy
 import difflib
 import math
 import tomllib
@@ -25,7 +26,8 @@ from pydantic import (
 
 from curio.core.errors import SetupError
 
-__all__ = ["Config", "ConfigError", "default_config_path", "dump_config", "load_config"]
+__all__ = ["Config", "ConfigError", "config_from_data", "default_config_path", "dump_config",
+           "load_config"]
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -599,6 +601,74 @@ class WebConfig(Section):
     allowed_origins: list[str] = Field(default_factory=list)
 
 
+class RecordConfig(Section):
+    """The flight recorder (``curio/record/``): the bus's topics to MCAP files.
+
+    Files go to ``<data_dir>/<directory>/`` named by their start time, a new one after
+    ``max_file_mb`` or ``max_file_s``; the oldest are deleted once all of them exceed
+    ``max_total_mb``. A writer thread encodes and writes; the queue in front of it is bounded by
+    ``queue_messages`` and ``queue_mb`` and drops its oldest messages (counted) when full.
+    """
+
+    enabled: bool = Field(True, description="record every run (curio sim records only with "
+                          "--record FILE.mcap)")
+    directory: str = Field("recordings", description="in data_dir unless absolute")
+    file: str | None = Field(
+        None, description="record into this one file instead (no rotation, no budget); "
+        "`curio sim --record` sets it")
+    max_file_mb: float = Field(64.0, gt=0.0, le=4096.0, description="start a new file beyond")
+    max_file_s: float = Field(900.0, gt=0.0, description="start a new file after this long")
+    max_total_mb: float = Field(
+        2048.0, gt=0.0, description="disk budget of the directory: oldest files deleted first")
+    flush_s: float = Field(
+        1.0, gt=0.0, le=5.0, description="written to disk at least this often: a crash or "
+        "kill -9 loses about this much (plus the writer's 0.05 s wake-up)")
+    queue_messages: int = Field(20000, ge=100, description="unwritten messages held at most")
+    queue_mb: float = Field(32.0, gt=0.0, le=1024.0, description="unwritten bytes held at most")
+    local_costmap_rate_hz: float = Field(
+        1.0, gt=0.0, le=50.0, description="/local_costmap recorded at most this often")
+    costmap_rate_hz: float = Field(
+        0.2, gt=0.0, le=50.0, description="/costmap (the whole building) at most this often; "
+        "every /map is recorded")
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
+    exclude: list[str] = Field(
+        default_factory=list, description="bus topics not recorded, e.g. [\"/imu\"]")
+    log_level: Literal["debug", "info", "warning", "error"] = Field(
+        "info", description="Python log records at or above this level go to /log")
+
+    @field_validator("exclude")
+    @classmethod
+    def _known_topics(cls, value: list[str]) -> list[str]:
+        from curio.core.topics import ALL_TOPICS
+
+        names = sorted(t.name for t in ALL_TOPICS)
+        unknown = [v for v in value if v not in names]
+        if unknown:
+            raise ValueError(f"unknown topic {unknown[0]!r}; topics: {', '.join(names)}")
+        return value
+
+    @model_validator(mode="after")
+    def _file_fits_budget(self) -> RecordConfig:
+        if self.max_file_mb > self.max_total_mb:
+            raise ValueError(f"record.max_file_mb = {self.max_file_mb:g} is more than "
+                             f"record.max_total_mb = {self.max_total_mb:g}; allowed: "
+                             "max_file_mb <= max_total_mb")
+        return self
+
+
+class FoxgloveConfig(Section):
+    """Live Foxglove / Lichtblick server (optional extra ``curio[foxglove]``): the recorder's
+    channels live over ``foxglove-sdk``'s WebSocket server."""
+
+    enabled: bool = False
+    host: str = Field("127.0.0.1", description="bind address; reach it by an SSH tunnel, or "
+                      "bind the LAN on purpose")
+    port: int = Field(8765, ge=0, le=65535, description="0 picks a free port (tests)")
+    teleop: bool = Field(
+        True, description="accept /cmd_vel_teleop (geometry_msgs/Twist JSON) from a client that "
+        "has set the parameter operator_token to the dashboard's token; through the safety stage")
+
+
 class Config(Section):
     """The whole application configuration."""
 
@@ -613,6 +683,8 @@ class Config(Section):
     web: WebConfig = Field(default_factory=WebConfig)
     tours: ToursConfig = Field(default_factory=ToursConfig)
     eventlog: EventLogConfig = Field(default_factory=EventLogConfig)
+    record: RecordConfig = Field(default_factory=RecordConfig)
+    foxglove: FoxgloveConfig = Field(default_factory=FoxgloveConfig)
 
     # Where relative paths are resolved; not a config key.
     base_dir: Path = Field(default_factory=lambda: REPO_ROOT, exclude=True)
@@ -782,11 +854,28 @@ def load_config(path: Path | str | None = None, overrides: list[str] | None = No
             raise ConfigError(f"config path is a directory, not a TOML file: {file_path}") from None
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"config file {file_path} is not valid TOML: {exc}") from None
+    base_dir = file_path.resolve().parent if file_path is not None else REPO_ROOT
+    return config_from_data(data, base_dir, overrides, source)
+
+
+def config_from_data(data: dict[str, Any], base_dir: Path, overrides: list[str] | None = None,
+                     source: str = "the configuration") -> Config:
+    """Validate configuration data (a parsed file, a recording's ``config``) with overrides.
+
+    Args:
+        data: nested sections and keys, as in the TOML file (not modified).
+        base_dir: where relative paths are resolved.
+        overrides: ``KEY=VALUE`` strings; VALUE is parsed as a TOML value.
+        source: names the data in error messages.
+
+    Raises:
+        ConfigError: unknown key, bad value.
+    """
+    data = copy.deepcopy(data)
     for item in overrides or []:
         _apply_override(data, item)
     if overrides:
         source += " with --set " + " ".join(overrides)
-    base_dir = file_path.resolve().parent if file_path is not None else REPO_ROOT
     try:
         return Config.model_validate({**data, "base_dir": base_dir})
     except ValidationError as exc:

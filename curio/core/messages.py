@@ -291,6 +291,26 @@ class OperatorCommand:
 
 
 @dataclass(frozen=True, slots=True)
+class NavGoal:
+    """A goal given to the navigator's interface from outside the behaviour tree (a scenario
+    script, a tool): what ``curio replay`` gives the navigator again. The tree's own goals are
+    not on it (a replay re-runs the tree).
+
+    Attributes:
+        action: ``send`` (``poses`` in ``frame_id``; a NaN yaw has no heading requirement) or
+            ``cancel`` (with ``reason``).
+        tag: the goal's label (``GoalHandle.tag``).
+    """
+
+    stamp: float
+    action: Literal["send", "cancel"]
+    poses: tuple[Pose2D, ...] = ()
+    tag: str = ""
+    reason: str = ""
+    frame_id: str = "map"
+
+
+@dataclass(frozen=True, slots=True)
 class StatusText:
     """Operator-facing status line (e.g. ``Moving to (0.2,0)``)."""
 

@@ -19,6 +19,7 @@ from curio.core.messages import (
     Imu,
     LaserScan,
     LocalizationStatus,
+    NavGoal,
     Obstacles,
     Odometry,
     OperatorCommand,
@@ -62,6 +63,8 @@ PLAN = Topic("/plan", Path, latched=True, doc="global planner: current global pl
 LOCAL_PLAN = Topic("/local_plan", Path, latched=True, doc="controller: predicted trajectory")
 OBSTACLES = Topic("/obstacles", Obstacles, doc="obstacle extractor: segments and circles")
 BLOCKED = Topic("/blocked", BlockedState, latched=True, doc="blocked-path detector")
+GOAL = Topic("/goal", NavGoal, kind="reliable",
+             doc="scenario scripts / tools: goals given to the navigator (not the tree's own)")
 CMD_VEL_NAV = Topic("/cmd_vel_nav", Twist, doc="local controller / recovery: wanted velocity")
 CMD_VEL_TELEOP = Topic("/cmd_vel_teleop", Twist, doc="teleop (web, CLI): wanted velocity")
 CMD_VEL = Topic("/cmd_vel", Twist, doc="safety stage only: the velocity the base executes")
@@ -103,6 +106,7 @@ ALL_TOPICS: list[Topic[Any]] = [
     LOCAL_PLAN,
     OBSTACLES,
     BLOCKED,
+    GOAL,
     CMD_VEL_NAV,
     CMD_VEL_TELEOP,
     CMD_VEL,

@@ -7,6 +7,11 @@ records checks. :func:`run_scenario` builds the :class:`~curio.app.App` on a
 :class:`~curio.core.clock.SimClock`, runs the script, and returns the report of DESIGN.md's
 contract.
 
+Scenarios do not record unless asked: ``ScenarioArgs.record`` (``curio sim … --record
+FILE.mcap``) turns the flight recorder on for that one file. Goals a script gives the navigator
+through :meth:`ScenarioContext.navigator_ready`'s handle are published on ``/goal`` too, so
+``curio replay`` can give them again.
+
 Report fields: ``scenario``, ``seed``, ``success``, ``sim_time_s``, ``wall_time_s``,
 ``goals_reached``, ``goals_total``, ``collisions``, ``path_length_m`` (ground-truth distance
 driven), ``localization_rmse_m`` (null when localisation is off), ``events``
@@ -33,8 +38,14 @@ from curio.core.config import Config
 from curio.core.fileio import atomic_write_json
 from curio.core.geometry import Pose2D
 from curio.core.jsonable import to_jsonable
-from curio.core.messages import Event, OperatorAction, OperatorCommand, PoseWithCovariance
-from curio.core.topics import EVENTS, GROUND_TRUTH, OPERATOR, POSE
+from curio.core.messages import (
+    Event,
+    NavGoal,
+    OperatorAction,
+    OperatorCommand,
+    PoseWithCovariance,
+)
+from curio.core.topics import EVENTS, GOAL, GROUND_TRUTH, OPERATOR, POSE
 from curio.drivers.modes import driver_mode
 
 __all__ = ["Scenario", "ScenarioArgs", "ScenarioContext", "ScenarioFailed", "run_scenario"]
@@ -57,6 +68,7 @@ class ScenarioArgs:
     speed: float | None = None
     duration_s: float | None = None
     web: bool = False
+    record: Path | None = None
 
 
 @dataclass
@@ -159,7 +171,7 @@ class ScenarioContext:
         if not await self.wait_until(lambda: self.bus.latest(POSE) is not None, timeout_s, 0.05):
             raise ScenarioFailed(f"no /pose within {timeout_s:g} s: estimation is not running")
         await self.sleep(0.5)
-        return nav
+        return _GoalLog(nav, self)
 
     def truth(self) -> Pose2D | None:
         """The rover's true pose in ``map`` (simulator ground truth)."""
@@ -170,6 +182,29 @@ class ScenarioContext:
         """Cancel scripted events that have not fired."""
         for task in self._timers:
             task.cancel()
+
+
+class _GoalLog:
+    """The navigator as a script sees it: ``send_goal`` and ``cancel`` are also published on
+    ``/goal`` (what ``curio replay`` gives the navigator again); the rest is the navigator's."""
+
+    def __init__(self, nav: Any, ctx: ScenarioContext) -> None:
+        self._nav = nav
+        self._ctx = ctx
+
+    def send_goal(self, poses: Pose2D | list[Pose2D], *, tag: str = "") -> Any:
+        """Publish the goal on ``/goal``, then give it to the navigator."""
+        seq = (poses,) if isinstance(poses, Pose2D) else tuple(poses)
+        self._ctx.bus.publish(GOAL, NavGoal(self._ctx.now(), "send", seq, tag=tag))
+        return self._nav.send_goal(poses, tag=tag)
+
+    def cancel(self, reason: str = "canceled") -> None:
+        """Publish the cancel on ``/goal``, then cancel."""
+        self._ctx.bus.publish(GOAL, NavGoal(self._ctx.now(), "cancel", reason=reason))
+        self._nav.cancel(reason)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._nav, name)
 
 
 class Scenario(ABC):
@@ -203,6 +238,10 @@ def _apply_common_args(cfg: Config, args: ScenarioArgs) -> Config:
     if args.seed is not None:
         sim.seed = args.seed
     updates["sim"] = sim
+    record = cfg.record.model_copy()
+    record.enabled = args.record is not None  # scenarios record only when asked
+    record.file = str(Path(args.record).resolve()) if args.record is not None else None
+    updates["record"] = record
     if not args.web:
         web = cfg.web.model_copy()
         web.enabled = False
