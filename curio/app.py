@@ -93,7 +93,8 @@ class App:
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:
-            self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths)
+            self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths,
+                                 part_states=self.part_states)
             self.web_url = self.web.control_url
 
     @property
@@ -143,6 +144,22 @@ class App:
             if part.close is not None:
                 with contextlib.suppress(Exception):
                     await part.close()
+
+    def part_states(self) -> dict[str, str]:
+        """Each part's task: ``running``, ``crashed: <error>``, ``stopped`` or ``not started``
+        (for the dashboard's health panel)."""
+        states = {p.name: "not started" for p in self.parts if p.run is not None}
+        for task in self._tasks:
+            if not task.done():
+                state = "running"
+            elif task.cancelled():
+                state = "stopped"
+            elif task.exception() is not None:
+                state = f"crashed: {task.exception()!r}"
+            else:
+                state = "stopped"
+            states[task.get_name()] = state
+        return states
 
     def failed_parts(self) -> list[tuple[str, BaseException]]:
         """Parts whose task ended with an exception."""

@@ -1,9 +1,10 @@
 """The ``curio`` command.
 
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
-``curio emulate DEVICE``, ``curio map ...`` and ``curio bench NAME``. Exit codes: 0 success,
-1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
-can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
+``curio emulate DEVICE``, ``curio map ...``, ``curio token ...`` and ``curio bench NAME``.
+Exit codes: 0 success, 1 failure (a scenario or a check failed), 2 bad arguments, bad
+configuration or a setup the user can fix (a missing or corrupt file, a busy port): one line on
+stderr, no traceback.
 """
 
 from __future__ import annotations
@@ -100,6 +101,7 @@ def _build_parser() -> argparse.ArgumentParser:
         ("check", "diagnose the hardware and say how to fix what is wrong"),
         ("emulate", "serve a device emulator (arduino, rplidar) on a pseudo-terminal"),
         ("map", "build, save and inspect maps"),
+        ("token", "create, list, revoke and rotate the dashboard's named tokens"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -276,13 +278,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _delegate(command: str, rest: list[str]) -> int:
-    """Hand ``check``, ``emulate`` and ``map`` to the modules that own them."""
+    """Hand ``check``, ``emulate``, ``map`` and ``token`` to the modules that own them."""
     import importlib
 
     module_name = {
         "check": "curio.commands.check",
         "emulate": "curio.commands.emulate",
         "map": "curio.commands.map",
+        "token": "curio.commands.token",
     }[command]
     try:
         module = importlib.import_module(module_name)
@@ -301,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     verbose = bool(argv) and argv[0] in ("-v", "--verbose")
     rest = argv[1:] if verbose else argv
     if rest and rest[0] in _DELEGATED:
-        # check / emulate / map parse their own arguments (--help included).
+        # check / emulate / map / token parse their own arguments (--help included).
         _setup_logging(verbose)
         return _delegate(rest[0], rest[1:])
     parser = _build_parser()
@@ -330,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-_DELEGATED = ("check", "emulate", "map")
+_DELEGATED = ("check", "emulate", "map", "token")
 
 
 def _setup_logging(verbose: bool) -> None:
