@@ -247,6 +247,9 @@ class RoverControl:
                take_over: bool = False) -> tuple[float, float]:
         """Publish a teleop velocity from client ``client_id`` (clamped); return it.
 
+        A ``take_over`` takes the lease even with a zero velocity (which stops the rover until
+        the new driver moves the stick).
+
         Raises:
             LeaseHeld: another client drives and ``take_over`` is not set.
         """
@@ -261,7 +264,7 @@ class RoverControl:
             fresh = lease is not None and self._lease_fresh(lease, now)
             if lease is not None and fresh and not take_over:
                 raise LeaseHeld(lease.who.name)
-            if not moving:
+            if not moving and not take_over:
                 return 0.0, 0.0  # letting go of a stick one does not hold: nothing to do
             what = (f"took over driving from {lease.who.name}" if lease is not None and fresh
                     else "started driving by hand")

@@ -1,0 +1,509 @@
+// Curio operator dashboard — the panels: the status line, buttons that show the rover's real
+// state, progress squares, the path editor, events in wall-clock time as sentences, the health
+// of every part with its age, the behaviour tree, the e-stop's who and when.
+"use strict";
+
+(() => {
+  const C = window.curio;
+  const { $, S } = C;
+
+  const STATE_WORDS = {
+    moving: ["Moving", "The rover is driving to its next stop."],
+    arrived: ["Arrived", "The rover reached its stop. Type a path number or press Go Home."],
+    paused: ["Paused", "The rover is holding still. Press Resume to continue."],
+    going_home: ["Going home", "The rover is driving back to its home position."],
+    needs_help: ["Needs help", "The way is blocked (drawn in red on the map). Please clear it, then press “I cleared the way”."],
+    idle: ["Idle", "Waiting for a command: type a path number and press Enter, or press Go Home."],
+    estop: ["E-STOP", "Emergency stop engaged. Release it when it is safe."],
+    tour: ["Giving a tour", "The rover is guiding visitors along the tour."],
+    manual: ["Driving by hand", "Someone is driving with the joystick; the rover's own trip waits."],
+    offline: ["Offline", "No connection to the rover: what you see is old. The page reconnects by itself; nothing is sent while offline."],
+  };
+
+  // ----- status line and buttons ------------------------------------------------------------------
+  function shownState() {
+    if (!S.connected) return "offline";
+    if (S.estop && S.estop.engaged) return "estop";
+    if (S.lease && S.lease.holder && S.lease.driving) return "manual";
+    return S.status ? S.status.state : "idle";
+  }
+
+  function renderStatus() {
+    const st = S.status;
+    const state = st ? st.state : "idle";
+    const shown = shownState();
+    const words = STATE_WORDS[shown] || [shown, ""];
+    const badge = $("stateBadge");
+    badge.textContent = words[0];
+    badge.className = "badge " + shown;
+    let text = st && st.text ? st.text : "Waiting for the rover…";
+    if (shown === "offline") {
+      text = S.everConnected ? "Offline — last news from the rover " + C.fmtAge(C.ageS("any")) : "Connecting to the rover…";
+    } else if (shown === "manual") {
+      text = (S.lease.holder === S.who.name ? "You are" : S.lease.holder + " is") + " driving by hand";
+    }
+    let hint = words[1];
+    if (text.trim().toLowerCase() === words[0].toLowerCase()) { text = words[1]; hint = ""; }  // no "Idle Idle"
+    $("statusText").textContent = text;
+    if (S.connected && !S.who.permissions.length) hint += " (Viewing only: use a link with a token to control.)";
+    $("stateHint").textContent = hint;
+    $("sticky").classList.toggle("offline", !S.connected);
+    renderButtons(state);
+    renderEstop();
+    renderHelp();
+  }
+
+  function renderButtons(state) {
+    const pause = $("pause");
+    const paused = state === "paused";
+    pause.textContent = paused ? "▶ Resume" : "❚❚ Pause";
+    pause.dataset.action = paused ? "resume" : "pause";
+    pause.classList.toggle("paused", paused);
+    const home = $("goHome");
+    home.classList.toggle("on", state === "going_home");  // only while really going home
+    home.textContent = state === "going_home" ? "⌂ Going home…" : "⌂ Go Home";
+    const isTour = S.robot && S.robot.tree === "tour";
+    $("startTour").classList.toggle("hidden", !isTour);
+    const tripOn = ["moving", "going_home", "tour", "paused", "needs_help"].includes(state);
+    $("cancelTrip").classList.toggle("hidden", !tripOn);
+    $("cancelTrip").dataset.action = state === "tour" ? "stop_tour" : "cancel";
+    for (const id of ["goHome", "pause", "cancelTrip", "pathEnter", "helpDone"]) $(id).disabled = !C.may("command");
+    for (const id of ["newPath", "renamePath", "deletePath"]) $(id).disabled = !C.may("paths");
+    $("startTour").disabled = !C.may("tour") || state === "tour";
+    if (state === "tour" && C.may("tour")) $("cancelTrip").disabled = false;
+    $("releaseEstop").disabled = !C.may("estop");
+    $("estop").disabled = !C.mayOffline("estop");  // tried even while the live link is down
+    $("speed").disabled = !C.mayOffline("drive");
+    $("joystick").classList.toggle("disabled", !C.may("drive"));
+  }
+
+  function renderEstop() {
+    const on = !!(S.estop && S.estop.engaged);
+    const log = S.estopLog || {};
+    $("estop").classList.toggle("engaged", on);
+    $("estop").textContent = on ? "STOPPED" : "STOP";
+    $("estopBanner").classList.toggle("hidden", !on);
+    if (on) {
+      $("estopWho").textContent = "EMERGENCY STOP by " + C.nameOf(log.set_by || S.estop.source) +
+        (log.set_at ? " at " + C.clockTime(log.set_at) : "") + " — the rover will not move.";
+    }
+    const el = $("estopLog");
+    if (log.set_by) {
+      el.textContent = "Last e-stop: set by " + C.nameOf(log.set_by) + " at " + C.clockTime(log.set_at) +
+        (log.released_by ? "; released by " + C.nameOf(log.released_by) + " at " + C.clockTime(log.released_at) : "; not released yet") + ".";
+    } else el.textContent = "";
+  }
+
+  function renderHelp() {
+    const el = $("help");
+    const active = S.help && S.help.active;
+    if (active) {
+      el.textContent = "HELP ME!";
+      el.className = "help active";
+      el.title = S.help.message || "the way is blocked";
+    } else if (Date.now() < S.thanksUntil) {
+      el.textContent = "Thanks!";
+      el.className = "help thanks";
+    } else {
+      el.textContent = "All clear";
+      el.className = "help clear";
+    }
+    $("helpActions").classList.toggle("hidden", !active);
+  }
+
+  function renderProgress() {
+    const p = S.progress;
+    const box = $("progress");
+    box.textContent = "";
+    if (!p || !p.states || p.states.length === 0) {
+      $("progressTitle").textContent = S.goal ? "Driving to a single goal (no path)" : "No path running";
+      return;
+    }
+    const reached = p.states.filter((s) => s === "reached").length;
+    const what = p.path_id < 0 ? (p.path_name || "Tour") : "Path " + p.path_id + (p.path_name ? " “" + p.path_name + "”" : "");
+    $("progressTitle").textContent = what + ": " + reached + " of " + p.states.length + " stops reached";
+    p.states.forEach((s, i) => {
+      const d = document.createElement("div");
+      d.className = "sq " + s;
+      d.textContent = String(i + 1);
+      d.title = "stop " + (i + 1) + ": " + s;
+      d.dataset.state = s;
+      box.appendChild(d);
+    });
+  }
+
+  const LOC_WORDS = { ok: ["Position OK", "Pos OK", "ok"], uncertain: ["Position uncertain", "Pos ?", "warn"],
+    lost: ["Position lost — use “Set position”", "LOST", "bad"], off: ["Position from odometry", "Odom", "warn"] };
+  function setChip(el, long, short, cls, title) {  // a long text, and a short one for phones
+    el.textContent = "";
+    for (const [text, c] of [[long, "long"], [short, "short"]]) {
+      const span = document.createElement("span");
+      span.className = c; span.textContent = text;
+      el.appendChild(span);
+    }
+    el.className = "chip " + cls;
+    el.title = title;
+  }
+  function renderChips() {
+    const loc = $("locChip"), bat = $("batteryChip");
+    if (S.loc) {
+      const [text, short, cls] = LOC_WORDS[S.loc.state] || [S.loc.state, S.loc.state, "warn"];
+      const stale = C.isStale("loc");
+      const age = stale ? " · " + C.fmtAge(C.ageS("loc")) : "";
+      setChip(loc, text + age, short + (stale ? " (old)" : ""), stale ? "stale" : cls,
+        "how sure the rover is of where it is" + (stale ? " — last heard " + C.fmtAge(C.ageS("loc")) : ""));
+    } else loc.className = "chip hidden";
+    if (S.battery) {
+      const stale = C.isStale("battery");
+      const v = S.battery.voltage_v.toFixed(1) + " V" + (S.battery.low ? " LOW" : "");
+      setChip(bat, "Battery " + v + (stale ? " · " + C.fmtAge(C.ageS("battery")) : ""), v + (stale ? " (old)" : ""),
+        stale ? "stale" : (S.battery.low ? "bad" : "ok"),
+        "servo battery voltage" + (stale ? " — last heard " + C.fmtAge(C.ageS("battery")) : ""));
+    } else bat.className = "chip hidden";
+    const who = $("who");
+    const viewer = S.who.role === "viewer";
+    setChip(who, viewer ? "View only" : S.who.name + " · " + S.who.role, viewer ? "View" : S.who.name, "",
+      viewer ? "no token: you can watch, not control" : S.who.name + " (" + S.who.role + ") may: " + S.who.permissions.join(", "));
+    who.className = "who " + S.who.role;
+    const conn = $("conn");
+    conn.textContent = S.connected ? "Live" : (S.everConnected ? "Offline" : "Connecting…");
+    conn.className = "conn " + (S.connected ? "ok" : "bad");
+  }
+
+  // ----- paths and the path editor ------------------------------------------------------------------
+  const editPath = () => S.paths.find((p) => p.id === S.editPathId) || null;
+
+  function renderPaths(change) {
+    const list = $("pathList");
+    list.textContent = "";
+    for (const p of S.paths) {
+      const b = document.createElement("button");
+      b.type = "button";
+      b.textContent = p.id + ": " + (p.name || "path " + p.id);
+      b.title = p.waypoints.length + " waypoint(s)";
+      b.onclick = () => { $("pathInput").value = String(p.id); $("pathInput").focus(); };
+      list.appendChild(b);
+    }
+    const sel = $("editPath");
+    const keep = S.editPathId;
+    sel.textContent = "";
+    const none = document.createElement("option");
+    none.value = ""; none.textContent = "— choose a path to edit —";
+    sel.appendChild(none);
+    for (const p of S.paths) {
+      const o = document.createElement("option");
+      o.value = String(p.id);
+      o.textContent = p.id + ": " + (p.name || "path " + p.id) + " (" + p.waypoints.length + ")";
+      sel.appendChild(o);
+    }
+    if (keep !== null && S.paths.some((p) => p.id === keep)) sel.value = String(keep);
+    else {
+      if (keep !== null) {  // the path being edited is gone: say who did it, never silently
+        const by = change && change.by && change.by !== S.who.name ? change.by : null;
+        C.showMsg($("pathEditMsg"), "Path " + keep + ", which you were editing, was deleted" +
+          (by ? " by " + by : "") + ".", by ? "error" : "ok", 30);
+        if (by) C.toast(by + " deleted path " + keep + ", which you were editing.", true);
+      }
+      S.editPathId = null; sel.value = "";
+    }
+    if (change && change.by && change.by !== S.who.name && change.path_id === S.editPathId && change.change !== "deleted") {
+      C.showMsg($("pathEditMsg"), change.by + " changed this path; you see the new version.", "ok", 15);
+    }
+    renderWaypoints();
+    C.view.dirty = true;
+  }
+
+  function renderWaypoints() {
+    const ol = $("waypoints");
+    ol.textContent = "";
+    const p = editPath();
+    if (document.activeElement !== $("pathName")) $("pathName").value = p ? p.name : "";
+    if (!p) return;
+    const n = p.waypoints.length;
+    p.waypoints.forEach((w, i) => {
+      const li = document.createElement("li");
+      const span = document.createElement("span");
+      span.textContent = "(" + w.x_m.toFixed(2) + ", " + w.y_m.toFixed(2) + ")" +
+        (w.yaw_rad === null ? "" : " facing " + Math.round(w.yaw_rad * 180 / Math.PI) + "°");
+      li.appendChild(span);
+      const btn = (label, title, disabled, fn) => {
+        const b = document.createElement("button");
+        b.type = "button"; b.textContent = label; b.title = title;
+        b.disabled = disabled || !C.may("paths");
+        b.onclick = fn;
+        li.appendChild(b);
+      };
+      btn("↑", "move earlier", i === 0, () => reorder(i, i - 1));
+      btn("↓", "move later", i === n - 1, () => reorder(i, i + 1));
+      btn("×", "remove this waypoint", false, () => pathEdit("DELETE", "/waypoints/" + i + "?rev=" + p.rev, undefined, "Waypoint " + (i + 1) + " removed."));
+      ol.appendChild(li);
+    });
+  }
+
+  async function pathEdit(method, suffix, body, okText) {
+    const p = editPath();
+    const el = $("pathEditMsg");
+    if (!p) { $("pathsCard").open = true; C.showMsg(el, "Choose a path to edit (or make a new one) first.", "error", 15); return null; }
+    if (!C.may("paths")) { C.showMsg(el, S.connected ? "Editing paths needs an operator token." : "Offline: nothing was sent.", "error", 15); return null; }
+    try {
+      const out = await C.api(method, "/api/paths/" + p.id + suffix, body);
+      C.showMsg(el, okText, "ok", 8);
+      return out;
+    } catch (e) {
+      C.showMsg(el, e.message, "error", 20);
+      $("pathsCard").open = true;
+      return null;
+    }
+  }
+  function reorder(from, to) {
+    const p = editPath();
+    const wps = p.waypoints.map((w) => ({ x_m: w.x_m, y_m: w.y_m, yaw_rad: w.yaw_rad }));
+    const [moved] = wps.splice(from, 1);
+    wps.splice(to, 0, moved);
+    pathEdit("PUT", "/waypoints", { waypoints: wps, rev: p.rev }, "Waypoint " + (from + 1) + " is now number " + (to + 1) + ".");
+  }
+  function addWaypoint(x, y, yaw, index) {
+    const p = editPath();
+    const body = { x_m: x, y_m: y, rev: p ? p.rev : undefined };
+    if (yaw !== null) body.yaw_rad = yaw;
+    if (index !== null && index !== undefined) body.index = index;
+    const where = index !== null && index !== undefined ? "Inserted waypoint " + (index + 1) : "Added waypoint " + (p ? p.waypoints.length + 1 : "");
+    return pathEdit("POST", "/waypoints", body, where + (p ? " in “" + p.name + "”." : "."));
+  }
+  function moveWaypoint(index, x, y) {
+    const p = editPath();
+    return pathEdit("PATCH", "/waypoints/" + index, { x_m: x, y_m: y, rev: p ? p.rev : undefined }, "Moved waypoint " + (index + 1) + ".");
+  }
+
+  $("editPath").addEventListener("change", () => {
+    const v = $("editPath").value;
+    S.editPathId = v === "" ? null : Number(v);
+    C.showMsg($("pathEditMsg"), "");
+    renderWaypoints(); C.view.dirty = true;
+  });
+  $("newPath").addEventListener("click", async () => {
+    const typed = $("pathName").value.trim();
+    const name = typed && !editPath() ? typed : "New path " + S.paths.length;
+    try {
+      const p = await C.api("POST", "/api/paths", { name });
+      S.editPathId = p.id;
+      if (!S.paths.some((q) => q.id === p.id)) S.paths.push(p);
+      renderPaths();
+      C.setTool("waypoint");
+      C.showMsg($("pathEditMsg"), "Made “" + p.name + "” (path " + p.id + "). Click the map to add its waypoints.", "ok", 15);
+    } catch (e) { C.showMsg($("pathEditMsg"), e.message, "error", 20); }
+  });
+  $("renamePath").addEventListener("click", () => {
+    const p = editPath();
+    pathEdit("PATCH", "", { name: $("pathName").value.trim(), rev: p ? p.rev : undefined }, "Renamed.");
+  });
+  $("deletePath").addEventListener("click", async () => {
+    const p = editPath();
+    if (!p) { C.showMsg($("pathEditMsg"), "Choose a path to delete first.", "error", 15); return; }
+    if (!(await C.confirmBox("Delete path " + p.id + " “" + p.name + "” for everyone?", "Delete", "Keep it"))) return;
+    const id = p.id;
+    if (await pathEdit("DELETE", "", undefined, "Deleted path " + id + ".")) { S.editPathId = null; renderPaths(); }
+  });
+
+  // ----- setting the pose: the answer is the rover's next pose ---------------------------------------
+  let poseCheck = null;
+  async function setPose(x, y, yaw) {
+    const el = $("cmdMsg");
+    if (!C.may("initial_pose")) { C.toast(S.connected ? "Setting the position needs an operator token." : "Offline: nothing was sent.", true); return; }
+    C.showMsg(el, "Position sent — waiting for the rover to take it…", "wait");
+    try {
+      await C.api("POST", "/api/initial_pose", { x_m: x, y_m: y, yaw_rad: yaw });
+    } catch (e) { C.showMsg(el, e.message, "error", 20); return; }
+    C.flashPose(x, y, yaw);
+    clearTimeout(poseCheck && poseCheck.timer);
+    poseCheck = { x, y, yaw, timer: setTimeout(() => {
+      poseCheck = null;
+      const p = S.pose;
+      C.showMsg(el, "The rover did not take the new position" + (p ? " (it still thinks it is at (" + p.x.toFixed(2) + ", " + p.y.toFixed(2) + "))" : "") +
+        ". Is localisation running? See Health.", "error", 30);
+    }, 6000) };
+  }
+  C.onPoseForCheck = (p) => {
+    if (!poseCheck) return;
+    const dyaw = Math.abs(Math.atan2(Math.sin(p.yaw - poseCheck.yaw), Math.cos(p.yaw - poseCheck.yaw)));
+    if (Math.hypot(p.x - poseCheck.x, p.y - poseCheck.y) < 0.5 && dyaw < 0.5) {
+      clearTimeout(poseCheck.timer);
+      poseCheck = null;
+      C.showMsg($("cmdMsg"), "The rover took the new position: it is at (" + p.x.toFixed(2) + ", " + p.y.toFixed(2) + "), facing " +
+        Math.round(p.yaw * 180 / Math.PI) + "°.", "ok", 12);
+    }
+  };
+
+  // ----- events as sentences in wall-clock time ---------------------------------------------------------
+  const xy = (v) => (Array.isArray(v) ? "(" + Number(v[0]).toFixed(2) + ", " + Number(v[1]).toFixed(2) + ")" : "");
+  const lastGoal = (d) => (Array.isArray(d.goal) && d.goal.length ? xy(d.goal[d.goal.length - 1]) : "");
+  const EVENT_TEXT = {
+    "bt.command_accepted": (d) => ["ok", "✓ " + (d.message || d.action + " accepted")],
+    "bt.command_rejected": (d) => ["bad", "✗ Refused: " + (d.message || d.action)],
+    "safety.estop": (d) => (d.engaged ? ["bad", "E-stop engaged by " + C.nameOf(d.source)] : ["ok", "E-stop released by " + C.nameOf(d.source)]),
+    "safety.stop_zone": (d) => ["warn", "Stopped for an obstacle " + (d.clearance_m !== undefined ? d.clearance_m.toFixed(2) + " m away" : "ahead")],
+    "safety.stop_zone_cleared": () => ["", "The way ahead is clear again"],
+    "safety.watchdog": () => ["warn", "Velocity commands stopped arriving: slowing to a halt"],
+    "safety.no_scan": (d) => (d.blind ? ["bad", "No lidar scan: the rover holds still"] : ["ok", "Lidar scans are back"]),
+    "nav.goal_accepted": (d) => ["", "Driving to " + lastGoal(d) + (d.tag ? " (" + d.tag + ")" : "")],
+    "nav.goal_succeeded": (d) => ["ok", "Reached " + lastGoal(d) + (d.time_s ? " in " + Math.round(d.time_s) + " s" : "")],
+    "nav.goal_aborted": (d) => ["bad", "Gave up driving to " + lastGoal(d) + ": " + (d.message || d.note || "")],
+    "nav.goal_preempted": (d) => ["", "Goal " + lastGoal(d) + " replaced or cancelled"],
+    "nav.goal_rejected": (d) => ["bad", "Goal refused: " + (d.message || d.code || "")],
+    "nav.waypoint_reached": (d) => ["ok", "Reached waypoint " + (Number(d.index) + 1)],
+    "nav.path_blocked": () => ["warn", "The planned route is blocked; looking for another"],
+    "nav.blocked": (d) => ["warn", "Blocked: " + (d.reason || "an obstacle ahead")],
+    "nav.unblocked": () => ["ok", "Not blocked any more"],
+    "nav.holding": (d) => ["warn", "Holding still: " + (d.reason || "")],
+    "nav.keep_out": (d) => ["", "Keeping out of " + xy([d.x, d.y])],
+    "help.requested": (d) => ["bad", "HELP ME: " + (d.message || "the way is blocked")],
+    "help.resolved": () => ["ok", "Thanks! The way is clear again"],
+    "tour.stop": (d) => ["", d.message || "Tour stop"],
+    "battery.low": (d) => ["bad", "Battery low" + (d.message ? ": " + d.message : "")],
+    "path.finished": () => ["ok", "Path finished"],
+    "paths.load_failed": (d) => ["bad", d.message || "The saved paths could not be read"],
+  };
+  function eventSentence(ev) {
+    const d = ev.detail || {};
+    if (ev.kind.startsWith("operator.")) return [ev.kind === "operator.command" && d.action === "estop" ? "bad" : "who", (d.who === S.who.name ? "You (" + d.who + ")" : d.who) + " " + d.what];
+    const f = EVENT_TEXT[ev.kind];
+    if (f) return f(d);
+    const parts = Object.entries(d).slice(0, 4).map(([k, v]) => k.replace(/_/g, " ") + " " + (typeof v === "object" ? JSON.stringify(v) : v));
+    return ["", ev.kind.replace(/[._]/g, " ") + (parts.length ? ": " + parts.join(", ") : "")];
+  }
+
+  function addEvent(ev, history) {
+    const ol = $("events");
+    const li = document.createElement("li");
+    const [cls, text] = eventSentence(ev);
+    const t = document.createElement("time");
+    t.textContent = C.clockTime(ev.wall);
+    li.appendChild(t);
+    const span = document.createElement("span");
+    span.textContent = text;
+    li.appendChild(span);
+    li.className = cls ? "ev-" + cls : "";
+    li.title = ev.kind;
+    li.dataset.kind = ev.kind;
+    ol.insertBefore(li, ol.firstChild);
+    while (ol.children.length > 150) ol.removeChild(ol.lastChild);
+    if (!history) reactToEvent(ev, text);
+  }
+
+  function reactToEvent(ev, text) {
+    const d = ev.detail || {};
+    if (ev.kind === "bt.command_rejected" || ev.kind === "bt.command_accepted") {
+      const ok = ev.kind === "bt.command_accepted";
+      if (!C.answer(d.request_id, ok, d.message) && d.action === "select_path" && !ok && String(d.source).endsWith(":" + S.who.name)) {
+        C.showMsg($("pathMsg"), d.message || "The rover refused the path.", "error", 20);
+      }
+    } else if (ev.kind.startsWith("operator.") && d.who !== S.who.name) {
+      C.toast(text);  // someone else did something: every page says who
+    } else if (ev.kind === "help.resolved") {
+      S.thanksUntil = Date.now() + 15000;
+      setTimeout(renderHelp, 15100);
+    } else if (ev.kind === "tour.stop" && d.message) {
+      C.toast(d.message);
+    } else if (ev.kind === "battery.low") {
+      C.toast(text, true);
+    }
+  }
+
+  // ----- health: every part with its age ------------------------------------------------------------
+  const STATE_ORDER = { error: 0, stale: 1, degraded: 2, starting: 3, ok: 4, idle: 5, off: 6 };
+  function fmtNum(v) {
+    if (v === null || v === undefined) return "—";
+    return Math.abs(v) >= 100 || Number.isInteger(v) ? String(Math.round(v)) : v.toFixed(2);
+  }
+  function renderHealth() {
+    const h = S.health;
+    const table = $("health");
+    table.textContent = "";
+    if (!h) return;
+    const comps = (h.components || []).slice().sort((a, b) => (STATE_ORDER[a.state] ?? 3) - (STATE_ORDER[b.state] ?? 3) || a.name.localeCompare(b.name));
+    const bad = comps.filter((c) => ["error", "stale", "degraded"].includes(c.state));
+    $("healthSummary").textContent = S.connected ? (bad.length ? "· " + bad.length + " need attention" : "· all parts OK") : "· offline";
+    $("healthSummary").className = "small " + (bad.length || !S.connected ? "warnText" : "okText");
+    const head = table.insertRow();
+    for (const t of ["part", "state", "last sign of life", "rate", "what it says"]) {
+      const th = document.createElement("th"); th.textContent = t; head.appendChild(th);
+    }
+    const offlineAge = S.connected ? 0 : C.ageS("health");
+    for (const c of comps) {
+      const tr = table.insertRow();
+      tr.className = "hrow st-" + c.state + (S.connected ? "" : " stale");
+      tr.dataset.name = c.name;
+      tr.insertCell().textContent = c.name;
+      const st = tr.insertCell();
+      st.innerHTML = "";
+      const pill = document.createElement("span");
+      pill.className = "pill " + c.state; pill.textContent = c.state;
+      st.appendChild(pill);
+      tr.insertCell().textContent = c.age_s === null || c.age_s === undefined ? "never" : C.fmtAge(c.age_s + offlineAge);
+      tr.insertCell().textContent = c.rate !== null && c.rate !== undefined ? fmtNum(c.rate) + " " + (c.what || "msgs") + "/s" : "";
+      const msg = tr.insertCell();
+      msg.textContent = c.message || "";
+      if (c.counters && c.counters.length) {
+        const det = document.createElement("details");
+        const sum = document.createElement("summary");
+        sum.textContent = c.counters.length + " figures";
+        det.appendChild(sum);
+        const ul = document.createElement("ul");
+        for (const k of c.counters) {
+          const li = document.createElement("li");
+          li.title = k.key;
+          if (k.kind === "total") {
+            li.textContent = k.label + ": " + (k.rate_per_s !== undefined ? fmtNum(k.rate_per_s) + "/s" : "—/s") + " (total " + fmtNum(k.value) + ")";
+          } else li.textContent = k.label + ": " + fmtNum(k.value) + (k.unit ? " " + k.unit : "");
+          ul.appendChild(li);
+        }
+        det.appendChild(ul);
+        msg.appendChild(det);
+      }
+    }
+    const bus = h.bus || {};
+    const top = (bus.topics || []).slice(0, 3).map((t) => t.name + " " + fmtNum(t.dropped_per_s) + "/s" + (t.reliable ? " (RELIABLE: a fault)" : "")).join(", ");
+    $("busNote").textContent = "Bus: " + fmtNum(bus.dropped_per_s || 0) + " messages/s replaced by newer ones before a slow reader took them" +
+      (top ? " — " + top : "") + ". Normal for fast sensor streams, where only the newest matters; reliable topics never drop.";
+    const sys = h.system || {};
+    $("systemNote").textContent = "CPU " + (sys.cpu_fraction !== undefined ? Math.round(sys.cpu_fraction * 100) + " % of " + sys.cpu_count + " cores" : "—") +
+      (sys.process_cpu_fraction !== undefined ? " (Curio " + Math.round(sys.process_cpu_fraction * 100) + " % of one core)" : "") +
+      " · temperature " + (sys.temperature_c ? sys.temperature_c.toFixed(1) + " °C" : "no sensor") +
+      " · event-loop lag " + (sys.loop_lag_ms !== undefined ? sys.loop_lag_ms + " ms" : "—") +
+      " · " + (h.web ? h.web.clients : "?") + " page(s) connected";
+  }
+
+  // ----- behaviour tree -------------------------------------------------------------------------------
+  const STATUS_MARK = { SUCCESS: "✔", RUNNING: "▶", FAILURE: "✘", INVALID: "·" };
+  function renderTree() {
+    const t = S.tree;
+    const el = $("tree");
+    el.textContent = "";
+    if (!t || !t.nodes || t.nodes.length === 0) { el.textContent = "No tree yet."; return; }
+    const byId = new Map(t.nodes.map((n) => [String(n.id), n]));
+    const roots = t.nodes.filter((n) => n.parent === null || n.parent === undefined || !byId.has(String(n.parent)));
+    const walk = (n, depth) => {
+      const d = document.createElement("div");
+      const st = String(n.status || "INVALID").toUpperCase();
+      d.className = "node st-" + st;
+      d.textContent = "  ".repeat(depth) + (STATUS_MARK[st] || "?") + " " + n.name + (n.type ? "  [" + n.type + "]" : "");
+      d.title = st;
+      el.appendChild(d);
+      const kids = n.children || t.nodes.filter((c) => String(c.parent) === String(n.id)).map((c) => c.id);
+      for (const k of kids) { const c = byId.get(String(k)); if (c) walk(c, depth + 1); }
+    };
+    roots.forEach((r) => walk(r, 0));
+    const bb = $("blackboard");
+    bb.textContent = "";
+    for (const [k, v] of Object.entries(t.blackboard || {}).sort()) {
+      const tr = bb.insertRow();
+      tr.insertCell().textContent = k;
+      tr.insertCell().textContent = typeof v === "string" ? v : JSON.stringify(v);
+    }
+  }
+  $("treeCard").addEventListener("toggle", renderTree);
+  $("healthCard").addEventListener("toggle", renderHealth);
+
+  Object.assign(C, { renderStatus, renderHelp, renderProgress, renderChips, renderPaths, renderWaypoints,
+    renderHealth, renderTree, addEvent, editPath, addWaypoint, moveWaypoint, setPose, renderEstop });
+})();
