@@ -5,7 +5,7 @@ derives its state from three kinds of evidence, newest first:
 
 1. **Its task** — ``part_states()`` (from the composition root) says whether each part's task
    runs, crashed (with the exception) or stopped. A crashed part is an error, whatever it said
-   last.
+   last; a running task is the sign of life of a part that has published nothing yet.
 2. **Its output on the bus** — the age of the latest message on the topic it publishes
    (:class:`Watch`): the lidar's ``/scan``, the costmap's ``/local_costmap``, the planner's
    ``/plan`` and the navigator's ``/cmd_vel_nav`` while a goal is active (goals are followed
@@ -45,6 +45,7 @@ from curio.core.topics import (
     POSE,
     SCAN,
     WHEEL_ODOM,
+    WHEELS,
 )
 
 __all__ = ["COUNTERS", "REPORT_STALE_S", "Liveness", "Watch", "counter_info"]
@@ -171,7 +172,7 @@ def default_watches(cfg: Config) -> list[Watch]:
     return [
         Watch("lidar", SCAN, "scans", max(1.0, 5 * lidar_period),
               ("lidar", "sim.lidar", "lidar-emulator"), report="lidar"),
-        Watch("base", None, "", 0.0, ("arduino", "sim.base"), report="arduino"),
+        Watch("base", WHEELS, "wheel readings", 1.0, ("arduino", "sim.base"), report="arduino"),
         Watch("odometry", WHEEL_ODOM, "odometry updates", 1.0, ("odometry", "sim.wheels"),
               report="odometry"),
         Watch("imu", IMU, "readings", 1.0, ("imu", "sim.imu"), report="imu"),
@@ -290,6 +291,8 @@ class Liveness:
         if report is not None:
             findings.append(self._report_state(report, now))
             ages.append(now - report.stamp)
+        if not ages and mine and all(s == "running" for s in mine.values()):
+            ages.append(0.0)  # nothing published yet, but its task runs right now
         state, message = _worst(findings)
         entry = {"name": watch.name, "state": state, "message": message,
                  "age_s": round(min(ages), 2) if ages else None,

@@ -215,7 +215,7 @@
   });
 
   // ----- the HELP ME sound (Web Audio: no file to fetch), with a mute -------------------------------
-  const sound = { muted: false, beeps: 0, ctx: null };
+  const sound = { muted: false, beeps: 0, ticks: 0, ctx: null };
   function setMuted(m) {
     sound.muted = m;
     $("mute").textContent = m ? "♪ off" : "♪ on";
@@ -247,7 +247,10 @@
       osc.start(t0 + dt); osc.stop(t0 + dt + 0.2);
     }
   }
-  setInterval(() => { if (S.help && S.help.active && S.connected && !sound.muted) beep(); }, 2500);
+  setInterval(() => {
+    sound.ticks += 1;
+    if (S.help && S.help.active && S.connected && !sound.muted) beep();
+  }, 2500);
 
   Object.assign(C, { pressEstop, stopTeleop, onLease, onLeaseRefused, renderLease, sound, setMuted, setSpeed });
 })();

@@ -173,6 +173,7 @@
   function drawScaleBar() {
     const m = niceStep(80 / view.scale);
     const px = m * view.scale;
+    C.scaleBarM = m;
     const x = 12, y = H - 14;
     ctx.fillStyle = "rgba(255,255,255,.85)";
     ctx.fillRect(x - 6, y - 24, px + 12, 30);
@@ -491,7 +492,7 @@
     if (!dragState) return;
     const d = dragState; dragState = null; view.dirty = true;
     if (ev.type === "pointercancel" || d.kind === "pan" || d.kind === "measure") return;
-    const moved = Math.hypot(d.sx - d.sx0, d.sy - d.sy0) > 12;
+    const moved = Math.hypot(d.sx - d.sx0, d.sy - d.sy0) > (d.kind === "wp" ? 4 : 12);
     const [wx, wy] = d.kind === "wp" ? [d.wx, d.wy] : [d.wx0, d.wy0];
     if (d.kind === "wp" && !moved) return;
     if (!onMap(wx, wy)) {
@@ -569,5 +570,7 @@
   setTool("look");
   requestAnimationFrame(frame);
   Object.assign(C, { view, setTool, toWorld, toScreen, onGrid, loadGridImage, onMap, describeBounds,
-    onPose, flashPose, resize, fitView, get tool() { return tool; }, get measure() { return measure; } });
+    onPose, flashPose, resize, fitView });
+  Object.defineProperty(C, "tool", { get: () => tool });
+  Object.defineProperty(C, "measure", { get: () => measure });
 })();

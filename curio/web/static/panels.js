@@ -305,8 +305,11 @@
     if (await pathEdit("DELETE", "", undefined, "Deleted path " + id + ".")) { S.editPathId = null; renderPaths(); }
   });
 
-  // ----- setting the pose: the answer is the rover's next pose ---------------------------------------
+  // ----- setting the pose: the answer is the rover's own pose afterwards --------------------------------
   let poseCheck = null;
+  const near = (p, q, m, rad) => Math.hypot(p.x - q.x, p.y - q.y) < m &&
+    Math.abs(Math.atan2(Math.sin(p.yaw - q.yaw), Math.cos(p.yaw - q.yaw))) < rad;
+  const poseText = (p) => "(" + p.x.toFixed(2) + ", " + p.y.toFixed(2) + "), facing " + Math.round(p.yaw * 180 / Math.PI) + "°";
   async function setPose(x, y, yaw) {
     const el = $("cmdMsg");
     if (!C.may("initial_pose")) { C.toast(S.connected ? "Setting the position needs an operator token." : "Offline: nothing was sent.", true); return; }
@@ -316,22 +319,24 @@
     } catch (e) { C.showMsg(el, e.message, "error", 20); return; }
     C.flashPose(x, y, yaw);
     clearTimeout(poseCheck && poseCheck.timer);
+    const before = S.pose ? Object.assign({}, S.pose) : null;
     poseCheck = { x, y, yaw, timer: setTimeout(() => {
       poseCheck = null;
       const p = S.pose;
-      C.showMsg(el, "The rover did not take the new position" + (p ? " (it still thinks it is at (" + p.x.toFixed(2) + ", " + p.y.toFixed(2) + "))" : "") +
-        ". Is localisation running? See Health.", "error", 30);
-    }, 6000) };
+      if (p && before && !near(p, before, 0.2, 0.3)) {
+        C.showMsg(el, "The rover took the position and its laser corrected it: it now thinks it is at " + poseText(p) +
+          ", " + Math.hypot(p.x - x, p.y - y).toFixed(2) + " m from where you set it.", "warn", 30);
+      } else {
+        C.showMsg(el, "The rover did not take the new position" + (p ? " (it still thinks it is at " + poseText(p) + ")" : "") +
+          ". Is localisation running? See Health.", "error", 30);
+      }
+    }, 5000) };
   }
   C.onPoseForCheck = (p) => {
-    if (!poseCheck) return;
-    const dyaw = Math.abs(Math.atan2(Math.sin(p.yaw - poseCheck.yaw), Math.cos(p.yaw - poseCheck.yaw)));
-    if (Math.hypot(p.x - poseCheck.x, p.y - poseCheck.y) < 0.5 && dyaw < 0.5) {
-      clearTimeout(poseCheck.timer);
-      poseCheck = null;
-      C.showMsg($("cmdMsg"), "The rover took the new position: it is at (" + p.x.toFixed(2) + ", " + p.y.toFixed(2) + "), facing " +
-        Math.round(p.yaw * 180 / Math.PI) + "°.", "ok", 12);
-    }
+    if (!poseCheck || !near(p, poseCheck, 0.3, 0.3)) return;
+    clearTimeout(poseCheck.timer);
+    poseCheck = null;
+    C.showMsg($("cmdMsg"), "The rover took the new position: it is at " + poseText(p) + ".", "ok", 12);
   };
 
   // ----- events as sentences in wall-clock time ---------------------------------------------------------
@@ -397,6 +402,11 @@
       if (!C.answer(d.request_id, ok, d.message) && d.action === "select_path" && !ok && String(d.source).endsWith(":" + S.who.name)) {
         C.showMsg($("pathMsg"), d.message || "The rover refused the path.", "error", 20);
       }
+    } else if ((ev.kind === "nav.goal_accepted" || ev.kind === "nav.goal_rejected") &&
+               String(d.tag || "").endsWith(":" + S.who.name + " goto")) {
+      // A single goal is answered by the navigator (the tree answers only when it leaves a path).
+      const ok = ev.kind === "nav.goal_accepted";
+      C.answerAction("goto", ok, ok ? "Driving to " + lastGoal(d) + "." : "The rover refused the goal: " + (d.message || d.code || "") );
     } else if (ev.kind.startsWith("operator.") && d.who !== S.who.name) {
       C.toast(text);  // someone else did something: every page says who
     } else if (ev.kind === "help.resolved") {
@@ -410,57 +420,75 @@
   }
 
   // ----- health: every part with its age ------------------------------------------------------------
-  const STATE_ORDER = { error: 0, stale: 1, degraded: 2, starting: 3, ok: 4, idle: 5, off: 6 };
   function fmtNum(v) {
     if (v === null || v === undefined) return "—";
     return Math.abs(v) >= 100 || Number.isInteger(v) ? String(Math.round(v)) : v.toFixed(2);
   }
+  // One block per part, kept and updated in place (an opened list of figures stays open), in a
+  // stable order by name: problems stand out by colour and in the summary line, and nothing
+  // jumps under the operator's finger.
+  const healthRows = new Map();
+  function healthRow(box, name) {
+    let row = healthRows.get(name);
+    if (row) return row;
+    row = document.createElement("div");
+    row.dataset.name = name;
+    const line = document.createElement("div");
+    line.className = "hline";
+    const pill = document.createElement("span");
+    const label = document.createElement("b");
+    label.className = "hname"; label.textContent = name;
+    const age = document.createElement("span"); age.className = "hage";
+    const rate = document.createElement("span"); rate.className = "hrate";
+    line.append(pill, label, age);
+    const msg = document.createElement("span"); msg.className = "hmsg";
+    const second = document.createElement("div"); second.className = "hsecond";
+    second.append(rate, msg);
+    const det = document.createElement("details");
+    det.append(document.createElement("summary"), document.createElement("ul"));
+    row.append(line, second, det);
+    healthRows.set(name, row);
+    box.appendChild(row);
+    return row;
+  }
   function renderHealth() {
     const h = S.health;
-    const table = $("health");
-    table.textContent = "";
+    const box = $("health");
     if (!h) return;
-    const comps = (h.components || []).slice().sort((a, b) => (STATE_ORDER[a.state] ?? 3) - (STATE_ORDER[b.state] ?? 3) || a.name.localeCompare(b.name));
+    const comps = (h.components || []).slice().sort((a, b) => a.name.localeCompare(b.name));
     const bad = comps.filter((c) => ["error", "stale", "degraded"].includes(c.state));
     $("healthSummary").textContent = S.connected ? (bad.length ? "· " + bad.length + " need attention" : "· all parts OK") : "· offline";
     $("healthSummary").className = "small " + (bad.length || !S.connected ? "warnText" : "okText");
-    const head = table.insertRow();
-    for (const t of ["part", "state", "last sign of life", "rate", "what it says"]) {
-      const th = document.createElement("th"); th.textContent = t; head.appendChild(th);
-    }
     const offlineAge = S.connected ? 0 : C.ageS("health");
+    const seen = new Set();
     for (const c of comps) {
-      const tr = table.insertRow();
-      tr.className = "hrow st-" + c.state + (S.connected ? "" : " stale");
-      tr.dataset.name = c.name;
-      tr.insertCell().textContent = c.name;
-      const st = tr.insertCell();
-      st.innerHTML = "";
-      const pill = document.createElement("span");
+      const row = healthRow(box, c.name);
+      seen.add(c.name);
+      if (box.children[seen.size - 1] !== row) box.insertBefore(row, box.children[seen.size - 1] || null);
+      row.className = "hpart st-" + c.state + (S.connected ? "" : " stale");
+      const [pill, , age] = row.firstChild.children;
+      const rate = row.children[1].firstChild;
       pill.className = "pill " + c.state; pill.textContent = c.state;
-      st.appendChild(pill);
-      tr.insertCell().textContent = c.age_s === null || c.age_s === undefined ? "never" : C.fmtAge(c.age_s + offlineAge);
-      tr.insertCell().textContent = c.rate !== null && c.rate !== undefined ? fmtNum(c.rate) + " " + (c.what || "msgs") + "/s" : "";
-      const msg = tr.insertCell();
+      age.textContent = c.age_s === null || c.age_s === undefined ? "never" : C.fmtAge(c.age_s + offlineAge);
+      age.title = "last sign of life";
+      rate.textContent = c.rate !== null && c.rate !== undefined ? fmtNum(c.rate) + " " + (c.what || "msgs") + "/s" : "";
+      const msg = row.children[1].lastChild, det = row.children[2];
       msg.textContent = c.message || "";
-      if (c.counters && c.counters.length) {
-        const det = document.createElement("details");
-        const sum = document.createElement("summary");
-        sum.textContent = c.counters.length + " figures";
-        det.appendChild(sum);
-        const ul = document.createElement("ul");
-        for (const k of c.counters) {
-          const li = document.createElement("li");
-          li.title = k.key;
-          if (k.kind === "total") {
-            li.textContent = k.label + ": " + (k.rate_per_s !== undefined ? fmtNum(k.rate_per_s) + "/s" : "—/s") + " (total " + fmtNum(k.value) + ")";
-          } else li.textContent = k.label + ": " + fmtNum(k.value) + (k.unit ? " " + k.unit : "");
-          ul.appendChild(li);
-        }
-        det.appendChild(ul);
-        msg.appendChild(det);
+      if (rate.textContent && c.message) rate.textContent += " · ";
+      det.classList.toggle("hidden", !(c.counters && c.counters.length));
+      det.firstChild.textContent = (c.counters || []).length + " figures";
+      const ul = det.lastChild;
+      ul.textContent = "";
+      for (const k of c.counters || []) {
+        const li = document.createElement("li");
+        li.title = k.key;
+        if (k.kind === "total") {
+          li.textContent = k.label + ": " + (k.rate_per_s !== undefined ? fmtNum(k.rate_per_s) + "/s" : "—/s") + " (total " + fmtNum(k.value) + ")";
+        } else li.textContent = k.label + ": " + fmtNum(k.value) + (k.unit ? " " + k.unit : "");
+        ul.appendChild(li);
       }
     }
+    for (const [name, row] of healthRows) if (!seen.has(name)) { row.remove(); healthRows.delete(name); }
     const bus = h.bus || {};
     const top = (bus.topics || []).slice(0, 3).map((t) => t.name + " " + fmtNum(t.dropped_per_s) + "/s" + (t.reliable ? " (RELIABLE: a fault)" : "")).join(", ");
     $("busNote").textContent = "Bus: " + fmtNum(bus.dropped_per_s || 0) + " messages/s replaced by newer ones before a slow reader took them" +
