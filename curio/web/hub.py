@@ -99,7 +99,7 @@ from curio.web.encode import (
     grid_png,
     path_to_json,
 )
-from curio.web.liveness import Liveness
+from curio.web.liveness import GOAL_OVER, Liveness
 from curio.web.session import ClientSession
 from curio.web.tokens import Identity
 
@@ -118,9 +118,6 @@ RECENT_EVENTS = 50
 POSE_STALE_S = 2.0
 # Behaviour-tree states in which the rover is no longer waiting for help.
 HELP_OVER_STATES = frozenset({"moving", "arrived", "going_home", "idle", "tour"})
-# The navigator's events that end a goal.
-GOAL_OVER = frozenset({"nav.goal_succeeded", "nav.goal_aborted", "nav.goal_preempted",
-                       "nav.goal_rejected"})
 # What blocks the rover is recomputed at most this often while it is blocked, seconds.
 BLOCKER_PERIOD_S = 0.5
 

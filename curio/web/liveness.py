@@ -48,12 +48,15 @@ from curio.core.topics import (
     WHEELS,
 )
 
-__all__ = ["COUNTERS", "REPORT_STALE_S", "Liveness", "Watch", "counter_info"]
+__all__ = ["COUNTERS", "GOAL_OVER", "REPORT_STALE_S", "Liveness", "Watch", "counter_info"]
 
 # A component's own /health report older than this is stale (odometry reports every 2 s).
 REPORT_STALE_S = 5.0
 # Before this much uptime a part that has shown nothing yet is "starting", not an error.
 STARTUP_GRACE_S = 10.0
+# The navigator's events that end a goal.
+GOAL_OVER = frozenset({"nav.goal_succeeded", "nav.goal_aborted", "nav.goal_preempted",
+                       "nav.goal_rejected", "nav.goal_canceled"})
 # States from best to worst (the worst piece of evidence decides an entry's state).
 SEVERITY = {"ok": 0, "off": 0, "idle": 0, "starting": 1, "degraded": 2, "stale": 3, "error": 4}
 
@@ -219,6 +222,7 @@ class Liveness:
         self._topic_rates: dict[str, float] = {}
         self.goal_active = False
         self.goal_started_s: float | None = None
+        self._goal_id: Any = None
 
     # --- input ----------------------------------------------------------------------------------
 
@@ -231,11 +235,12 @@ class Liveness:
 
     def on_event(self, event: Event) -> None:
         """Follow the navigator's goals (``nav.goal_accepted`` … ``nav.goal_succeeded``)."""
+        goal_id = event.detail.get("goal_id")
         if event.kind == "nav.goal_accepted":
             self.goal_active = True
             self.goal_started_s = event.stamp
-        elif event.kind in ("nav.goal_succeeded", "nav.goal_aborted", "nav.goal_preempted",
-                            "nav.goal_rejected") and event.detail.get("goal_id") is not None:
+            self._goal_id = goal_id
+        elif event.kind in GOAL_OVER and goal_id is not None and goal_id == self._goal_id:
             self.goal_active = False
 
     def sample(self) -> None:

@@ -130,6 +130,14 @@ class Browser:
             await mouse.move(*await self.map_point(*drag_to), steps=5)
         await mouse.up()
 
+    async def look_at(self, x_m: float, y_m: float, min_px_per_m: float) -> None:
+        """Centre the map on (x_m, y_m) at least this zoomed in, as an operator would (the
+        rover is no longer followed)."""
+        await self.page.evaluate(f"""() => {{
+            document.getElementById('follow').checked = false;
+            const v = window.curio.view; v.cx = {x_m}; v.cy = {y_m};
+            v.scale = Math.max(v.scale, {min_px_per_m}); v.dirty = true; }}""")
+
     async def in_view(self, selector: str) -> bool:
         """Whether the element is inside the viewport and not covered by another one."""
         return bool(await self.page.evaluate("""(sel) => {

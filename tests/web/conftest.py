@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import aiohttp
 import pytest
+from aiohttp import WSMsgType
 from aiohttp.test_utils import TestClient
 
 from curio.core.bus import Bus
@@ -135,6 +138,28 @@ class Dash:
 
 
 MakeDash = Callable[..., Awaitable[Dash]]
+
+
+@pytest.fixture(params=["desktop", "phone"])
+def viewport(request: pytest.FixtureRequest) -> str:
+    """The browser tests' viewports: desktop 1280×800 and phone 390×844."""
+    return str(request.param)
+
+
+async def recv_json_until(
+    ws: aiohttp.ClientWebSocketResponse, pred: Callable[[dict[str, Any]], bool],
+    limit: int = 500,
+) -> dict[str, Any]:
+    """Read messages until a JSON one satisfies ``pred`` (binary frames are skipped)."""
+    for _ in range(limit):
+        msg = await ws.receive(timeout=5.0)
+        if msg.type == WSMsgType.TEXT:
+            data = json.loads(msg.data)
+            if pred(data):
+                return data
+        elif msg.type in (WSMsgType.CLOSE, WSMsgType.CLOSED, WSMsgType.ERROR):
+            raise AssertionError(f"socket closed: {msg}")
+    raise AssertionError("message not received")
 
 
 @pytest.fixture

@@ -25,11 +25,6 @@ from tests.web.browser_kit import (
 pytestmark = [pytest.mark.browser]
 
 
-@pytest.fixture(params=["desktop", "phone"])
-def viewport(request: pytest.FixtureRequest) -> str:
-    return str(request.param)
-
-
 async def test_operator_controls_drive_the_rover(tmp_path: Path, viewport: str) -> None:
     """A goal clicked on the map moves the rover and the message is the rover's own answer;
     a goal off the map is refused on the page; Pause/Resume; Go Home lit only while going home;
@@ -120,12 +115,7 @@ async def test_path_editor_and_map_tools(tmp_path: Path, viewport: str) -> None:
             browser_on(app.web_url or "", viewport) as b:
         page = b.page
         await b.wait_js("window.curio.S.images.map && window.curio.S.pose")
-        # The operator zooms in on the area to edit (at least 60 px a metre on any screen).
-        await page.click("#layers summary")
-        await page.uncheck("#follow")
-        await page.click("#layers summary")
-        await page.evaluate("() => { const v = window.curio.view; v.cx = 1.5; v.cy = 0.3;"
-                            " v.scale = Math.max(v.scale, 60); v.dirty = true; }")
+        await b.look_at(1.5, 0.3, 60.0)  # the area to edit, zoomed in on any screen
         await page.click("#pathsCard summary")
         await page.click("#newPath")
         await b.wait_js("window.curio.S.editPathId !== null")
@@ -162,6 +152,7 @@ async def test_path_editor_and_map_tools(tmp_path: Path, viewport: str) -> None:
         await b.shot("paths", "#pathsCard")
 
         # Measure, cursor coordinates, the scale bar that adapts to the zoom.
+        await b.look_at(1.5, 1.5, 40.0)
         await page.click("[data-tool=measure]")
         await b.click_map(0.0, 0.0, drag_to=(3.0, 4.0))
         assert await b.state("Math.hypot(window.curio.measure.bx - window.curio.measure.ax,"
@@ -199,7 +190,8 @@ async def test_path_editor_and_map_tools(tmp_path: Path, viewport: str) -> None:
         assert saved.waypoints[1].yaw_rad == pytest.approx(math.pi / 2, abs=0.05)
 
 
-async def test_blocked_door_shows_help_me_what_blocks_and_a_sound(tmp_path: Path, viewport: str) -> None:
+async def test_blocked_door_shows_help_me_what_blocks_and_a_sound(tmp_path: Path,
+                                                                 viewport: str) -> None:
     """The library door closes in front of the rover driving a path typed by number: HELP ME
     blinks, what blocks it is drawn, a sound plays (and stops when muted); the door reopens:
     Thanks!. Drives: sim world (doors), navigation (blocked detector), behaviour tree.
@@ -319,8 +311,9 @@ async def test_teleop_lease_speed_and_the_estop(tmp_path: Path, viewport: str) -
 
         # Releasing asks first; "keep it stopped" keeps it; the release shows who and when.
         await page.click("#releaseEstop")
-        await b.confirm("Release the emergency stop set by admin", accept=False)
+        await b.wait_js("!document.querySelector('#modal').classList.contains('hidden')")
         await b.shot("release-confirm")
+        await b.confirm("Release the emergency stop set by admin", accept=False)
         assert await b.state("window.curio.S.estop.engaged")
         await page.click("#releaseEstop")
         await b.confirm("Release the emergency stop", accept=True)

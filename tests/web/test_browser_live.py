@@ -34,11 +34,6 @@ from tests.web.browser_kit import (
 pytestmark = [pytest.mark.browser]
 
 
-@pytest.fixture(params=["desktop", "phone"])
-def viewport(request: pytest.FixtureRequest) -> str:
-    return str(request.param)
-
-
 async def test_two_operators_see_who_does_what(tmp_path: Path, viewport: str) -> None:
     """Alice drives: Bob's page says so; Bob takes over after confirming; Bob deletes the path
     Alice is editing: she is told who did it; Alice's e-stop shows her name on Bob's page and

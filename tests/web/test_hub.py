@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-from collections.abc import Callable
 from typing import Any
 
 import aiohttp
@@ -39,25 +38,11 @@ from curio.core.topics import (
 from curio.web import hub as hub_module
 from curio.web.encode import FRAME_PLAN, FRAME_POSE, FRAME_SCAN, decode_frame
 from curio.web.tokens import VIEWER
-from tests.web.conftest import TOKEN, Dash, MakeDash
+from tests.web.conftest import TOKEN, Dash, MakeDash, recv_json_until
 
 WsMsg = aiohttp.WSMessage
 
 
-async def recv_json_until(
-    ws: aiohttp.ClientWebSocketResponse, pred: Callable[[dict[str, Any]], bool],
-    limit: int = 200,
-) -> dict[str, Any]:
-    """Read messages until a JSON one satisfies ``pred`` (binary frames are skipped)."""
-    for _ in range(limit):
-        msg = await ws.receive(timeout=5.0)
-        if msg.type == WSMsgType.TEXT:
-            data = json.loads(msg.data)
-            if pred(data):
-                return data
-        elif msg.type in (WSMsgType.CLOSE, WSMsgType.CLOSED, WSMsgType.ERROR):
-            raise AssertionError(f"socket closed: {msg}")
-    raise AssertionError("message not received")
 
 
 async def connect(d: Dash, token: bool = True) -> aiohttp.ClientWebSocketResponse:

@@ -4,7 +4,6 @@ released it, the teleop lease, who did what, concurrent path edits, revoked toke
 from __future__ import annotations
 
 import asyncio
-import json
 from collections.abc import Callable
 from typing import Any
 
@@ -15,7 +14,16 @@ from aiohttp import WSMsgType
 from curio.core.messages import EStop
 from curio.core.topics import CMD_VEL_TELEOP, ESTOP, EVENTS, OPERATOR
 from curio.web.tokens import TokenStore
-from tests.web.conftest import ALICE, BOB, KIOSK, TOKEN, Dash, MakeDash, bearer
+from tests.web.conftest import (
+    ALICE,
+    BOB,
+    KIOSK,
+    TOKEN,
+    Dash,
+    MakeDash,
+    bearer,
+    recv_json_until,
+)
 
 
 async def ws_for(d: Dash, token: str | None) -> aiohttp.ClientWebSocketResponse:
@@ -27,17 +35,6 @@ async def ws_for(d: Dash, token: str | None) -> aiohttp.ClientWebSocketResponse:
     return ws
 
 
-async def until(ws: aiohttp.ClientWebSocketResponse,
-                pred: Callable[[dict[str, Any]], bool]) -> dict[str, Any]:
-    for _ in range(500):
-        msg = await ws.receive(timeout=5.0)
-        if msg.type == WSMsgType.TEXT:
-            data = json.loads(msg.data)
-            if pred(data):
-                return data
-        elif msg.type in (WSMsgType.CLOSE, WSMsgType.CLOSED, WSMsgType.ERROR):
-            raise AssertionError(f"socket closed: {msg}")
-    raise AssertionError("message not received")
 
 
 async def test_each_token_is_a_named_role(make_dash: MakeDash) -> None:
@@ -68,9 +65,9 @@ async def test_kiosk_may_only_start_and_stop_tours(make_dash: MakeDash) -> None:
     ws = await ws_for(d, KIOSK)
     await ws.send_json({"op": "teleop", "seq": 1, "linear_mps": 0.2})
     await ws.send_json({"op": "command", "id": 3, "action": "start_tour"})
-    err = await until(ws, lambda m: m["t"] == "error")
+    err = await recv_json_until(ws, lambda m: m["t"] == "error")
     assert "may only start and stop tours" in err["message"]
-    ack = await until(ws, lambda m: m["t"] == "ack")
+    ack = await recv_json_until(ws, lambda m: m["t"] == "ack")
     assert ack["id"] == 3 and ack["action"] == "start_tour"
     await ws.close()
     assert [c.action for c in ops.drain()] == ["start_tour"]
@@ -96,7 +93,7 @@ async def test_estop_is_accepted_after_a_burst_over_rest_and_websocket(
     def ack(msg_id: str) -> Callable[[dict[str, Any]], bool]:
         return lambda m: bool(seen.append(m)) or (m["t"] == "ack" and m["id"] == msg_id)
 
-    acks = [await until(ws, ack(i)) for i in ("stop-1", "stop-2")]
+    acks = [await recv_json_until(ws, ack(i)) for i in ("stop-1", "stop-2")]
     assert all(a["action"] == "estop" for a in acks)
     assert not ws.closed
     await ws.close()
@@ -110,7 +107,7 @@ async def test_viewers_cannot_estop_or_drive(make_dash: MakeDash) -> None:
     d = await make_dash()
     ws = await ws_for(d, None)
     await ws.send_json({"op": "estop", "id": 1})
-    err = await until(ws, lambda m: m["t"] == "error")
+    err = await recv_json_until(ws, lambda m: m["t"] == "error")
     assert err["id"] == 1 and "token" in err["message"]
     await ws.close()
     assert (await d.client.post("/api/estop")).status == 401
@@ -120,7 +117,7 @@ async def test_only_the_setter_or_an_admin_releases_an_estop(make_dash: MakeDash
     d = await make_dash()
     viewer = await ws_for(d, None)
     d.bus.publish(ESTOP, EStop(1.0, True, source="web:alice", reason="operator pressed e-stop"))
-    msg = await until(viewer, lambda m: m["t"] == "estop")
+    msg = await recv_json_until(viewer, lambda m: m["t"] == "estop")
     assert msg["log"]["set_by"] == "web:alice" and msg["log"]["set_at"] is not None
     release = {"action": "release_estop"}
     resp = await d.client.post("/api/command", json=release, headers=bearer(BOB))
@@ -130,7 +127,7 @@ async def test_only_the_setter_or_an_admin_releases_an_estop(make_dash: MakeDash
         resp = await d.client.post("/api/command", json=release, headers=bearer(token))
         assert resp.status == 202
     d.bus.publish(ESTOP, EStop(2.0, False, source="web:admin", reason="released"))
-    msg = await until(viewer, lambda m: m["t"] == "estop")
+    msg = await recv_json_until(viewer, lambda m: m["t"] == "estop")
     assert msg["log"]["set_by"] == "web:alice" and msg["log"]["released_by"] == "web:admin"
     state = await (await d.client.get("/api/state")).json()
     assert state["estop_log"]["released_by"] == "web:admin"
@@ -146,32 +143,33 @@ async def test_teleop_lease_one_driver_take_over_and_lapse(make_dash: MakeDash) 
     teleop = d.bus.subscribe(CMD_VEL_TELEOP, maxsize=100)
     alice, bob, viewer = await ws_for(d, ALICE), await ws_for(d, BOB), await ws_for(d, None)
     await alice.send_json({"op": "teleop", "seq": 1, "linear_mps": 0.3})
-    lease = await until(viewer, lambda m: m["t"] == "lease")
+    lease = await recv_json_until(viewer, lambda m: m["t"] == "lease")
     assert lease["lease"]["holder"] == "alice" and lease["lease"]["driving"] is True
     await bob.send_json({"op": "teleop", "seq": 1, "linear_mps": -0.3})
-    err = await until(bob, lambda m: m["t"] == "error")
+    err = await recv_json_until(bob, lambda m: m["t"] == "error")
     assert err["code"] == "lease_held" and err["holder"] == "alice"
     assert err["message"] == "alice is driving — take over?"
     assert [(m.linear_mps, m.source) for m in teleop.drain()] == [(0.3, "web:alice")]
     await bob.send_json({"op": "teleop", "seq": 2, "linear_mps": -0.2, "take_over": True})
-    lease = await until(alice, lambda m: m["t"] == "lease" and m["lease"]["holder"] != "alice")
+    lease = await recv_json_until(alice, lambda m: m["t"] == "lease" and
+                                  m["lease"]["holder"] != "alice")
     assert lease["lease"]["holder"] == "bob"
-    event = await until(viewer, lambda m: m["t"] == "event" and m["event"]["kind"] ==
+    event = await recv_json_until(viewer, lambda m: m["t"] == "event" and m["event"]["kind"] ==
                         "operator.teleop" and m["event"]["detail"]["who"] == "bob")
     assert event["event"]["detail"]["what"] == "took over driving from alice"
     await alice.send_json({"op": "teleop", "seq": 2, "linear_mps": 0.3})
-    err = await until(alice, lambda m: m["t"] == "error")
+    err = await recv_json_until(alice, lambda m: m["t"] == "error")
     assert err["holder"] == "bob"
     assert [(m.linear_mps, m.source) for m in teleop.drain()] == [(-0.2, "web:bob")]
     # Bob lets go; after teleop_lease_s the lease lapses and alice drives without asking.
     await bob.send_json({"op": "teleop", "seq": 3, "linear_mps": 0.0})
-    await until(viewer, lambda m: m["t"] == "lease" and not m["lease"]["driving"])
+    await recv_json_until(viewer, lambda m: m["t"] == "lease" and not m["lease"]["driving"])
     await d.clock.advance(2.5)
-    await until(viewer, lambda m: m["t"] == "lease" and m["lease"]["holder"] is None)
+    await recv_json_until(viewer, lambda m: m["t"] == "lease" and m["lease"]["holder"] is None)
     await alice.send_json({"op": "teleop", "seq": 3, "linear_mps": 0.1})
-    await until(viewer, lambda m: m["t"] == "lease" and m["lease"]["holder"] == "alice")
+    await recv_json_until(viewer, lambda m: m["t"] == "lease" and m["lease"]["holder"] == "alice")
     await alice.close()  # the driver's page goes: the rover stops, the lease is free
-    await until(viewer, lambda m: m["t"] == "lease" and m["lease"]["holder"] is None)
+    await recv_json_until(viewer, lambda m: m["t"] == "lease" and m["lease"]["holder"] is None)
     assert teleop.drain()[-1].linear_mps == 0.0
     await bob.close()
     await viewer.close()
@@ -182,14 +180,14 @@ async def test_every_page_sees_who_did_what(make_dash: MakeDash) -> None:
     events = d.bus.subscribe(EVENTS)
     bob = await ws_for(d, BOB)
     await d.client.post("/api/command", json={"action": "go_home"}, headers=bearer(ALICE))
-    ev = await until(bob, lambda m: m["t"] == "event" and m["event"]["kind"] ==
+    ev = await recv_json_until(bob, lambda m: m["t"] == "event" and m["event"]["kind"] ==
                      "operator.command")
     assert ev["event"]["detail"]["who"] == "alice"
     assert ev["event"]["detail"]["what"] == "sent the rover home"
     assert isinstance(ev["event"]["wall"], float)
     resp = await d.client.delete("/api/paths/2", headers=bearer(ALICE))
     assert resp.status == 200
-    paths = await until(bob, lambda m: m["t"] == "paths")
+    paths = await recv_json_until(bob, lambda m: m["t"] == "paths")
     assert (paths["change"], paths["path_id"], paths["by"]) == ("deleted", 2, "alice")
     assert all(p["id"] != 2 for p in paths["paths"])
     kinds = [(e.kind, e.detail["who"]) for e in events.drain() if e.kind.startswith("operator.")]

@@ -72,14 +72,14 @@
       case "blocker": S.blocker = m.blocker; C.view.dirty = true; break;
       case "paths": S.paths = m.paths; C.renderPaths(m); break;
       case "tree": S.tree = m.tree; if ($("treeCard").open) C.renderTree(); break;
-      case "health": S.health = m; S.rx.health = Date.now(); if ($("healthCard").open) C.renderHealth(); break;
+      case "health": S.health = m; S.rx.health = Date.now(); C.renderHealth(); break;
       case "grid": C.onGrid(m.grid); break;
       case "obstacles": S.obstacles = m; S.rx.obstacles = Date.now(); C.view.dirty = true; break;
       case "localization": S.loc = m.localization; S.rx.loc = Date.now(); C.renderChips(); break;
       case "battery": S.battery = m.battery; S.rx.battery = Date.now(); C.renderChips(); break;
       case "cmd_vel":
         S.rx.cmdVel = Date.now();
-        $("cmdVel").textContent = m.linear_mps.toFixed(2) + " m/s · " + m.angular_radps.toFixed(2) + " rad/s";
+        $("cmdVel").textContent = m.linear_mps.toFixed(2) + " m/s\n" + m.angular_radps.toFixed(2) + " rad/s";
         $("cmdVel").title = "what the wheels are told now (after the safety stage)";
         break;
       case "error":
@@ -179,7 +179,7 @@
     if (S.connected && Date.now() - S.lastMsgAt > LINK_SILENT_S * 1000) { goOffline(); scheduleReconnect(); }
     if (S.ws && S.ws.readyState === WebSocket.OPEN) S.ws.send(JSON.stringify({ op: "ping" }));
     C.renderHelp(); C.renderChips();
-    if (!S.connected) { C.renderStatus(); if ($("healthCard").open) C.renderHealth(); }
+    if (!S.connected) { C.renderStatus(); C.renderHealth(); }
     const stale = !S.connected ? "Offline: the map shows what the rover sent " + C.fmtAge(C.ageS("any")) :
       (S.pose && C.isStale("pose") ? "No position from the rover for " + Math.round(C.ageS("pose")) + " s" : "");
     $("staleNote").textContent = stale;

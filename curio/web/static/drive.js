@@ -144,7 +144,7 @@
     const l = S.lease || {};
     const el = $("leaseText");
     if (!l.holder) el.textContent = C.may("drive") ? "Hold the stick to drive. Letting go stops." : "";
-    else if (l.client === S.clientId) el.textContent = "You are driving.";
+    else if (l.client === S.clientId) el.textContent = l.driving ? "You are driving." : "You have the stick.";
     else el.textContent = l.holder + (l.driving ? " is driving." : " has the stick.");
     el.className = "leaseText small" + (l.holder && l.client !== S.clientId ? " other" : "");
   }
@@ -218,7 +218,10 @@
   const sound = { muted: false, beeps: 0, ticks: 0, ctx: null };
   function setMuted(m) {
     sound.muted = m;
-    $("mute").textContent = m ? "♪ off" : "♪ on";
+    $("mute").textContent = "";
+    const icon = document.createElement("span"); icon.textContent = "♪";
+    const word = document.createElement("span"); word.className = "long"; word.textContent = m ? " off" : " on";
+    $("mute").append(icon, word);
     $("mute").setAttribute("aria-pressed", String(m));
     $("mute").title = m ? "sound for HELP ME is off (click to turn it on)" : "sound when the rover asks for help (click to mute)";
     try { localStorage.setItem("curio.muted", m ? "1" : "0"); } catch (e) { /* ignore */ }

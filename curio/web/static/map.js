@@ -239,9 +239,10 @@
       const [ax, ay] = toScreen(p.x, p.y);
       ctx.font = "bold 13px system-ui, sans-serif";
       const w = ctx.measureText(label).width;
-      ctx.fillStyle = "rgba(255,255,255,.85)"; ctx.fillRect(ax + 12, ay - 28, w + 8, 18);
+      const lx = ax + 20 + w > W ? Math.max(2, ax - 20 - w) : ax + 12;  // keep it on the canvas
+      ctx.fillStyle = "rgba(255,255,255,.85)"; ctx.fillRect(lx, ay - 28, w + 8, 18);
       ctx.fillStyle = stroke === "#1d4ed8" ? "#111827" : "#4b5563";
-      ctx.fillText(label, ax + 16, ay - 14);
+      ctx.fillText(label, lx + 4, ay - 14);
     }
   }
 
@@ -316,8 +317,9 @@
     const text = "in the way" + (b.distance_m !== null && b.distance_m !== undefined ? " (" + b.distance_m.toFixed(2) + " m ahead)" : "");
     ctx.font = "bold 13px system-ui, sans-serif";
     const w = ctx.measureText(text).width;
-    ctx.fillStyle = "#b91c1c"; ctx.fillRect(mx + 10, my - 30, w + 10, 20);
-    ctx.fillStyle = "#fff"; ctx.fillText(text, mx + 15, my - 15);
+    const lx = mx + 20 + w > W ? Math.max(2, mx - 20 - w) : mx + 10;
+    ctx.fillStyle = "#b91c1c"; ctx.fillRect(lx, my - 30, w + 10, 20);
+    ctx.fillStyle = "#fff"; ctx.fillText(text, lx + 5, my - 15);
   }
 
   function drawMeasure() {

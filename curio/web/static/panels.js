@@ -35,7 +35,7 @@
     const words = STATE_WORDS[shown] || [shown, ""];
     const badge = $("stateBadge");
     badge.textContent = words[0];
-    badge.className = "badge " + shown;
+    badge.className = "badge s-" + shown;
     let text = st && st.text ? st.text : "Waiting for the rover…";
     if (shown === "offline") {
       text = S.everConnected ? "Offline — last news from the rover " + C.fmtAge(C.ageS("any")) : "Connecting to the rover…";
@@ -81,11 +81,20 @@
     const on = !!(S.estop && S.estop.engaged);
     const log = S.estopLog || {};
     $("estop").classList.toggle("engaged", on);
-    $("estop").textContent = on ? "STOPPED" : "STOP";
+    $("estop").title = on ? "The e-stop is engaged (press again to repeat it; release it in the red bar)" :
+      "Emergency stop (key: Esc, outside text boxes)";
     $("estopBanner").classList.toggle("hidden", !on);
     if (on) {
-      $("estopWho").textContent = "EMERGENCY STOP by " + C.nameOf(log.set_by || S.estop.source) +
-        (log.set_at ? " at " + C.clockTime(log.set_at) : "") + " — the rover will not move.";
+      const who = C.nameOf(log.set_by || S.estop.source), when = log.set_at ? C.clockTime(log.set_at) : "";
+      const el = $("estopWho");
+      el.textContent = "";
+      const long = document.createElement("span");
+      long.className = "long";
+      long.textContent = "EMERGENCY STOP by " + who + (when ? " at " + when : "") + " — the rover will not move.";
+      const short = document.createElement("span");
+      short.className = "short";
+      short.textContent = "E-STOP by " + who + (when ? " · " + when : "");
+      el.append(long, short);
     }
     const el = $("estopLog");
     if (log.set_by) {
@@ -100,7 +109,7 @@
     if (active) {
       el.textContent = "HELP ME!";
       el.className = "help active";
-      el.title = S.help.message || "the way is blocked";
+      el.title = (S.help.message || "the way is blocked") + (C.may("command") ? " — tap when you cleared the way" : "");
     } else if (Date.now() < S.thanksUntil) {
       el.textContent = "Thanks!";
       el.className = "help thanks";
@@ -109,13 +118,24 @@
       el.className = "help clear";
     }
     $("helpActions").classList.toggle("hidden", !active);
+    el.disabled = !(active && C.may("command"));
   }
+  // HELP ME in the sticky bar is also the "I cleared the way" button (on a phone the card with
+  // that button may be scrolled away).
+  $("help").addEventListener("click", async () => {
+    if (!(S.help && S.help.active) || !C.may("command")) return;
+    if (await C.confirmBox("Is the way clear? The rover will continue.", "Yes, continue", "Not yet")) {
+      C.command("help_done");
+    }
+  });
 
   function renderProgress() {
     const p = S.progress;
     const box = $("progress");
     box.textContent = "";
-    if (!p || !p.states || p.states.length === 0) {
+    const none = !p || !p.states || p.states.length === 0;
+    $("progressBox").classList.toggle("empty", none);
+    if (none) {
       $("progressTitle").textContent = S.goal ? "Driving to a single goal (no path)" : "No path running";
       return;
     }
@@ -150,13 +170,13 @@
       const [text, short, cls] = LOC_WORDS[S.loc.state] || [S.loc.state, S.loc.state, "warn"];
       const stale = C.isStale("loc");
       const age = stale ? " · " + C.fmtAge(C.ageS("loc")) : "";
-      setChip(loc, text + age, short + (stale ? " (old)" : ""), stale ? "stale" : cls,
+      setChip(loc, text + age, short, stale ? "stale" : cls,
         "how sure the rover is of where it is" + (stale ? " — last heard " + C.fmtAge(C.ageS("loc")) : ""));
     } else loc.className = "chip hidden";
     if (S.battery) {
       const stale = C.isStale("battery");
       const v = S.battery.voltage_v.toFixed(1) + " V" + (S.battery.low ? " LOW" : "");
-      setChip(bat, "Battery " + v + (stale ? " · " + C.fmtAge(C.ageS("battery")) : ""), v + (stale ? " (old)" : ""),
+      setChip(bat, "Battery " + v + (stale ? " · " + C.fmtAge(C.ageS("battery")) : ""), v,
         stale ? "stale" : (S.battery.low ? "bad" : "ok"),
         "servo battery voltage" + (stale ? " — last heard " + C.fmtAge(C.ageS("battery")) : ""));
     } else bat.className = "chip hidden";
@@ -342,32 +362,55 @@
   // ----- events as sentences in wall-clock time ---------------------------------------------------------
   const xy = (v) => (Array.isArray(v) ? "(" + Number(v[0]).toFixed(2) + ", " + Number(v[1]).toFixed(2) + ")" : "");
   const lastGoal = (d) => (Array.isArray(d.goal) && d.goal.length ? xy(d.goal[d.goal.length - 1]) : "");
+  const tagText = (tag) => {  // "web:alice goto" → "sent by alice"; "path 3 wp 0" stays
+    const m = /^(web|kiosk):(\S+) goto$/.exec(String(tag || ""));
+    return m ? "sent by " + (m[2] === S.who.name ? "you" : m[2]) : (tag || "");
+  };
+  const stopName = (d) => (d.name ? "“" + d.name + "”" : (d.index !== null && d.index !== undefined ? "stop " + (Number(d.index) + 1) : "the stop")) +
+    (d.x_m !== undefined ? " " + xy([d.x_m, d.y_m]) : "");
   const EVENT_TEXT = {
     "bt.command_accepted": (d) => ["ok", "✓ " + (d.message || d.action + " accepted")],
     "bt.command_rejected": (d) => ["bad", "✗ Refused: " + (d.message || d.action)],
+    "bt.estop_released": (d) => ["", d.message || "The tree carries on after the e-stop"],
     "safety.estop": (d) => (d.engaged ? ["bad", "E-stop engaged by " + C.nameOf(d.source)] : ["ok", "E-stop released by " + C.nameOf(d.source)]),
     "safety.stop_zone": (d) => ["warn", "Stopped for an obstacle " + (d.clearance_m !== undefined ? d.clearance_m.toFixed(2) + " m away" : "ahead")],
     "safety.stop_zone_cleared": () => ["", "The way ahead is clear again"],
     "safety.watchdog": () => ["warn", "Velocity commands stopped arriving: slowing to a halt"],
     "safety.no_scan": (d) => (d.blind ? ["bad", "No lidar scan: the rover holds still"] : ["ok", "Lidar scans are back"]),
-    "nav.goal_accepted": (d) => ["", "Driving to " + lastGoal(d) + (d.tag ? " (" + d.tag + ")" : "")],
+    "nav.goal_accepted": (d) => ["", "Driving to " + lastGoal(d) + (d.tag ? " (" + tagText(d.tag) + ")" : "")],
     "nav.goal_succeeded": (d) => ["ok", "Reached " + lastGoal(d) + (d.time_s ? " in " + Math.round(d.time_s) + " s" : "")],
     "nav.goal_aborted": (d) => ["bad", "Gave up driving to " + lastGoal(d) + ": " + (d.message || d.note || "")],
-    "nav.goal_preempted": (d) => ["", "Goal " + lastGoal(d) + " replaced or cancelled"],
+    "nav.goal_preempted": (d) => ["", "Goal " + lastGoal(d) + " replaced by a newer one"],
+    "nav.goal_canceled": (d) => ["", "Goal " + lastGoal(d) + " cancelled"],
     "nav.goal_rejected": (d) => ["bad", "Goal refused: " + (d.message || d.code || "")],
     "nav.waypoint_reached": (d) => ["ok", "Reached waypoint " + (Number(d.index) + 1)],
     "nav.path_blocked": () => ["warn", "The planned route is blocked; looking for another"],
+    "nav.recovery": (d) => [d.ok ? "" : "warn", "Trying to get free: " + String(d.step || "").replace(/_/g, " ") + (d.ok ? "" : " (did not help)")],
     "nav.blocked": (d) => ["warn", "Blocked: " + (d.reason || "an obstacle ahead")],
     "nav.unblocked": () => ["ok", "Not blocked any more"],
     "nav.holding": (d) => ["warn", "Holding still: " + (d.reason || "")],
     "nav.keep_out": (d) => ["", "Keeping out of " + xy([d.x, d.y])],
-    "help.requested": (d) => ["bad", "HELP ME: " + (d.message || "the way is blocked")],
+    "path.started": (d) => ["", "Started path " + d.path_id + (d.name ? " “" + d.name + "”" : "") + (d.index ? " at stop " + (d.index + 1) : "")],
+    "path.interrupted": (d) => ["warn", "Path " + d.path_id + " interrupted at stop " + (Number(d.index) + 1)],
+    "path.finished": (d) => ["ok", "Finished " + (d.name ? "“" + d.name + "”" : "the path") + (d.total ? ": " + d.reached + " of " + d.total + " stops reached" : "")],
+    "waypoint.reached": (d) => ["ok", "Arrived at " + stopName(d)],
+    "waypoint.failed": (d) => ["bad", "Could not reach " + stopName(d) + (d.message ? ": " + d.message : "")],
+    "goal.preempted": (d) => ["", "Goal " + xy([d.x_m, d.y_m]) + " replaced"],
+    "tour.stop": (d) => ["", d.message || "Tour stop " + stopName(d)],
+    "tour.loop": (d) => ["", "The tour " + (d.name ? "“" + d.name + "” " : "") + "starts again"],
+    "help.requested": (d) => ["bad", /^HELP ME/i.test(d.message || "") ? d.message : "HELP ME: " + (d.message || "the way is blocked")],
     "help.resolved": () => ["ok", "Thanks! The way is clear again"],
-    "tour.stop": (d) => ["", d.message || "Tour stop"],
+    "help.timeout": (d) => ["warn", d.message || "Still waiting for help"],
     "battery.low": (d) => ["bad", "Battery low" + (d.message ? ": " + d.message : "")],
-    "path.finished": () => ["ok", "Path finished"],
+    "battery.ok": (d) => ["ok", "Battery OK again" + (d.voltage_v ? " (" + Number(d.voltage_v).toFixed(1) + " V)" : "")],
+    "driver.lidar_lost": (d) => ["bad", "Lidar lost: " + (d.reason || "")],
+    "driver.lidar_recovered": () => ["ok", "Lidar back"],
+    "driver.imu_lost": (d) => ["bad", "IMU lost: " + (d.reason || "")],
+    "driver.imu_recovered": () => ["ok", "IMU back"],
     "paths.load_failed": (d) => ["bad", d.message || "The saved paths could not be read"],
   };
+  // Told better by other lines (who changed which path is an operator.path event).
+  const QUIET_EVENTS = new Set(["paths.changed"]);
   function eventSentence(ev) {
     const d = ev.detail || {};
     if (ev.kind.startsWith("operator.")) return [ev.kind === "operator.command" && d.action === "estop" ? "bad" : "who", (d.who === S.who.name ? "You (" + d.who + ")" : d.who) + " " + d.what];
@@ -378,6 +421,7 @@
   }
 
   function addEvent(ev, history) {
+    if (QUIET_EVENTS.has(ev.kind)) return;
     const ol = $("events");
     const li = document.createElement("li");
     const [cls, text] = eventSentence(ev);
@@ -451,14 +495,19 @@
     box.appendChild(row);
     return row;
   }
+  function renderHealthSummary() {
+    const comps = (S.health && S.health.components) || [];
+    const bad = comps.filter((c) => ["error", "stale", "degraded"].includes(c.state));
+    $("healthSummary").textContent = S.connected ? (bad.length ? "· " + bad.length + " need attention" : "· all parts OK") :
+      "· offline: last report " + C.fmtAge(C.ageS("health"));
+    $("healthSummary").className = "small " + (bad.length || !S.connected ? "warnText" : "okText");
+  }
   function renderHealth() {
     const h = S.health;
     const box = $("health");
-    if (!h) return;
+    renderHealthSummary();
+    if (!h || !$("healthCard").open) return;
     const comps = (h.components || []).slice().sort((a, b) => a.name.localeCompare(b.name));
-    const bad = comps.filter((c) => ["error", "stale", "degraded"].includes(c.state));
-    $("healthSummary").textContent = S.connected ? (bad.length ? "· " + bad.length + " need attention" : "· all parts OK") : "· offline";
-    $("healthSummary").className = "small " + (bad.length || !S.connected ? "warnText" : "okText");
     const offlineAge = S.connected ? 0 : C.ageS("health");
     const seen = new Set();
     for (const c of comps) {
