@@ -533,9 +533,11 @@ class Hub:
         self.events.append(record)
         self._reliable({"t": "event", "event": record, "help": self.help})
         self._follow_goal(msg)
-        if msg.kind == "bt.command_accepted" and msg.detail.get("action") == "goto" \
-                and self.progress is not None:
-            # The path is left for a single goal: its squares no longer describe the trip.
+        single_goal = (msg.kind == "nav.goal_accepted"
+                       and str(msg.detail.get("tag", "")).endswith(" goto")) or (
+            msg.kind == "bt.command_accepted" and msg.detail.get("action") == "goto")
+        if single_goal and self.progress is not None:
+            # The rover drives to a single goal: the squares of a path no longer describe it.
             self.progress = None
             self._reliable({"t": "progress", "progress": None})
 

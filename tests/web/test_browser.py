@@ -297,6 +297,11 @@ async def test_teleop_lease_speed_and_the_estop(tmp_path: Path, viewport: str) -
         assert 429 in statuses
         await page.locator("body").press("Escape")
         await b.wait_js("window.curio.S.estop && window.curio.S.estop.engaged")
+        pressed = [c for c in ops.drain() if c.action == "estop"]
+        engaged = app.bus.latest(ESTOP)
+        assert pressed and engaged is not None and engaged.engaged
+        # It reached the safety stage within one control cycle (at once, in fact).
+        assert engaged.stamp - pressed[0].stamp <= 1.0 / app.cfg.nav.safety.rate_hz
         assert "by admin" in await b.text("#estopWho")
         assert await page.is_visible("#estopBanner")
         assert await b.text("#stateBadge") == "E-STOP"

@@ -372,3 +372,21 @@ async def test_health_panel_has_components_system_and_bus(make_dash: MakeDash) -
     own = [h for h in web_health.drain() if h.name == "web"]
     assert own and own[0].counters["clients"] == 1.0
     await ws.close()
+
+
+async def test_a_single_goal_clears_the_old_paths_squares(make_dash: MakeDash) -> None:
+    d = await make_dash()
+    ws = await connect(d)
+    d.bus.publish(PROGRESS, Progress(1.0, 1, "Path 1", ("reached", "reached"), 1))
+    msg = await recv_json_until(ws, lambda m: m["t"] == "progress")
+    assert msg["progress"]["path_id"] == 1
+    d.bus.publish(EVENTS, Event(2.0, "nav.goal_accepted", {
+        "goal_id": 7, "goal": [[2.0, 0.0]], "tag": "web:admin goto"}))
+    goal = await recv_json_until(ws, lambda m: m["t"] == "goal")
+    assert goal["goal"]["poses"] == [[2.0, 0.0]]
+    msg = await recv_json_until(ws, lambda m: m["t"] == "progress")
+    assert msg["progress"] is None and d.hub.snapshot()["progress"] is None
+    d.bus.publish(EVENTS, Event(3.0, "nav.goal_canceled", {"goal_id": 7}))
+    goal = await recv_json_until(ws, lambda m: m["t"] == "goal")
+    assert goal["goal"] is None
+    await ws.close()
