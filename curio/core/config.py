@@ -549,9 +549,9 @@ class WebConfig(Section):
         default_factory=list, description="host names the page may be opened by, besides IP "
         "addresses, localhost and this machine's name (DNS-rebinding guard); '*' allows any")
     max_viewer_sockets_per_ip: int = Field(
-        8, ge=1, le=1000, description="live connections without a token from one address")
+        16, ge=1, le=1000, description="live connections without a token from one address")
     max_viewer_sockets: int = Field(
-        48, ge=1, le=10000, description="live connections without a token in total")
+        64, ge=1, le=10000, description="live connections without a token in total")
     teleop_lease_s: float = Field(
         3.0, gt=0.0, le=60.0, description="the driver keeps the joystick this long after "
         "letting go before another operator may drive without taking over")
