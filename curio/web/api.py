@@ -19,7 +19,7 @@ is refused with 409 and says who changed it, instead of overwriting their change
 | GET | ``/api/{map,costmap,local_costmap}.json`` | | its version and geometry |
 | GET | ``/api/tree``, ``/api/health``, ``/api/paths`` | | tree, health panel, paths |
 | GET | ``/api/auth`` | | who this request is: name, role, permissions |
-| POST | ``/api/estop`` | estop | engage the e-stop (never rate-limited) |
+| POST | ``/api/estop`` ``{request_id?}`` | estop | engage the e-stop (never rate-limited) |
 | POST | ``/api/command`` ``{action, path_id?, goal?, request_id?}`` | by action | a command |
 | POST | ``/api/initial_pose`` ``{x_m, y_m, yaw_rad}`` | initial_pose | set the pose in map |
 | POST | ``/api/paths`` ``{name, waypoints?}`` | paths | create a path |
@@ -45,6 +45,7 @@ from curio.web.control import action_permission, map_bounds
 from curio.web.encode import path_to_json
 from curio.web.hub import Hub
 from curio.web.inputs import (
+    REQUEST_ID,
     CommandError,
     describe_path_ids,
     http_error,
@@ -227,9 +228,11 @@ async def remove_waypoint(request: web.Request) -> web.Response:
 
 
 async def estop(request: web.Request) -> web.Response:
-    """Engage the e-stop (202). Never rate-limited; no body needed."""
+    """Engage the e-stop (202). Never rate-limited; no body needed. ``{"request_id"}`` (the
+    one the page also sent over the WebSocket) makes a second copy a duplicate."""
     who = request.app[GATE].require(request, "estop")
-    cmd = request.app[ROVER].estop(who)
+    body = await _body(request)
+    cmd = request.app[ROVER].estop(who, _request_id(body.get("request_id")))
     return web.json_response({"ok": True, "action": "estop", "request_id": cmd.request_id,
                               "by": who.name}, status=202)
 
@@ -264,6 +267,11 @@ async def _body(request: web.Request) -> dict[str, Any]:
     if not raw:
         return {}
     return parse_json_object(raw)
+
+
+def _request_id(value: Any) -> str:
+    """A request id as sent, or "" when it is not a short plain string."""
+    return value if isinstance(value, str) and REQUEST_ID.match(value) else ""
 
 
 def _paths_to_edit(request: web.Request) -> tuple[Hub, Any, Identity]:

@@ -32,6 +32,7 @@ from curio.core.messages import OperatorAction, OperatorCommand
 __all__ = [
     "ACTIONS",
     "MAX_INT_DIGITS",
+    "REQUEST_ID",
     "CommandError",
     "MapBounds",
     "build_command",
@@ -44,7 +45,7 @@ __all__ = [
 ]
 
 ACTIONS: tuple[str, ...] = get_args(OperatorAction)
-_REQUEST_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,64}$")
+REQUEST_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,64}$")
 # Longer integers in a JSON message are refused (no coordinate or count needs more).
 MAX_INT_DIGITS = 15
 
@@ -232,7 +233,7 @@ def build_command(body: dict[str, Any], clock: Clock, paths: Any,
     if action not in ACTIONS:
         raise CommandError(f"unknown action {action!r}; allowed: {', '.join(ACTIONS)}")
     request_id = body.get("request_id") or uuid.uuid4().hex
-    if not isinstance(request_id, str) or not _REQUEST_ID.match(request_id):
+    if not isinstance(request_id, str) or not REQUEST_ID.match(request_id):
         raise CommandError("request_id must be 1–64 characters of letters, digits, _ . : -")
     path_id: int | None = None
     goal: Pose2D | None = None

@@ -43,7 +43,7 @@ from curio.core.config import WebConfig
 from curio.core.jsonable import to_json
 from curio.web.auth import RateLimiter, refusal
 from curio.web.control import LeaseHeld, RoverControl, action_permission
-from curio.web.inputs import CommandError, parse_json_object, parse_teleop
+from curio.web.inputs import REQUEST_ID, CommandError, parse_json_object, parse_teleop
 from curio.web.tokens import Identity
 
 __all__ = ["CLIENT_OPS", "ClientSession"]
@@ -259,7 +259,7 @@ class ClientSession:
             raise CommandError(self._refusal("estop"))
         request_id = body.get("request_id")
         cmd = self.rover.estop(self.who, request_id if isinstance(request_id, str)
-                               and len(request_id) <= 64 else "")
+                               and REQUEST_ID.match(request_id) else "")
         self.reply({"t": "ack", "id": msg_id, "request_id": cmd.request_id, "action": "estop",
                     "duplicate": False})
 

@@ -20,6 +20,7 @@ import pytest
 from curio.app import App
 from curio.core.clock import SimClock, wall_perf_counter
 from curio.core.topics import OPERATOR
+from curio.web.tokens import TokenStore
 from tests.web.browser_kit import (
     TELEOP_SPEED,
     add_token,
@@ -101,6 +102,13 @@ async def test_two_operators_see_who_does_what(tmp_path: Path, viewport: str) ->
         events = await bob.text("#events")
         assert "alice pressed the e-stop" in events and "alice released the e-stop" in events
         assert re.search(r"\d\d:\d\d:\d\d", events)
+
+        # Bob's token is revoked ('curio token revoke bob'): his page drops to view-only.
+        TokenStore(cfg.data_path(cfg.web.tokens_file)).revoke("bob")
+        await bob.wait_js("window.curio.S.who.role === 'viewer' && document.querySelector("
+                          "'#who').textContent.startsWith('View')")
+        await bob.wait_js("window.curio.S.connected")
+        assert await bob.page.is_disabled("#goHome")
         assert alice.errors == [] and bob.errors == []
 
 

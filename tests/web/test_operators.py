@@ -100,6 +100,12 @@ async def test_estop_is_accepted_after_a_burst_over_rest_and_websocket(
     assert any(m["t"] == "error" and m["code"] == "rate_limited" for m in seen)
     estops = [c for c in ops.drain() if c.action == "estop"]
     assert len(estops) == 4 and {c.source for c in estops} == {"web:alice"}
+    # The page sends its e-stop both ways with one request id: it is published once.
+    for path in ("/api/estop", "/api/estop"):
+        resp = await d.client.post(path, json={"request_id": "page-stop-1"},
+                                   headers=bearer(ALICE))
+        assert resp.status == 202
+    assert [c.request_id for c in ops.drain()] == ["page-stop-1"]
     assert sum(c.action == "pause" for c in ops.drain()) < 90
 
 

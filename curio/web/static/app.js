@@ -21,7 +21,8 @@
     try { ws = new WebSocket(proto + "//" + location.host + "/ws", protocols); } catch (e) { scheduleReconnect(); return; }
     ws.binaryType = "arraybuffer";
     S.ws = ws;
-    ws.onopen = () => { backoff = 250; };
+    let opened = false;
+    ws.onopen = () => { backoff = 250; opened = true; };
     ws.onmessage = (ev) => {
       if (S.ws !== ws) return;
       S.lastMsgAt = Date.now();
@@ -33,14 +34,21 @@
     ws.onclose = (ev) => {
       if (S.ws !== ws) return;
       goOffline();
-      if (ev.code === 4001) {  // the token was revoked or rotated
-        C.toast("Your token was revoked or replaced: this page is view-only now. Ask for a new link.", true);
-        try { localStorage.removeItem("curio.token"); } catch (e) { /* ignore */ }
-        S.token = null;
-      }
-      scheduleReconnect();
+      if (ev.code === 4001) dropToken();  // the token was revoked or rotated
+      if (!opened && S.token) checkToken().then(scheduleReconnect);  // refused: was it the token?
+      else scheduleReconnect();
     };
     ws.onerror = () => { /* onclose follows */ };
+  }
+  function dropToken() {
+    C.toast("Your token was revoked or replaced: this page is view-only now. Ask for a new link.", true);
+    try { localStorage.removeItem("curio.token"); } catch (e) { /* ignore */ }
+    S.token = null;
+    S.who = { name: "viewer", role: "viewer", permissions: [] };
+    C.renderChips();
+  }
+  async function checkToken() {
+    try { await C.api("GET", "/api/auth"); } catch (e) { if (e.status === 403) dropToken(); }
   }
   function scheduleReconnect() {
     setTimeout(connect, backoff);

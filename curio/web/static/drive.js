@@ -25,7 +25,7 @@
       try { S.ws.send(JSON.stringify({ op: "estop", id: requestId, request_id: requestId })); wsSent = true; } catch (e) { /* REST below */ }
     }
     try {
-      await C.api("POST", "/api/estop", {});
+      await C.api("POST", "/api/estop", { request_id: requestId });  // the same id: published once
       $("estopFail").classList.add("hidden");
     } catch (e) {
       if (!wsSent || e.status === 403 || e.status === 401) {

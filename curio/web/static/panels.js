@@ -362,9 +362,13 @@
   // ----- events as sentences in wall-clock time ---------------------------------------------------------
   const xy = (v) => (Array.isArray(v) ? "(" + Number(v[0]).toFixed(2) + ", " + Number(v[1]).toFixed(2) + ")" : "");
   const lastGoal = (d) => (Array.isArray(d.goal) && d.goal.length ? xy(d.goal[d.goal.length - 1]) : "");
-  const tagText = (tag) => {  // "web:alice goto" → "sent by alice"; "path 3 wp 0" stays
-    const m = /^(web|kiosk):(\S+) goto$/.exec(String(tag || ""));
-    return m ? "sent by " + (m[2] === S.who.name ? "you" : m[2]) : (tag || "");
+  const pathName = (id) => (Number(id) < 0 ? "the tour" : "path " + id);
+  const tagText = (tag) => {  // "web:alice goto" → "sent by alice"; "path 3 wp 0" → "path 3, stop 1"
+    const t = String(tag || "");
+    const goto = /^(web|kiosk):(\S+) goto$/.exec(t);
+    if (goto) return "sent by " + (goto[2] === S.who.name ? "you" : goto[2]);
+    const wp = /^path (-?\d+) wp (\d+)$/.exec(t);
+    return wp ? pathName(wp[1]) + ", stop " + (Number(wp[2]) + 1) : t;
   };
   const stopName = (d) => (d.name ? "“" + d.name + "”" : (d.index !== null && d.index !== undefined ? "stop " + (Number(d.index) + 1) : "the stop")) +
     (d.x_m !== undefined ? " " + xy([d.x_m, d.y_m]) : "");
@@ -390,8 +394,8 @@
     "nav.unblocked": () => ["ok", "Not blocked any more"],
     "nav.holding": (d) => ["warn", "Holding still: " + (d.reason || "")],
     "nav.keep_out": (d) => ["", "Keeping out of " + xy([d.x, d.y])],
-    "path.started": (d) => ["", "Started path " + d.path_id + (d.name ? " “" + d.name + "”" : "") + (d.index ? " at stop " + (d.index + 1) : "")],
-    "path.interrupted": (d) => ["warn", "Path " + d.path_id + " interrupted at stop " + (Number(d.index) + 1)],
+    "path.started": (d) => ["", "Started " + pathName(d.path_id) + (d.name ? " “" + d.name + "”" : "") + (d.index ? " at stop " + (d.index + 1) : "")],
+    "path.interrupted": (d) => ["warn", "Interrupted " + pathName(d.path_id) + " at stop " + (Number(d.index) + 1)],
     "path.finished": (d) => ["ok", "Finished " + (d.name ? "“" + d.name + "”" : "the path") + (d.total ? ": " + d.reached + " of " + d.total + " stops reached" : "")],
     "waypoint.reached": (d) => ["ok", "Arrived at " + stopName(d)],
     "waypoint.failed": (d) => ["bad", "Could not reach " + stopName(d) + (d.message ? ": " + d.message : "")],
