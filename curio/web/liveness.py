@@ -180,7 +180,7 @@ def default_watches(cfg: Config) -> list[Watch]:
               report="odometry"),
         Watch("imu", IMU, "readings", 1.0, ("imu", "sim.imu"), report="imu"),
         Watch("ekf", ODOM, "fused poses", 1.0, ("ekf",)),
-        Watch("localisation", POSE, "poses", 3.0, ("localization", "odom_relay")),
+        Watch("localisation", POSE, "poses", 3.0, ("localization", "mapping", "odom_relay")),
         Watch("costmap", LOCAL_COSTMAP, "local costmaps", max(2.0, 5 * costmap_period),
               ("costmap",)),
         Watch("planner", PLAN, "plans", replan_age, ("navigator",), while_goal=True),
