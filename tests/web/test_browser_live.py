@@ -21,16 +21,7 @@ from curio.app import App
 from curio.core.clock import SimClock, wall_perf_counter
 from curio.core.topics import OPERATOR
 from curio.web.tokens import TokenStore
-from tests.web.browser_kit import (
-    TELEOP_SPEED,
-    add_token,
-    browser_on,
-    chromium,
-    make_cfg,
-    open_page,
-    running_app,
-    truth_xy,
-)
+from tests.web import browser_kit as kit
 
 pytestmark = [pytest.mark.browser]
 
@@ -39,17 +30,17 @@ async def test_two_operators_see_who_does_what(tmp_path: Path, viewport: str) ->
     """Alice drives: Bob's page says so; Bob takes over after confirming; Bob deletes the path
     Alice is editing: she is told who did it; Alice's e-stop shows her name on Bob's page and
     Bob may not release it. Drives: sim, safety stage, behaviour tree (paths)."""
-    cfg = make_cfg(tmp_path / "data")
-    alice_token, bob_token = add_token(cfg, "alice"), add_token(cfg, "bob")
-    async with running_app(cfg, TELEOP_SPEED) as (app, clock), chromium() as browser:
+    cfg = kit.make_cfg(tmp_path / "data")
+    alice_token, bob_token = kit.add_token(cfg, "alice"), kit.add_token(cfg, "bob")
+    async with kit.running_app(cfg, kit.TELEOP_SPEED) as (app, clock), kit.chromium() as browser:
         base = (app.web_url or "").split("?")[0]
-        alice = await open_page(browser, f"{base}?token={alice_token}", viewport)
-        bob = await open_page(browser, f"{base}?token={bob_token}", viewport)
+        alice = await kit.open_page(browser, f"{base}?token={alice_token}", viewport)
+        bob = await kit.open_page(browser, f"{base}?token={bob_token}", viewport)
         assert "alice" in await alice.text("#who") and "bob" in await bob.text("#who")
         await alice.wait_js("window.curio.S.pose")
 
         # Alice drives; Bob's page shows who drives.
-        start = truth_xy(app)
+        start = kit.truth_xy(app)
         joy = await alice.page.locator("#joystick").bounding_box()
         cx, cy = joy["x"] + joy["width"] / 2, joy["y"] + joy["height"] / 2
         await alice.page.mouse.move(cx, cy)
@@ -58,7 +49,7 @@ async def test_two_operators_see_who_does_what(tmp_path: Path, viewport: str) ->
         await bob.wait_js("document.querySelector('#statusText').textContent === "
                           "'alice is driving by hand'")
         assert "alice is driving" in await bob.text("#leaseText")
-        assert await clock.wait_until(lambda: math.dist(start, truth_xy(app)) > 0.1,
+        assert await clock.wait_until(lambda: math.dist(start, kit.truth_xy(app)) > 0.1,
                                       timeout_s=10.0)
         await bob.shot("two-operators-lease")
         # Bob reaches for the stick: asked first; he takes over; Alice is told.
@@ -118,7 +109,7 @@ async def test_offline_at_once_stale_data_and_reconnection(tmp_path: Path,
     greyed with their age; the server comes back on the same port: the page reconnects by
     itself and shows live data again. The page refuses to be framed by another site.
     Drives: the whole App (twice)."""
-    cfg = make_cfg(tmp_path / "data")
+    cfg = kit.make_cfg(tmp_path / "data")
     clock = SimClock(speed=4.0)
     app = App(cfg, clock, web=True)
     await app.start()
@@ -126,7 +117,7 @@ async def test_offline_at_once_stale_data_and_reconnection(tmp_path: Path,
     assert app.web is not None
     port = app.web.port
     try:
-        async with browser_on(app.web_url or "", viewport) as b:
+        async with kit.browser_on(app.web_url or "", viewport) as b:
             await b.wait_js("window.curio.S.pose && window.curio.S.loc")
             ops = app.bus.subscribe(OPERATOR)
             b.allowed.append("ERR_CONNECTION_REFUSED")  # the page retrying while it is down
@@ -147,7 +138,7 @@ async def test_offline_at_once_stale_data_and_reconnection(tmp_path: Path,
             assert ops.drain() == []
 
             runner.cancel()
-            cfg2 = make_cfg(tmp_path / "data", f"web.port={port}")
+            cfg2 = kit.make_cfg(tmp_path / "data", f"web.port={port}")
             clock = SimClock(speed=4.0)
             app = App(cfg2, clock, web=True)
             await app.start()
@@ -189,8 +180,8 @@ async def test_curio_run_exits_within_3_s_with_pages_open(tmp_path: Path) -> Non
             assert line, "curio run ended before printing the dashboard address"
             match = re.search(r"dashboard: (http://\S+)", line)
             url = match.group(1) if match else None
-        async with chromium() as browser:
-            pages = [await open_page(browser, url, vp) for vp in ("desktop", "phone")]
+        async with kit.chromium() as browser:
+            pages = [await kit.open_page(browser, url, vp) for vp in ("desktop", "phone")]
             t0 = wall_perf_counter()
             proc.send_signal(signal.SIGINT)
             for page in pages:
@@ -214,8 +205,8 @@ async def test_health_lists_every_part_with_its_age_and_events_read_well(
     """The health panel lists the planner, navigator, behaviour tree, lidar and costmap among
     every part, each with the age of its last sign of life; counters as rates; a part whose
     task stops shows it. Events are sentences with wall-clock times. Drives: the whole App."""
-    async with running_app(make_cfg(tmp_path / "data")) as (app, clock), \
-            browser_on(app.web_url or "", viewport) as b:
+    async with kit.running_app(kit.make_cfg(tmp_path / "data")) as (app, clock), \
+            kit.browser_on(app.web_url or "", viewport) as b:
         page = b.page
         await b.wait_js("window.curio.S.pose")
         await page.click("#goHome")  # some events to read
