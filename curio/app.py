@@ -54,8 +54,7 @@ from curio.safety.wiring import build_safety
 from curio.sim.wiring import Simulator, build_sim
 from curio.sim.world import World
 from curio.tours.wiring import Tours, build_tours
-from curio.web.auth import load_or_create_token
-from curio.web.wiring import WebServer, build_web
+from curio.web.wiring import WebServer, build_web, open_tokens
 
 __all__ = ["App"]
 
@@ -85,9 +84,10 @@ class App:
         self._registry = Parts()
         self._tasks: list[asyncio.Task[None]] = []
         reg = self._registry
+        self.tokens = open_tokens(cfg, clock)
         self.recorder: Recorder | None = build_recorder(
             cfg, self.bus, clock, reg, self.robot,
-            operator_token=lambda: load_or_create_token(cfg.data_path(cfg.web.token_file)))
+            may_drive=lambda presented: self.tokens.permits(presented, "drive"))
         logging_ = build_eventlog(cfg, self.bus, clock, reg)
         self.eventlog: EventLog | None = logging_.log if logging_ else None
         if inputs is None:
@@ -126,7 +126,8 @@ class App:
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:
-            self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths)
+            self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths, self.tokens,
+                                 part_states=self.part_states)
             self.web_url = self.web.control_url
 
     @property
@@ -176,6 +177,22 @@ class App:
             if part.close is not None:
                 with contextlib.suppress(Exception):
                     await part.close()
+
+    def part_states(self) -> dict[str, str]:
+        """Each part's task: ``running``, ``crashed: <error>``, ``stopped`` or ``not started``
+        (for the dashboard's health panel)."""
+        states = {p.name: "not started" for p in self.parts if p.run is not None}
+        for task in self._tasks:
+            if not task.done():
+                state = "running"
+            elif task.cancelled():
+                state = "stopped"
+            elif task.exception() is not None:
+                state = f"crashed: {task.exception()!r}"
+            else:
+                state = "stopped"
+            states[task.get_name()] = state
+        return states
 
     def failed_parts(self) -> list[tuple[str, BaseException]]:
         """Parts whose task ended with an exception."""

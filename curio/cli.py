@@ -2,7 +2,7 @@
 
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
 ``curio emulate DEVICE``, ``curio map ...``, ``curio report --day YYYY-MM-DD``,
-``curio replay FILE``, ``curio export ...`` and
+``curio replay FILE``, ``curio export ...``, ``curio token ...`` and
 ``curio bench NAME``. Exit codes: 0 success,
 1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
 can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
@@ -105,6 +105,7 @@ def _build_parser() -> argparse.ArgumentParser:
         ("replay", "replay a recording (or a ROS bag) through estimation and navigation and "
                    "report where it diverges"),
         ("export", "convert a recording: --ros2 writes a ROS 2 bag (ros2 bag play)"),
+        ("token", "create, list, revoke and rotate the dashboard's named tokens"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -290,8 +291,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _delegate(command: str, rest: list[str]) -> int:
-    """Hand ``check``, ``emulate``, ``map``, ``replay`` and ``export`` to the modules that own
-    them."""
+    """Hand ``check``, ``emulate``, ``map``, ``replay``, ``export`` and ``token`` to the modules
+    that own them."""
     import importlib
 
     module_name = {
@@ -300,6 +301,7 @@ def _delegate(command: str, rest: list[str]) -> int:
         "map": "curio.commands.map",
         "replay": "curio.commands.replay",
         "export": "curio.commands.export",
+        "token": "curio.commands.token",
     }[command]
     try:
         module = importlib.import_module(module_name)
@@ -318,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
     verbose = bool(argv) and argv[0] in ("-v", "--verbose")
     rest = argv[1:] if verbose else argv
     if rest and rest[0] in _DELEGATED:
-        # check / emulate / map parse their own arguments (--help included).
+        # check / emulate / map / token parse their own arguments (--help included).
         _setup_logging(verbose)
         return _delegate(rest[0], rest[1:])
     parser = _build_parser()
@@ -351,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-_DELEGATED = ("check", "emulate", "map", "replay", "export")
+_DELEGATED = ("check", "emulate", "map", "replay", "export", "token")
 
 
 def _setup_logging(verbose: bool) -> None:

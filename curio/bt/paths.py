@@ -344,6 +344,19 @@ class PathManager:
         self._changed("changed", path_id)
         return path.copy()
 
+    def replace_waypoints(self, path_id: int, waypoints: Sequence[Waypoint]) -> NamedPath:
+        """Give path ``path_id`` these waypoints, in this order (moves, inserts and reorders
+        from the dashboard in one validated, atomic change)."""
+        path = self._editable(path_id)
+        wps = [make_waypoint(w.x_m, w.y_m, w.yaw_rad) for w in waypoints]
+        if len(wps) > MAX_WAYPOINTS:
+            raise PathError(f"A path can have at most {MAX_WAYPOINTS} waypoints.")
+        if path_id == HOME_PATH_ID and not wps:
+            raise PathError("Home must keep at least one waypoint.")
+        path.waypoints = wps
+        self._changed("changed", path_id)
+        return path.copy()
+
     def rename(self, path_id: int, name: str) -> NamedPath:
         """Rename path ``path_id``."""
         path = self._editable(path_id)

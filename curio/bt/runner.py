@@ -3,8 +3,10 @@
 ``TreeRunner.run`` is the Part's coroutine: ``async for _ in clock.every(1 / tick_hz)`` it
 ticks the tree once (a tick never awaits), mirrors the follower on the blackboard and, when a
 node's status or a blackboard value changed, publishes a :class:`~curio.core.messages.TreeSnapshot`
-on TREE. ``close()`` interrupts the tree (every running behaviour gets ``terminate(INVALID)``,
-which cancels its goal) and unregisters the blackboard clients.
+on TREE. About once a second it publishes its health (``/health``, name ``behaviour``: ticks,
+overruns), so the dashboard can tell a ticking tree from a stuck one. ``close()`` interrupts
+the tree (every running behaviour gets ``terminate(INVALID)``, which cancels its goal)
+and unregisters the blackboard clients.
 
 py_trees' own ``BehaviourTree.tick_tock`` sleeps on the wall clock and its ``setup`` uses
 signals and a timer thread, so neither is used: setting up a Curio behaviour only registers
@@ -24,8 +26,8 @@ from curio.core.bus import Bus
 from curio.core.clock import Clock, RateStats
 from curio.core.config import BtConfig, ToursConfig
 from curio.core.jsonable import to_jsonable
-from curio.core.messages import Event, OperatorCommand, TreeSnapshot
-from curio.core.topics import EVENTS, TREE
+from curio.core.messages import DriverHealth, Event, OperatorCommand, TreeSnapshot
+from curio.core.topics import EVENTS, HEALTH, TREE
 from curio.tours.store import TourStore
 
 from .context import BB_DEFAULTS, TreeContext
@@ -104,8 +106,20 @@ class TreeRunner:
             self.ctx.bus.publish(EVENTS, Event(self.ctx.clock.now(), "paths.load_failed",
                                                {"message": warning}))
         # An overrun skips the missed ticks instead of bursting (counted in ``rate``).
-        async for _ in self.ctx.clock.every(self.period_s, self.rate):
+        next_health = self.ctx.clock.now()
+        async for now in self.ctx.clock.every(self.period_s, self.rate):
             self.tick()
+            if now >= next_health:  # liveness for the dashboard's health panel, ~1 Hz
+                next_health = now + 1.0
+                self.ctx.bus.publish(HEALTH, self.health())
+
+    def health(self) -> DriverHealth:
+        """The runner's health (name ``behaviour``): ticks, overruns and snapshots so far."""
+        return DriverHealth(self.ctx.clock.now(), "behaviour", "ok",
+                            f"ticking at {1.0 / self.period_s:g} Hz",
+                            counters={"ticks": float(self.tick_count),
+                                      "overruns": float(self.overruns),
+                                      "snapshots": float(self.snapshots_published)})
 
     def inject(self, cmd: OperatorCommand) -> None:
         """Hand a command to the tree as if it came from OPERATOR (next tick)."""

@@ -593,12 +593,30 @@ class WebConfig(Section):
     enabled: bool = True
     host: str = "127.0.0.1"
     port: int = Field(8080, ge=0, le=65535)
-    token_file: str = "web_token"
+    token_file: str = Field(
+        "web_token", description="the single token of older installs (migrated to tokens_file)")
+    tokens_file: str = Field(
+        "web_tokens.json", description="named tokens and roles in data_dir (curio token ...)")
     require_token: bool = True
     max_message_bytes: int = Field(65536, ge=256)
     max_messages_per_s: float = Field(50.0, gt=0.0)
     client_rate_hz: float = Field(10.0, gt=0.0, le=60.0)
     allowed_origins: list[str] = Field(default_factory=list)
+    allowed_hosts: list[str] = Field(
+        default_factory=list, description="host names the page may be opened by, besides IP "
+        "addresses, localhost and this machine's name (DNS-rebinding guard); '*' allows any")
+    max_viewer_sockets_per_ip: int = Field(
+        16, ge=1, le=1000, description="live connections without a token from one address")
+    max_viewer_sockets: int = Field(
+        64, ge=1, le=10000, description="live connections without a token in total")
+    teleop_lease_s: float = Field(
+        3.0, gt=0.0, le=60.0, description="the driver keeps the joystick this long after "
+        "letting go before another operator may drive without taking over")
+    wrong_token_limit: int = Field(
+        5, ge=1, le=1000, description="wrong tokens from one address before it is throttled")
+    wrong_token_window_s: float = Field(
+        60.0, gt=0.0, le=3600.0, description="the window for wrong_token_limit, and how long "
+        "an address stays throttled")
 
 
 class RecordConfig(Section):

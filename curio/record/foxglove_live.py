@@ -11,7 +11,7 @@ frames, the scene, the plan, ...) gets its last message again within a flush per
 ``geometry_msgs/Twist`` JSON (``linear.x`` m/s, ``angular.z`` rad/s) on ``/cmd_vel_teleop``
 (or ``/cmd_vel``): it goes on the bus as ``/cmd_vel_teleop`` — through the safety stage, like the
 dashboard's joystick — but only from a client that has first set the parameter
-``operator_token`` to the dashboard's control token (Parameters panel). Everyone else's
+``operator_token`` to a dashboard token of an operator or admin (Parameters panel). Everyone else's
 commands are refused, counted and answered with a warning status. The token is never sent back
 (it reads as empty).
 
@@ -24,7 +24,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import secrets
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -86,14 +85,15 @@ class FoxgloveSink:
     """The live server, as a recorder sink (see the module docstring).
 
     Args:
-        operator_token: returns the dashboard's control token (asked once, when teleop is on).
+        may_drive: whether a presented token may drive (an operator's or admin's token of the
+            dashboard's named tokens).
 
     Raises:
         SetupError: the extra is not installed, or the port cannot be bound.
     """
 
     def __init__(self, cfg: Config, bus: Bus, clock: Clock,
-                 operator_token: Callable[[], str]) -> None:
+                 may_drive: Callable[[str], bool]) -> None:
         if not HAVE_SDK:
             raise SetupError("foxglove.enabled = true needs the optional extra: "
                              "pip install 'curio[foxglove]'")
@@ -101,7 +101,7 @@ class FoxgloveSink:
         self.clock = clock
         fc = cfg.foxglove
         self.teleop = fc.teleop
-        self._token = operator_token() if fc.teleop else None
+        self._may_drive = may_drive
         self._lock = threading.Lock()
         self._authorized: set[int] = set()
         self._client_topics: dict[tuple[int, int], str] = {}
@@ -173,8 +173,7 @@ class FoxgloveSink:
 
     def authorize(self, client_id: int, presented: Any) -> None:
         """The client set ``operator_token``: allow its teleop if the token matches."""
-        ok = (self._token is not None and isinstance(presented, str) and bool(presented)
-              and secrets.compare_digest(presented.encode(), self._token.encode()))
+        ok = self.teleop and isinstance(presented, str) and self._may_drive(presented)
         with self._lock:
             if ok:
                 self._authorized.add(client_id)

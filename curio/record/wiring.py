@@ -91,11 +91,12 @@ def _mcap_sink(cfg: Config, clock: Clock, offset: float) -> McapSink:
 
 
 def build_recorder(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
-                   operator_token: Callable[[], str]) -> Recorder | None:
+                   may_drive: Callable[[str], bool]) -> Recorder | None:
     """Construct the recorder (and the live Foxglove server) and register its part.
 
     Args:
-        operator_token: returns the dashboard's control token (Foxglove teleop needs it).
+        may_drive: whether a token presented by a Foxglove client may drive (the dashboard's
+            roles: operator or admin).
 
     Raises:
         SetupError: ``foxglove.enabled`` without the ``curio[foxglove]`` extra installed.
@@ -111,7 +112,7 @@ def build_recorder(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: Rob
     if cfg.foxglove.enabled:
         from curio.record.foxglove_live import FoxgloveSink
 
-        sinks.append(FoxgloveSink(cfg, bus, clock, operator_token))
+        sinks.append(FoxgloveSink(cfg, bus, clock, may_drive))
     queue = RecordQueue(rc.queue_messages, int(rc.queue_mb * 1e6),
                         "wait" if isinstance(clock, SimClock) else "drop_oldest")
     statics = codec.statics(clock.now(), {"laser": robot.laser_in_base,

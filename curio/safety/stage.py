@@ -6,7 +6,10 @@ is fresh). At ``rate_hz`` it publishes one :class:`~curio.core.messages.Twist` i
 (forward m/s, yaw rate rad/s) after, in order:
 
 1. **Latched e-stop** — an operator ``estop`` command stops the rover at once and keeps it
-   stopped until ``release_estop``; the state is published on ``/estop``.
+   stopped until ``release_estop``; the state is published on ``/estop``. Operator commands
+   are handled the moment they arrive (their own task, not the next control cycle): the e-stop
+   publishes a zero ``/cmd_vel`` in the same event-loop turn, and no flood of other commands
+   or velocities can delay it. ``EStop.source`` names who set or released it (``web:<name>``).
 2. **Command watchdog** — a source silent for longer than ``cmd_timeout_s`` (teleop:
    ``teleop_timeout_s``) counts as zero; the output ramps down to zero.
 3. **Limits** — ``|v| ≤ max_speed_mps``, ``|ω| ≤ max_angular_radps``, and Curio's fastest
@@ -29,6 +32,7 @@ when it intervenes: ``safety.stop_zone`` (and ``safety.stop_zone_cleared``), ``s
 
 from __future__ import annotations
 
+import asyncio
 import math
 
 from curio.core.bus import Bus, Subscription
@@ -86,6 +90,7 @@ class SafetyStage:
         self.estop_reason = ""
         self._nav: Twist | None = None
         self._teleop: Twist | None = None
+        self._released_s = -math.inf
         self._scan_stamp: float | None = None
         self._started_s = clock.now()
         self._out_v = 0.0
@@ -105,12 +110,15 @@ class SafetyStage:
 
     # --- inputs ---------------------------------------------------------------------------
     def on_nav(self, msg: Twist) -> None:
-        """A command from the controller, recovery or a scenario."""
-        self._nav = msg
+        """A command from the controller, recovery or a scenario (ignored if older than the
+        last e-stop release)."""
+        if msg.stamp >= self._released_s:
+            self._nav = msg
 
     def on_teleop(self, msg: Twist) -> None:
-        """A command from the operator's teleop."""
-        self._teleop = msg
+        """A command from the operator's teleop (ignored if older than the last release)."""
+        if msg.stamp >= self._released_s:
+            self._teleop = msg
 
     def on_scan(self, scan: LaserScan) -> None:
         """The latest lidar revolution: its valid points become the stop zone's obstacles."""
@@ -152,6 +160,7 @@ class SafetyStage:
         self.estop_reason = ""
         self._nav = None
         self._teleop = None
+        self._released_s = now
         self.bus.publish(ESTOP, EStop(now, False, source=source, reason="released"))
         if was:
             self.bus.publish(EVENTS, Event(now, "safety.estop",
@@ -267,9 +276,7 @@ class SafetyStage:
     # --- task -------------------------------------------------------------------------------
     def _drain(self, nav: Subscription[Twist], teleop: Subscription[Twist],
                scan: Subscription[LaserScan], odom: Subscription[Odometry],
-               wodom: Subscription[Odometry], op: Subscription[OperatorCommand]) -> None:
-        for cmd in op.drain():
-            self.on_operator(cmd)
+               wodom: Subscription[Odometry]) -> None:
         for t in nav.drain():
             self.on_nav(t)
         for t in teleop.drain():
@@ -287,6 +294,11 @@ class SafetyStage:
             if not got_fused:
                 self.on_odom(o)
 
+    async def _watch_operator(self, op: Subscription[OperatorCommand]) -> None:
+        """Handle each operator command as soon as it is published (e-stop without delay)."""
+        async for cmd in op:
+            self.on_operator(cmd)
+
     async def run(self) -> None:
         """Publish ``/cmd_vel`` at ``rate_hz`` until cancelled (then publish zero)."""
         bus = self.bus
@@ -300,14 +312,19 @@ class SafetyStage:
         self._started_s = self.clock.now()
         period = 1.0 / self.scfg.rate_hz
         last_health = -math.inf
+        operator = asyncio.ensure_future(self._watch_operator(op))
         try:
             async for now in self.clock.every(period):
-                self._drain(nav, teleop, scan, odom, wodom, op)
+                if operator.done():  # the e-stop path must never die silently
+                    raise RuntimeError("the safety stage's operator watcher stopped") from (
+                        None if operator.cancelled() else operator.exception())
+                self._drain(nav, teleop, scan, odom, wodom)
                 self.step()
                 if now - last_health >= 1.0:
                     last_health = now
                     bus.publish(HEALTH, self.health())
         finally:
+            operator.cancel()
             for sub in (nav, teleop, scan, odom, wodom, op):
                 sub.close()
             self.bus.publish(CMD_VEL, Twist(self.clock.now(), 0.0, 0.0, source="safety:stop"))

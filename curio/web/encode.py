@@ -20,7 +20,9 @@ Grids become PNGs (lossless: JPEG smears walls) with the top image row at the la
 
 from __future__ import annotations
 
+import hashlib
 import io
+import json
 import math
 import struct
 from typing import Any
@@ -183,13 +185,12 @@ def grid_meta(grid: GridMessage) -> dict[str, Any]:
 
 
 def path_to_json(path: Any) -> dict[str, Any]:
-    """A path manager ``NamedPath`` as JSON data (waypoints in map, metres and radians)."""
-    return {
-        "id": path.id,
-        "name": path.name,
-        "waypoints": [
-            {"x_m": float(w.x_m), "y_m": float(w.y_m),
-             "yaw_rad": None if w.yaw_rad is None else float(w.yaw_rad)}
-            for w in path.waypoints
-        ],
-    }
+    """A path manager ``NamedPath`` as JSON data (waypoints in map, metres and radians) with
+    ``rev``, a short hash of its content: an edit sent with an older ``rev`` is refused, so
+    two operators cannot silently overwrite each other's changes."""
+    waypoints = [{"x_m": float(w.x_m), "y_m": float(w.y_m),
+                  "yaw_rad": None if w.yaw_rad is None else float(w.yaw_rad)}
+                 for w in path.waypoints]
+    content = json.dumps([path.name, waypoints], sort_keys=True).encode()
+    return {"id": path.id, "name": path.name, "waypoints": waypoints,
+            "rev": hashlib.sha1(content).hexdigest()[:12]}

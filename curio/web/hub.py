@@ -16,7 +16,12 @@ Design (after rosboard's per-client throttling, made safe for a robot):
   latest binary frames.
 * What browsers send in (commands, the initial pose, teleop) is published by
   :class:`~curio.web.control.RoverControl`; when a client goes, the hub tells it, so a client
-  that was driving stops the rover.
+  that was driving stops the rover. Who holds the driving lease is sent to every page
+  (``{"t": "lease"}``); who did what arrives as ``operator.*`` events.
+* The hub keeps what the pages need to tell the truth: who set and who released the e-stop
+  (``estop_log``), the navigator's current goal (from ``nav.goal_*`` events), what blocks the
+  rover while it is blocked or asks for help (:mod:`curio.web.blocker`), the health panel with
+  every part's age (:mod:`curio.web.liveness`), and each event's wall-clock time.
 
 Frames: see :mod:`curio.web.encode`. Times come from the injected clock.
 """
@@ -81,7 +86,8 @@ from curio.core.topics import (
     TREE,
 )
 from curio.robot import RobotModel
-from curio.web.control import RoverControl
+from curio.web.blocker import find_blocker
+from curio.web.control import RoverControl, map_bounds
 from curio.web.encode import (
     FRAME_LOCAL_PLAN,
     FRAME_PLAN,
@@ -93,7 +99,9 @@ from curio.web.encode import (
     grid_png,
     path_to_json,
 )
+from curio.web.liveness import GOAL_OVER, Liveness
 from curio.web.session import ClientSession
+from curio.web.tokens import Identity
 
 __all__ = ["GRID_TOPICS", "Hub"]
 
@@ -110,6 +118,8 @@ RECENT_EVENTS = 50
 POSE_STALE_S = 2.0
 # Behaviour-tree states in which the rover is no longer waiting for help.
 HELP_OVER_STATES = frozenset({"moving", "arrived", "going_home", "idle", "tour"})
+# What blocks the rover is recomputed at most this often while it is blocked, seconds.
+BLOCKER_PERIOD_S = 0.5
 
 
 @dataclass
@@ -131,10 +141,12 @@ class Hub:
         bus: the application bus.
         rover: publishes operator input; counts it for the health panel.
         paths: the path manager (``app.paths``) or None when the behaviour tree is not built.
+        part_states: the application's task states for the health panel (None in tests).
     """
 
     def __init__(self, cfg: Config, robot: RobotModel, clock: Clock, bus: Bus,
-                 rover: RoverControl, paths: Any = None) -> None:
+                 rover: RoverControl, paths: Any = None,
+                 part_states: Callable[[], dict[str, str]] | None = None) -> None:
         self.cfg = cfg
         self.robot = robot
         self.clock = clock
@@ -162,10 +174,22 @@ class Hub:
         self._odom: Odometry | None = None
         self.system: dict[str, Any] = {}
         self.slow_clients_dropped = 0
+        self.liveness = Liveness(cfg, bus, clock, part_states)
+        self.estop_log: dict[str, Any] = {"engaged": False, "set_by": None, "set_at": None,
+                                          "reason": "", "released_by": None,
+                                          "released_at": None}
+        self.goal: dict[str, Any] | None = None
+        self.blocker: dict[str, Any] | None = None
+        self._blocker_s = -math.inf
+        self.path_editor = ""
+        self.path_last_editor: dict[int, str] = {}
+        self._bus_sample: tuple[float, dict[str, int]] | None = None
+        self.bus_rates: dict[str, float] = {}
         self._paths_listened = False
         self._subs: list[tuple[Subscription[Any], Callable[[Any], None]]] = []
+        rover.on_lease = self._lease_changed
         if paths is not None and hasattr(paths, "add_listener"):
-            paths.add_listener(lambda _what, _path_id: self.broadcast_paths())
+            paths.add_listener(self.broadcast_paths)
             self._paths_listened = True
 
     # --- lifecycle ----------------------------------------------------------------------------
@@ -220,21 +244,31 @@ class Hub:
                 log.exception("web hub: cannot forward a %s message", sub.topic.name)
 
     async def close(self) -> None:
-        """Stop any teleop motion and close every client."""
-        for client in list(self.clients):
+        """Stop any teleop motion and close every client at once (code 1001: the pages say
+        Offline); each close waits at most the socket's own close timeout."""
+        clients = list(self.clients)
+        for client in clients:
+            self.unregister(client)
+
+        async def close_one(client: ClientSession) -> None:
             with contextlib.suppress(Exception):
                 await client.ws.close(code=WSCloseCode.GOING_AWAY, message=b"server shutdown")
-            self.unregister(client)
+
+        if clients:
+            await asyncio.gather(*(close_one(c) for c in clients))
 
     # --- clients ------------------------------------------------------------------------------
 
-    def register(self, ws: web.WebSocketResponse, control: bool,
+    def register(self, ws: web.WebSocketResponse, who: Identity,
                  remote: str = "") -> ClientSession:
         """Add a connected socket; queue the state snapshot and the latest frames for it."""
         web_cfg = self.cfg.web
-        client = ClientSession(next(self._ids), ws, control, web_cfg, self.rover, remote)
+        client = ClientSession(next(self._ids), ws, who, web_cfg, self.rover, remote)
         self.clients.add(client)
-        client.queue(to_json({"t": "hello", "client": client.id, "control": control,
+        client.queue(to_json({"t": "hello", "client": client.id,
+                              "control": bool(who.permissions),
+                              "who": {"name": who.name, "role": who.role,
+                                      "permissions": sorted(who.permissions)},
                               "require_token": web_cfg.require_token, "rate_hz": client.rate_hz,
                               "server_time": self.clock.now()}))
         client.queue(to_json({"t": "state", **self.snapshot()}))
@@ -244,6 +278,17 @@ class Hub:
                 self._latest_frames[key] = frame
             client.offer(key, frame)
         return client
+
+    async def close_clients(self, which: Callable[[ClientSession], bool], code: int,
+                            message: bytes) -> int:
+        """Close every client for which ``which(client)``; return how many."""
+        chosen = [c for c in self.clients if which(c)]
+        for client in chosen:
+            self.unregister(client)
+        for client in chosen:
+            with contextlib.suppress(Exception):
+                await client.ws.close(code=code, message=message)
+        return len(chosen)
 
     def unregister(self, client: ClientSession) -> None:
         """Forget ``client``; if it was driving, stop the rover."""
@@ -296,6 +341,12 @@ class Hub:
             "tree": self.tree_json(),
             "health": self.health_json(),
             "events": list(self.events),
+            "lease": self.rover.lease_json(),
+            "estop_log": dict(self.estop_log),
+            "goal": self.goal,
+            "blocker": self.blocker,
+            "map_bounds": self._bounds_json(),
+            "now": self.clock.now(),
             "robot": {
                 "footprint": [list(p) for p in self.robot.footprint_points],
                 "home": list(self.robot.home.as_tuple()),
@@ -310,20 +361,36 @@ class Hub:
             },
         }
 
+    def _bounds_json(self) -> dict[str, Any] | None:
+        bounds = map_bounds(self.bus)
+        if bounds is None:
+            return None
+        x0, x1, y0, y1 = bounds.extent()
+        return {"x_min": x0, "x_max": x1, "y_min": y0, "y_max": y1,
+                "origin": [bounds.origin.x, bounds.origin.y, bounds.origin.yaw],
+                "width_m": bounds.width_m, "height_m": bounds.height_m}
+
+    def wall(self, stamp: float) -> float:
+        """The wall-clock time (UNIX s, the injected clock's) of a clock ``stamp``."""
+        return self.clock.wall_time() - (self.clock.now() - stamp)
+
     def paths_json(self) -> list[dict[str, Any]]:
         """The path manager's paths as JSON data (empty when there is no path manager)."""
         if self.paths is None:
             return []
         return [path_to_json(p) for p in self.paths.list_paths()]
 
-    def broadcast_paths(self) -> None:
-        """Tell every client the paths changed."""
-        self._reliable({"t": "paths", "paths": self.paths_json()})
+    def broadcast_paths(self, what: str = "changed", path_id: int | None = None) -> None:
+        """Tell every client the paths changed: ``what`` happened to ``path_id``, by whom."""
+        if self.path_editor and path_id is not None:
+            self.path_last_editor[path_id] = self.path_editor
+        self._reliable({"t": "paths", "paths": self.paths_json(), "change": what,
+                        "path_id": path_id, "by": self.path_editor or None})
 
-    def paths_changed(self) -> None:
+    def paths_changed(self, what: str = "changed", path_id: int | None = None) -> None:
         """After an edit through the API: broadcast unless the path manager notifies us."""
         if not self._paths_listened:
-            self.broadcast_paths()
+            self.broadcast_paths(what, path_id)
 
     def tree_json(self) -> dict[str, Any] | None:
         """The latest tree snapshot as JSON data."""
@@ -334,36 +401,52 @@ class Hub:
                 "blackboard": to_jsonable(self.tree.blackboard)}
 
     def health_json(self) -> dict[str, Any]:
-        """Components' health, localisation quality, system figures and bus drops."""
+        """Every part with its age, localisation, battery, system figures, bus drop rates."""
         stats = self.bus.stats()
+        reliable = {t.name for t in self.bus.topics() if t.kind == "reliable"}
+        topics = [{"name": name, "published": s.published, "dropped": s.dropped,
+                   "dropped_per_s": self.bus_rates.get(name, 0.0),
+                   "reliable": name in reliable}
+                  for name, s in sorted(stats.items()) if s.dropped]
         return {
-            "components": {name: to_jsonable(h) for name, h in sorted(self.health.items())},
+            "now": self.clock.now(),
+            "components": self.liveness.entries(),
             "localization": to_jsonable(self.localization),
             "battery": to_jsonable(self.battery),
             "system": dict(self.system),
             "bus": {
                 "dropped_total": sum(s.dropped for s in stats.values()),
-                "topics": {name: {"published": s.published, "dropped": s.dropped,
-                                  "subscribers": s.subscribers}
-                           for name, s in stats.items() if s.published or s.dropped},
+                "dropped_per_s": round(sum(self.bus_rates.values()), 2),
+                "topics": sorted(topics, key=lambda t: -t["dropped_per_s"]),
             },
             "web": {"clients": len(self.clients),
                     "commands": self.rover.commands_published,
                     "teleop_messages": self.rover.teleop_published},
         }
 
-    def own_health(self) -> DriverHealth:
+    def sample_rates(self) -> None:
+        """Measure bus drop rates and the watched topics' rates (about once a second)."""
+        now = self.clock.now()
+        dropped = {name: s.dropped for name, s in self.bus.stats().items()}
+        if self._bus_sample is not None and now > self._bus_sample[0]:
+            t0, before = self._bus_sample
+            self.bus_rates = {name: round((n - before.get(name, 0)) / (now - t0), 2)
+                              for name, n in dropped.items() if n != before.get(name, 0)}
+        self._bus_sample = (now, dropped)
+        self.liveness.sample()
+
+    def own_health(self, **extra: float) -> DriverHealth:
         """The dashboard's own health line (clients, traffic, refusals)."""
         sent = sum(c.sent_frames for c in self.clients)
         return DriverHealth(
             self.clock.now(), "web", "ok",
-            f"{len(self.clients)} dashboard(s) connected",
+            f"{len(self.clients)} page(s) connected",
             counters={"clients": float(len(self.clients)),
                       "commands": float(self.rover.commands_published),
                       "teleop_messages": float(self.rover.teleop_published),
                       "rejected_messages": float(self.rover.rejected_messages),
                       "slow_clients_dropped": float(self.slow_clients_dropped),
-                      "frames_sent_to_connected": float(sent)})
+                      "frames_sent_to_connected": float(sent), **extra})
 
     def publish_health(self) -> None:
         """Offer the merged health panel to every client (called about once a second)."""
@@ -430,6 +513,7 @@ class Hub:
         elif msg.state in HELP_OVER_STATES and self.help["active"]:
             # The tree moved on (e.g. the operator sent it home): no stale HELP ME.
             self.help.update(active=False)
+        self._update_blocker(force=True)
         self._reliable({"t": "status", "status": to_jsonable(msg), "help": self.help})
 
     def _on_progress(self, msg: Progress) -> None:
@@ -440,15 +524,51 @@ class Hub:
         if msg.kind == "help.requested":
             self.help.update(active=True, message=str(msg.detail.get("message", "")),
                              since=msg.stamp, resolved_at=None)
+            self._update_blocker(force=True)
         elif msg.kind == "help.resolved":
             self.help.update(active=False, resolved_at=msg.stamp)
-        record = {"stamp": msg.stamp, "kind": msg.kind, "detail": to_jsonable(msg.detail)}
+        self.liveness.on_event(msg)
+        record = {"stamp": msg.stamp, "wall": self.wall(msg.stamp), "kind": msg.kind,
+                  "detail": to_jsonable(msg.detail)}
         self.events.append(record)
         self._reliable({"t": "event", "event": record, "help": self.help})
+        self._follow_goal(msg)
+        single_goal = (msg.kind == "nav.goal_accepted"
+                       and str(msg.detail.get("tag", "")).endswith(" goto")) or (
+            msg.kind == "bt.command_accepted" and msg.detail.get("action") == "goto")
+        if single_goal and self.progress is not None:
+            # The rover drives to a single goal: the squares of a path no longer describe it.
+            self.progress = None
+            self._reliable({"t": "progress", "progress": None})
+
+    def _follow_goal(self, msg: Event) -> None:
+        """The navigator's current goal (for the goal marker), from its events."""
+        goal_id = msg.detail.get("goal_id")
+        if msg.kind == "nav.goal_accepted" and isinstance(msg.detail.get("goal"), list):
+            self.goal = {"goal_id": goal_id, "poses": msg.detail["goal"],
+                         "tag": str(msg.detail.get("tag", ""))}
+        elif msg.kind in GOAL_OVER and self.goal is not None \
+                and goal_id == self.goal.get("goal_id"):
+            self.goal = None
+        else:
+            return
+        self._reliable({"t": "goal", "goal": self.goal})
 
     def _on_estop(self, msg: EStop) -> None:
+        """Remember who set and who released the e-stop (every page shows both)."""
+        was = self.estop.engaged if self.estop is not None else False
         self.estop = msg
-        self._reliable({"t": "estop", "estop": to_jsonable(msg)})
+        who = msg.source or "unknown"
+        log_ = self.estop_log
+        if msg.engaged and not was:
+            log_.update(engaged=True, set_by=who, set_at=self.wall(msg.stamp),
+                        reason=msg.reason, released_by=None, released_at=None)
+        elif not msg.engaged and was:
+            log_.update(engaged=False, released_by=who, released_at=self.wall(msg.stamp))
+        self._reliable({"t": "estop", "estop": to_jsonable(msg), "log": dict(log_)})
+
+    def _lease_changed(self) -> None:
+        self._reliable({"t": "lease", "lease": self.rover.lease_json()})
 
     def _on_tree(self, msg: TreeSnapshot) -> None:
         self.tree = msg
@@ -456,6 +576,7 @@ class Hub:
 
     def _on_health(self, msg: DriverHealth) -> None:
         self.health[msg.name] = msg
+        self.liveness.on_report(msg)
 
     def _on_localization(self, msg: LocalizationStatus) -> None:
         self.localization = msg
@@ -469,6 +590,25 @@ class Hub:
     def _on_blocked(self, msg: BlockedState) -> None:
         self.blocked = msg
         self._stream("blocked", lambda: to_json({"t": "blocked", "blocked": msg}))
+        self._update_blocker()
+
+    def _update_blocker(self, force: bool = False) -> None:
+        """While the rover is blocked or asks for help: what is in its way (≤ 2 Hz)."""
+        active = bool(self.help["active"]) or (self.blocked is not None and self.blocked.blocked)
+        now = self.clock.now()
+        if not active:
+            if self.blocker is not None:
+                self.blocker = None
+                self._stream("blocker", lambda: to_json({"t": "blocker", "blocker": None}))
+            return
+        if not force and now - self._blocker_s < BLOCKER_PERIOD_S:
+            return
+        self._blocker_s = now
+        pose = self._robot_pose()
+        self.blocker = find_blocker(self.bus.latest(SCAN), pose, self.bus.latest(PLAN),
+                                    self.blocked, self.robot)
+        blocker = self.blocker
+        self._stream("blocker", lambda: to_json({"t": "blocker", "blocker": blocker}))
 
     def _on_cmd_vel(self, msg: Twist) -> None:
         self._stream("cmd_vel", lambda: to_json({"t": "cmd_vel", "linear_mps": msg.linear_mps,

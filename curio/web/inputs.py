@@ -6,6 +6,11 @@ both. A refusal is a :class:`CommandError` whose message tells the operator what
 what is allowed: the WebSocket answers it with ``{"t": "error", ...}``, the REST API with
 ``400`` and the JSON body of :func:`http_error`.
 
+JSON is parsed strictly: ``NaN``/``Infinity`` and integers longer than
+:data:`MAX_INT_DIGITS` digits (``10**400`` would overflow a float) are refused with a sentence,
+never a 500. Goals, waypoints and initial poses outside the map are refused with the map's
+bounds (:class:`MapBounds`).
+
 Poses are in ``map`` (metres, radians); velocities in m/s and rad/s.
 """
 
@@ -15,6 +20,7 @@ import json
 import math
 import re
 import uuid
+from dataclasses import dataclass
 from typing import Any, get_args
 
 from aiohttp import web
@@ -25,7 +31,10 @@ from curio.core.messages import OperatorAction, OperatorCommand
 
 __all__ = [
     "ACTIONS",
+    "MAX_INT_DIGITS",
+    "REQUEST_ID",
     "CommandError",
+    "MapBounds",
     "build_command",
     "describe_path_ids",
     "http_error",
@@ -36,7 +45,9 @@ __all__ = [
 ]
 
 ACTIONS: tuple[str, ...] = get_args(OperatorAction)
-_REQUEST_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,64}$")
+REQUEST_ID = re.compile(r"^[A-Za-z0-9_.:-]{1,64}$")
+# Longer integers in a JSON message are refused (no coordinate or count needs more).
+MAX_INT_DIGITS = 15
 
 
 class CommandError(ValueError):
@@ -47,20 +58,40 @@ class CommandError(ValueError):
         self.status = status
 
 
-def http_error(cls: type[web.HTTPException], message: str) -> web.HTTPException:
+def http_error(cls: type[web.HTTPException], message: str,
+               headers: dict[str, str] | None = None) -> web.HTTPException:
     """An aiohttp HTTP error whose body is ``{"error": message, "status": code}``."""
     body = json.dumps({"error": message, "status": cls.status_code}, ensure_ascii=False)
     exc = cls.__new__(cls)
     # Bypass subclasses' own __init__ (some need extra arguments); the base sets the status.
-    web.HTTPException.__init__(exc, text=body, content_type="application/json")
+    web.HTTPException.__init__(exc, text=body, content_type="application/json",
+                               headers=headers)
     return exc
+
+
+class _NumberError(ValueError):
+    """A number JSON may carry but the dashboard refuses (too long, NaN, Infinity)."""
+
+
+def _parse_int(text: str) -> int:
+    digits = text.lstrip("-")
+    if len(digits) > MAX_INT_DIGITS:
+        raise _NumberError(f"the number {text[:12]}… ({len(digits)} digits) is too large; "
+                           f"numbers have at most {MAX_INT_DIGITS} digits")
+    return int(text)
+
+
+def _parse_constant(name: str) -> float:
+    raise _NumberError(f"{name} is not a number the rover accepts; send a finite number")
 
 
 def parse_json_object(text: str | bytes) -> dict[str, Any]:
     """Parse a JSON object or raise :class:`CommandError` saying what is wrong."""
     try:
-        value = json.loads(text)
-    except (ValueError, UnicodeDecodeError) as exc:
+        value = json.loads(text, parse_int=_parse_int, parse_constant=_parse_constant)
+    except _NumberError as exc:
+        raise CommandError(str(exc)) from None
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
         raise CommandError(f"message is not valid JSON: {exc}") from None
     if not isinstance(value, dict):
         raise CommandError(f"message must be a JSON object, got {type(value).__name__}")
@@ -83,9 +114,55 @@ def _number(body: dict[str, Any], key: str, *, required: bool = True) -> float |
         if required:
             raise CommandError(f"'{key}' is required (a number)")
         return None
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise CommandError(f"'{key}' must be a finite number, got {value!r}")
+    if not _finite_number(value):
+        raise CommandError(f"'{key}' must be a finite number, got {_short(value)}")
     return float(value)
+
+
+def _finite_number(value: Any) -> bool:
+    """A JSON number that is finite as a float (huge integers are not)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    if isinstance(value, int):
+        return bool(abs(value) < 10**MAX_INT_DIGITS)
+    return math.isfinite(value)
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "…"
+
+
+@dataclass(frozen=True, slots=True)
+class MapBounds:
+    """The map's rectangle: its lower-left ``origin`` in map (m, m, rad) and its size (m)."""
+
+    origin: Pose2D
+    width_m: float
+    height_m: float
+
+    def contains(self, x_m: float, y_m: float) -> bool:
+        """Whether the point (map, metres) lies on the map."""
+        u, v = self.origin.inverse().transform_point(x_m, y_m)
+        return 0.0 <= u <= self.width_m and 0.0 <= v <= self.height_m
+
+    def extent(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) in map of the map's corners, metres."""
+        corners = [self.origin.transform_point(u, v)
+                   for u in (0.0, self.width_m) for v in (0.0, self.height_m)]
+        xs, ys = [c[0] for c in corners], [c[1] for c in corners]
+        return min(xs), max(xs), min(ys), max(ys)
+
+    def describe(self) -> str:
+        """``x from -5.00 to 25.00 m, y from -3.00 to 17.00 m``."""
+        x0, x1, y0, y1 = self.extent()
+        return f"x from {x0:.2f} to {x1:.2f} m, y from {y0:.2f} to {y1:.2f} m"
+
+    def require(self, x_m: float, y_m: float, what: str) -> None:
+        """Raise :class:`CommandError` naming the bounds when the point is off the map."""
+        if not self.contains(x_m, y_m):
+            raise CommandError(f"{what} ({x_m:.2f}, {y_m:.2f}) is outside the map; the map "
+                               f"covers {self.describe()}")
 
 
 def parse_pose(body: dict[str, Any]) -> Pose2D:
@@ -104,9 +181,8 @@ def parse_teleop(body: dict[str, Any]) -> tuple[float, float, int | None]:
     """
     lin, ang = body.get("linear_mps", 0.0), body.get("angular_radps", 0.0)
     for key, value in (("linear_mps", lin), ("angular_radps", ang)):
-        if (isinstance(value, bool) or not isinstance(value, int | float)
-                or not math.isfinite(value)):
-            raise CommandError(f"teleop '{key}' must be a finite number, got {value!r}")
+        if not _finite_number(value):
+            raise CommandError(f"teleop '{key}' must be a finite number, got {_short(value)}")
     seq = body.get("seq")
     if seq is not None and (not isinstance(seq, int) or isinstance(seq, bool)):
         raise CommandError(f"teleop 'seq' must be an integer, got {seq!r}")
@@ -140,14 +216,15 @@ def parse_path_number(value: Any, paths: Any) -> int:
 
 
 def build_command(body: dict[str, Any], clock: Clock, paths: Any,
-                  source: str = "web") -> OperatorCommand:
+                  source: str = "web", bounds: MapBounds | None = None) -> OperatorCommand:
     """Turn ``{action, path_id?, goal?, request_id?}`` into an :class:`OperatorCommand`.
 
     Args:
         body: the command as sent (``goal`` in map, metres and radians).
         clock: stamps the command.
         paths: the path manager that ``path_id`` is checked against, or None.
-        source: who sent it (``web``).
+        source: who sent it (``web:<operator>``).
+        bounds: the map; a goal off it is refused (None: not checked).
 
     Raises:
         CommandError: the action is unknown, a field is missing or invalid (message says which).
@@ -156,7 +233,7 @@ def build_command(body: dict[str, Any], clock: Clock, paths: Any,
     if action not in ACTIONS:
         raise CommandError(f"unknown action {action!r}; allowed: {', '.join(ACTIONS)}")
     request_id = body.get("request_id") or uuid.uuid4().hex
-    if not isinstance(request_id, str) or not _REQUEST_ID.match(request_id):
+    if not isinstance(request_id, str) or not REQUEST_ID.match(request_id):
         raise CommandError("request_id must be 1–64 characters of letters, digits, _ . : -")
     path_id: int | None = None
     goal: Pose2D | None = None
@@ -169,5 +246,7 @@ def build_command(body: dict[str, Any], clock: Clock, paths: Any,
         if not isinstance(raw, dict):
             raise CommandError("goto needs 'goal': {x_m, y_m, yaw_rad?} in map")
         goal = parse_pose(raw)
+        if bounds is not None:
+            bounds.require(goal.x, goal.y, "the goal")
     return OperatorCommand(clock.now(), action, path_id=path_id, goal=goal, source=source,
                            request_id=request_id)

@@ -9,6 +9,7 @@ from it, and stores them under these ``web.AppKey``s; every handler reads them f
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,9 +19,10 @@ from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.robot import RobotModel
-from curio.web.auth import ControlGate
+from curio.web.auth import Gate
 from curio.web.control import RoverControl
 from curio.web.hub import Hub
+from curio.web.tokens import TokenStore
 
 __all__ = ["GATE", "HUB", "ROVER", "SERVICES", "STATIC_VERSION", "WebServices"]
 
@@ -33,22 +35,24 @@ class WebServices:
         cfg: the whole configuration.
         clock: the injected clock.
         bus: the application bus.
-        token: the control token (see :func:`curio.web.auth.load_or_create_token`).
+        tokens: the named tokens (:class:`~curio.web.tokens.TokenStore`).
         paths: the path manager, or None.
         robot: the robot model (footprint, home, laser pose, limits).
+        part_states: the application's task states for the health panel, or None.
     """
 
     cfg: Config
     clock: Clock
     bus: Bus
-    token: str
+    tokens: TokenStore
     robot: RobotModel
     paths: Any = None
+    part_states: Callable[[], dict[str, str]] | None = None
 
 
 SERVICES = web.AppKey("services", WebServices)
 HUB = web.AppKey("hub", Hub)
 ROVER = web.AppKey("rover", RoverControl)
-GATE = web.AppKey("gate", ControlGate)
+GATE = web.AppKey("gate", Gate)
 # A hash of the static files' names and times, appended to their URLs in the page.
 STATIC_VERSION = web.AppKey("static_version", str)

@@ -2,23 +2,29 @@
 
 **Out** (filled by the :class:`~curio.web.hub.Hub`, drained by :meth:`ClientSession.send_loop`,
 the session's own task): an ordered queue of reliable messages (status, progress, events,
-e-stop, acks) that is never dropped, and a conflating slot per stream key (scan, pose, plans,
-tree, health, ...) flushed at most ``rate_hz`` times a second. A slow browser only delays its
-own sender.
+e-stop, lease, acks) that is never dropped, and a conflating slot per stream key (scan, pose,
+plans, tree, health, ...) flushed at most ``rate_hz`` times a second. A slow browser only
+delays its own sender.
 
 **In** (:meth:`ClientSession.receive_loop`): JSON objects with an ``op``, each checked against
-``web.max_message_bytes`` and ``web.max_messages_per_s`` first:
+``web.max_message_bytes`` first:
 
+* ``{"op": "estop", "id"?}`` or ``{"op": "command", "action": "estop"}`` → the e-stop, handled
+  before the rate limit (never limited, never counted towards a disconnect)
 * ``{"op": "ping", "id"?}`` → ``{"t": "pong"}``
 * ``{"op": "rate", "hz": N}`` → lower this client's stream rate (≤ ``web.client_rate_hz``)
-* ``{"op": "teleop", "seq": n, "linear_mps": v, "angular_radps": w}`` (control)
-* ``{"op": "command", "id"?, "action": ..., "path_id"?, "goal"?, "request_id"?}`` (control)
-* ``{"op": "initial_pose", "x_m", "y_m", "yaw_rad"}`` (control)
+* ``{"op": "teleop", "seq": n, "linear_mps": v, "angular_radps": w, "take_over"?: true}``
+  (needs ``drive``; refused with code ``lease_held`` and the driver's name while another
+  operator drives, unless ``take_over``)
+* ``{"op": "command", "id"?, "action": ..., "path_id"?, "goal"?, "request_id"?}`` (the action's
+  permission: ``tour`` for a kiosk, ``command``/``estop`` for operators)
+* ``{"op": "initial_pose", "x_m", "y_m", "yaw_rad"}`` (needs ``initial_pose``)
 
-Replies: ``{"t": "ack", "id", ...}`` or ``{"t": "error", "id", "code", "message"}``. A message
-over the size limit closes the socket (1009); 100 rate-limited messages in a row close it (1008).
-Teleop messages older than the client's last ``seq`` are ignored; what is accepted goes to the
-shared :class:`~curio.web.control.RoverControl` (which also holds the deadman).
+Every other message counts against ``web.max_messages_per_s``. Replies: ``{"t": "ack", "id",
+...}`` or ``{"t": "error", "id", "code", "message"}``. A message over the size limit closes the
+socket (1009); 100 rate-limited messages in a row close it (1008). Teleop messages older than
+the client's last ``seq`` are ignored; what is accepted goes to the shared
+:class:`~curio.web.control.RoverControl` (which also holds the lease and the deadman).
 """
 
 from __future__ import annotations
@@ -35,17 +41,18 @@ from aiohttp import WSCloseCode, WSMsgType, web
 
 from curio.core.config import WebConfig
 from curio.core.jsonable import to_json
-from curio.web.auth import RateLimiter
-from curio.web.control import RoverControl
-from curio.web.inputs import CommandError, parse_json_object, parse_teleop
+from curio.web.auth import RateLimiter, refusal
+from curio.web.control import LeaseHeld, RoverControl, action_permission
+from curio.web.inputs import REQUEST_ID, CommandError, parse_json_object, parse_teleop
+from curio.web.tokens import Identity
 
 __all__ = ["CLIENT_OPS", "ClientSession"]
 
 log = logging.getLogger("curio.web.session")
 
-CLIENT_OPS = ("ping", "rate", "teleop", "command", "initial_pose")
-# Ops that need the control token (the others are open to viewers).
-CONTROL_OPS = frozenset({"teleop", "command", "initial_pose"})
+CLIENT_OPS = ("ping", "rate", "estop", "teleop", "command", "initial_pose")
+# The permission each op needs (``command`` depends on its action).
+OP_PERMISSIONS = {"estop": "estop", "teleop": "drive", "initial_pose": "initial_pose"}
 # Consecutive rate-limited messages after which a client is disconnected (code 1008).
 MAX_REJECTED_IN_A_ROW = 100
 
@@ -56,17 +63,17 @@ class ClientSession:
     Args:
         id: the client number (sent in ``hello``).
         ws: the prepared WebSocket.
-        control: whether the client presented the control token.
+        who: the token's name and role (a viewer without a token).
         cfg: the ``[web]`` section (message size and rate limits, the stream rate).
         rover: publishes what the client is allowed to send in.
         remote: the peer's address (for logs).
     """
 
-    def __init__(self, id: int, ws: web.WebSocketResponse, control: bool, cfg: WebConfig,
+    def __init__(self, id: int, ws: web.WebSocketResponse, who: Identity, cfg: WebConfig,
                  rover: RoverControl, remote: str = "") -> None:
         self.id = id
         self.ws = ws
-        self.control = control
+        self.who = who
         self.cfg = cfg
         self.rover = rover
         self.clock = rover.clock
@@ -79,6 +86,7 @@ class ClientSession:
         self.closed = False
         self.rejected_in_a_row = 0
         self.last_teleop_seq = -1
+        self.token_entry: Any = None  # the TokenEntry it authenticated with (None: viewer)
         self.sent_frames = 0
         self.sent_bytes = 0
 
@@ -91,8 +99,10 @@ class ClientSession:
 
     def offer(self, key: str, frame: str | bytes) -> None:
         """Put ``frame`` in the stream slot ``key`` (replacing one not yet sent)."""
+        idle = not self.pending
         self.pending[key] = frame
-        self.wake.set()
+        if idle:  # the sender waits for the next stream slot already when something is pending
+            self.wake.set()
 
     def reply(self, payload: dict[str, Any]) -> None:
         """Queue a reliable reply to this client."""
@@ -118,18 +128,19 @@ class ClientSession:
                 await ws.send_str(text)
                 self.sent_frames += 1
                 self.sent_bytes += len(text)
-            if self.pending:
-                now = self.clock.now()
-                if now >= next_stream_s:
-                    await self._flush_streams()
-                    next_stream_s = max(now, next_stream_s) + 1.0 / self.rate_hz
-                    continue
-                await self.clock.sleep_until(next_stream_s)
+            now = self.clock.now()
+            if self.pending and now >= next_stream_s:
+                await self._flush_streams()
+                next_stream_s = max(now, next_stream_s) + 1.0 / self.rate_hz
                 continue
             self.wake.clear()
-            if self.reliable or self.pending or self.closed:
+            if self.reliable or self.closed:
                 continue
-            await self.wake.wait()
+            if self.pending:  # streams wait for their slot; a reliable message does not
+                with contextlib.suppress(TimeoutError):
+                    await self.clock.wait_for(self.wake.wait(), next_stream_s - now)
+            else:
+                await self.wake.wait()
 
     async def _flush_streams(self) -> None:
         frames, self.pending = self.pending, {}
@@ -181,14 +192,20 @@ class ClientSession:
                                                "message": message}))
             await self.ws.close(code=WSCloseCode.MESSAGE_TOO_BIG, message=b"message too big")
             return False
-        if not self.limiter.allow(self.clock.now()):
-            return await self._on_too_fast()
-        self.rejected_in_a_row = 0
         msg_id: Any = None
         try:
             body = parse_json_object(text)
             msg_id = body.get("id")
+            if _is_estop(body):  # before the rate limit: the e-stop is never refused for speed
+                self._op_estop(body, msg_id)
+                return True
+            if not self.limiter.allow(self.clock.now()):
+                return await self._on_too_fast()
+            self.rejected_in_a_row = 0
             self._handle_op(body, msg_id)
+        except LeaseHeld as exc:
+            self.reply({"t": "error", "id": msg_id, "code": "lease_held", "holder": exc.holder,
+                        "message": str(exc)})
         except CommandError as exc:
             self.rover.rejected_messages += 1
             self.reply({"t": "error", "id": msg_id, "code": "rejected", "message": str(exc)})
@@ -213,10 +230,10 @@ class ClientSession:
         op = body.get("op")
         if op not in CLIENT_OPS:
             raise CommandError(f"unknown op {op!r}; allowed: {', '.join(CLIENT_OPS)}")
-        if op in CONTROL_OPS and not self.control:
-            raise CommandError(
-                "viewing only: control needs the token (open the URL from the rover's "
-                "start-up log)")
+        permission = (action_permission(body.get("action")) if op == "command"
+                      else OP_PERMISSIONS.get(str(op)))
+        if permission is not None and not self.who.may(permission):
+            raise CommandError(self._refusal(permission))
         if op == "ping":
             self.reply({"t": "pong", "id": msg_id, "server_time": self.clock.now()})
         elif op == "rate":
@@ -224,12 +241,27 @@ class ClientSession:
         elif op == "teleop":
             self._op_teleop(body)
         elif op == "command":
-            cmd, published = self.rover.command(body)
+            cmd, published = self.rover.command(body, self.who)
             self.reply({"t": "ack", "id": msg_id, "request_id": cmd.request_id,
                         "action": cmd.action, "duplicate": not published})
         elif op == "initial_pose":
-            pose = self.rover.initial_pose(body)
+            pose = self.rover.initial_pose(body, self.who)
             self.reply({"t": "ack", "id": msg_id, "pose": [pose.x, pose.y, pose.yaw]})
+
+    def _refusal(self, permission: str) -> str:
+        if self.who.role == "viewer":
+            return ("viewing only: this needs a token (open the link from the rover's "
+                    "start-up log)")
+        return refusal(self.who, permission)
+
+    def _op_estop(self, body: dict[str, Any], msg_id: Any) -> None:
+        if not self.who.may("estop"):
+            raise CommandError(self._refusal("estop"))
+        request_id = body.get("request_id")
+        cmd = self.rover.estop(self.who, request_id if isinstance(request_id, str)
+                               and REQUEST_ID.match(request_id) else "")
+        self.reply({"t": "ack", "id": msg_id, "request_id": cmd.request_id, "action": "estop",
+                    "duplicate": False})
 
     def _op_rate(self, body: dict[str, Any], msg_id: Any) -> None:
         hz = body.get("hz")
@@ -244,7 +276,13 @@ class ClientSession:
             if seq <= self.last_teleop_seq:
                 return  # an older message overtaken by a newer one
             self.last_teleop_seq = seq
-        self.rover.teleop(self.id, lin, ang)
+        self.rover.teleop(self.id, self.who, lin, ang, take_over=body.get("take_over") is True)
+
+
+def _is_estop(body: dict[str, Any]) -> bool:
+    """``{"op": "estop"}`` or ``{"op": "command", "action": "estop"}``."""
+    op = body.get("op")
+    return op == "estop" or (op == "command" and body.get("action") == "estop")
 
 
 def _log_failure(task: asyncio.Task[None]) -> None:

@@ -1,9 +1,10 @@
 """Web wiring: the dashboard server as a part of the application.
 
-``build_web`` loads (or creates) the control token, builds the aiohttp application and binds
-its listening socket at once, so the server's ``control_url`` — the ready-to-open URL with the
-token — is known before the app starts (``web.port = 0`` picks a free port, for tests). The
-URL is logged when the server starts.
+``build_web`` loads the named tokens (creating the admin token ``admin`` on the first start, or
+migrating the single token of an older install; :mod:`curio.web.tokens`), builds the aiohttp
+application and binds its listening socket at once, so the server's ``control_url`` — the
+ready-to-open URL with the admin token, printed by ``curio run`` — is known before the app
+starts (``web.port = 0`` picks a free port, for tests). Tokens are never written to the log.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
+from collections.abc import Callable
 
 from aiohttp import web
 
@@ -21,12 +23,12 @@ from curio.core.config import Config
 from curio.core.errors import SetupError
 from curio.core.parts import Part, Parts
 from curio.robot import RobotModel
-from curio.web.auth import load_or_create_token
 from curio.web.hub import Hub
-from curio.web.server import create_app
+from curio.web.server import SHUTDOWN_TIMEOUT_S, create_app
 from curio.web.services import HUB, WebServices
+from curio.web.tokens import TokenStore
 
-__all__ = ["DashboardAddressError", "WebServer", "build_web"]
+__all__ = ["DashboardAddressError", "WebServer", "build_web", "open_tokens"]
 
 log = logging.getLogger("curio.web")
 
@@ -66,20 +68,23 @@ class WebServer:
         if ":" in shown:
             shown = f"[{shown}]"
         self.url = f"http://{shown}:{self.port}/"
-        self.control_url = f"{self.url}?token={services.token}"
+        admin = services.tokens.first_admin()
+        self.control_url = f"{self.url}?token={admin.token}" if admin is not None else self.url
         self._runner: web.AppRunner | None = None
 
     async def run(self) -> None:
         """Serve until cancelled."""
-        self._runner = web.AppRunner(self.application, access_log=None, handle_signals=False)
+        self._runner = web.AppRunner(self.application, access_log=None, handle_signals=False,
+                                     shutdown_timeout=SHUTDOWN_TIMEOUT_S)
         await self._runner.setup()
         site = web.SockSite(self._runner, self.sock)
         await site.start()
         cfg = self.services.cfg.web
         log.debug("dashboard: serving %s (control URL printed by the command)", self.url)
         if cfg.host in ("0.0.0.0", "::"):
-            log.info("dashboard listens on all interfaces: http://%s:%d/?token=%s",
-                     socket.gethostname(), self.port, self.services.token)
+            log.info("dashboard listens on all interfaces: http://%s:%d/ (the link with the "
+                     "admin token is printed at start-up; 'curio token list' shows the tokens)",
+                     socket.gethostname(), self.port)
         try:
             await asyncio.get_running_loop().create_future()
         finally:
@@ -93,11 +98,26 @@ class WebServer:
         self.sock.close()
 
 
+def open_tokens(cfg: Config, clock: Clock) -> TokenStore:
+    """The named tokens of ``<data_dir>/web.tokens_file`` (an older install's single token
+    migrated), with an admin token made on the first start."""
+    tokens = TokenStore(cfg.data_path(cfg.web.tokens_file), cfg.data_path(cfg.web.token_file),
+                        clock.wall_time)
+    tokens.ensure_admin()
+    return tokens
+
+
 def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
-              paths: PathManager) -> WebServer:
-    """Construct the dashboard from ``cfg.web`` and register it as a part."""
-    token = load_or_create_token(cfg.data_path(cfg.web.token_file))
-    services = WebServices(cfg=cfg, clock=clock, bus=bus, token=token, robot=robot, paths=paths)
+              paths: PathManager, tokens: TokenStore,
+              part_states: Callable[[], dict[str, str]] | None = None) -> WebServer:
+    """Construct the dashboard from ``cfg.web`` and register it as a part.
+
+    Args:
+        tokens: the named tokens (:func:`open_tokens`).
+        part_states: the application's task states, for the health panel (optional).
+    """
+    services = WebServices(cfg=cfg, clock=clock, bus=bus, tokens=tokens, robot=robot,
+                           paths=paths, part_states=part_states)
     server = WebServer(services)
     parts.add(Part("web", run=server.run, close=server.close))
     return server

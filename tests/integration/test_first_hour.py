@@ -111,10 +111,10 @@ def test_saved_files_follow_the_umask_and_only_the_token_is_private(tmp_path: Pa
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
     for path in (out, out.with_suffix(".png")):
         assert stat.S_IMODE(path.stat().st_mode) == 0o644, path
-    token = tmp_path / "web_token"
+    token = tmp_path / "web_tokens.json"  # the dashboard's named tokens
     code = ("import os; os.umask(0o022); from pathlib import Path; "
-            "from curio.web.auth import load_or_create_token; "
-            f"load_or_create_token(Path('{token}'))")
+            "from curio.web.tokens import TokenStore; "
+            f"TokenStore(Path('{token}')).ensure_admin()")
     subprocess.run([sys.executable, "-c", code], check=True)
     assert stat.S_IMODE(token.stat().st_mode) == 0o600
 

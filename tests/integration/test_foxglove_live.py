@@ -91,7 +91,9 @@ async def test_scans_reach_a_client_and_teleop_needs_the_token(cfg: Config) -> N
             await clock.sleep(0.3)
             assert not [t for t in teleop if t.source == "foxglove"]  # refused
 
-            token = cfg.data_path(cfg.web.token_file).read_text().strip()
+            admin = app.tokens.first_admin()
+            assert admin is not None
+            token = admin.token
             await c.send("setParameters", parameters=[{"name": "operator_token",
                                                        "value": token}])
             for _ in range(15):  # hold the stick for 1.5 s

@@ -67,4 +67,4 @@ def test_signal_stops_the_rover_then_exits_cleanly(tmp_path: Path, sig: int) -> 
     assert proc.returncode == 0, log
     assert "stopping the rover" in log
     assert "Traceback" not in log
-    assert (tmp_path / "web_token").is_file()
+    assert (tmp_path / "web_tokens.json").is_file()  # the admin token made on the first start

@@ -292,3 +292,21 @@ def test_edits_do_not_move_a_running_route() -> None:
     h.nav.succeed()
     h.tick()
     assert h.nav.target() == (2.0, 2.0)  # the route copied at selection time
+
+
+def test_replace_waypoints_is_one_validated_persisted_change(tmp_path: Path) -> None:
+    """The dashboard's moves, inserts and reorders: all or nothing, saved, one notice."""
+    file = tmp_path / "paths.json"
+    pm = PathManager(defaults(), file)
+    heard: list[tuple[str, int]] = []
+    pm.add_listener(lambda what, pid: heard.append((what, pid)))
+    pm.replace_waypoints(1, [Waypoint(3.0, 1.0), Waypoint(0.5, 0.5, 7.0)])
+    assert heard == [("changed", 1)]
+    again = PathManager(defaults(), file)
+    wrapped = round(math.remainder(7.0, 2 * math.pi), 6)
+    assert again.get(1).waypoints == [Waypoint(3.0, 1.0), Waypoint(0.5, 0.5, wrapped)]
+    with pytest.raises(PathError, match="finite"):
+        pm.replace_waypoints(1, [Waypoint(1.0, 1.0), Waypoint(float("nan"), 0.0)])
+    assert len(pm.get(1).waypoints) == 2  # nothing of the refused change was kept
+    with pytest.raises(PathError, match="Home must keep"):
+        pm.replace_waypoints(HOME_PATH_ID, [])

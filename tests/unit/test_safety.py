@@ -240,3 +240,48 @@ async def test_estop_latches_through_the_bus(cfg: Config) -> None:
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
         await task
+
+
+async def test_estop_stops_in_the_same_loop_turn_even_after_a_flood(cfg: Config) -> None:
+    """The e-stop does not wait for the next control cycle: published mid-cycle behind 1000
+    other operator commands, the stage latches it and publishes a zero /cmd_vel at the
+    command's own stamp (no simulated time passes); commands queued before a release are
+    ignored after it."""
+    from curio.core.topics import make_bus
+
+    bus = make_bus()
+    clock = SimClock()
+    stage = SafetyStage(cfg.nav.safety, RobotModel.from_config(cfg.robot), clock, bus)
+    cmd_sub = bus.subscribe(CMD_VEL, maxsize=1000)
+    estop_sub = bus.subscribe(ESTOP)
+    task = asyncio.create_task(stage.run())
+    period = 1.0 / cfg.nav.safety.rate_hz
+    for _ in range(30):
+        bus.publish(SCAN, scan_of_points(clock.now(), [], cfg))
+        bus.publish(CMD_VEL_NAV, Twist(clock.now(), 0.3, 0.0))
+        await clock.advance(period)
+    await clock.advance(period / 2)  # mid-cycle
+    assert cmd_sub.drain()[-1].linear_mps > 0.1
+    estop_sub.drain()
+    for _ in range(1000):
+        bus.publish(OPERATOR, OperatorCommand(clock.now(), "pause", source="web:flood"))
+    pressed_s = clock.now()
+    bus.publish(OPERATOR, OperatorCommand(pressed_s, "estop", source="web:alice"))
+    for _ in range(5):  # a few turns of the event loop, no simulated time
+        await clock.sleep(0)
+    assert clock.now() == pressed_s
+    (state,) = estop_sub.drain()
+    assert state.engaged and state.source == "web:alice" and state.stamp == pressed_s
+    zero = cmd_sub.drain()
+    assert zero and zero[-1].linear_mps == 0.0 and zero[-1].stamp == pressed_s
+    # A nav command stamped before the release must not move the rover after it.
+    stale = Twist(clock.now(), 0.3, 0.0)
+    await clock.advance(period)
+    bus.publish(OPERATOR, OperatorCommand(clock.now(), "release_estop", source="web:alice"))
+    bus.publish(CMD_VEL_NAV, stale)
+    await clock.advance(3 * period)
+    assert all(o.linear_mps == 0.0 for o in cmd_sub.drain())
+    assert estop_sub.drain()[-1].source == "web:alice"
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task

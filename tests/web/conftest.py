@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+import aiohttp
 import pytest
+from aiohttp import WSMsgType
 from aiohttp.test_utils import TestClient
 
 from curio.core.bus import Bus
@@ -16,8 +20,28 @@ from curio.robot import RobotModel
 from curio.web.hub import Hub
 from curio.web.server import create_app
 from curio.web.services import HUB, WebServices
+from curio.web.tokens import TokenEntry, TokenStore
 
-TOKEN = "test-token-0123456789abcdef"
+TOKEN = "test-token-0123456789abcdef"  # the admin token "admin"
+ALICE = "alice-token-0123456789abcdef"  # operator "alice"
+BOB = "bob-token-0123456789abcdef00"  # operator "bob"
+KIOSK = "kiosk-token-0123456789abcdef"  # kiosk "lobby"
+
+
+def make_tokens(path: Path) -> TokenStore:
+    """A token store with an admin, two operators and a kiosk."""
+    store = TokenStore(path)
+    store._set([TokenEntry("admin", "admin", TOKEN, "test"),
+                TokenEntry("alice", "operator", ALICE, "test"),
+                TokenEntry("bob", "operator", BOB, "test"),
+                TokenEntry("lobby", "kiosk", KIOSK, "test")])
+    store._save()
+    return store
+
+
+def bearer(token: str) -> dict[str, str]:
+    """The Authorization header for ``token``."""
+    return {"Authorization": f"Bearer {token}"}
 
 
 class FakePathError(ValueError):
@@ -68,6 +92,13 @@ class FakePaths:
         p.waypoints.append(FakeWaypoint(x_m, y_m, yaw_rad))
         return p
 
+    def replace_waypoints(self, path_id: int, waypoints: Any) -> FakePath:
+        p = self.get(path_id)
+        if path_id == 0 and not waypoints:
+            raise FakePathError("Home must keep at least one waypoint.")
+        p.waypoints = [FakeWaypoint(w.x_m, w.y_m, w.yaw_rad) for w in waypoints]
+        return p
+
     def remove_waypoint(self, path_id: int, index: int) -> FakePath:
         p = self.get(path_id)
         if not 0 <= index < len(p.waypoints):
@@ -99,6 +130,7 @@ class Dash:
     clock: SimClock
     paths: FakePaths
     cfg: Config
+    tokens: TokenStore
 
     @property
     def auth(self) -> dict[str, str]:
@@ -108,8 +140,30 @@ class Dash:
 MakeDash = Callable[..., Awaitable[Dash]]
 
 
+@pytest.fixture(params=["desktop", "phone"])
+def viewport(request: pytest.FixtureRequest) -> str:
+    """The browser tests' viewports: desktop 1280×800 and phone 390×844."""
+    return str(request.param)
+
+
+async def recv_json_until(
+    ws: aiohttp.ClientWebSocketResponse, pred: Callable[[dict[str, Any]], bool],
+    limit: int = 500,
+) -> dict[str, Any]:
+    """Read messages until a JSON one satisfies ``pred`` (binary frames are skipped)."""
+    for _ in range(limit):
+        msg = await ws.receive(timeout=5.0)
+        if msg.type == WSMsgType.TEXT:
+            data = json.loads(msg.data)
+            if pred(data):
+                return data
+        elif msg.type in (WSMsgType.CLOSE, WSMsgType.CLOSED, WSMsgType.ERROR):
+            raise AssertionError(f"socket closed: {msg}")
+    raise AssertionError("message not received")
+
+
 @pytest.fixture
-def make_dash(aiohttp_client: Any, cfg: Config, bus: Bus) -> MakeDash:
+def make_dash(aiohttp_client: Any, cfg: Config, bus: Bus, tmp_path: Path) -> MakeDash:
     """Build the dashboard with fakes; keyword arguments override ``cfg.web`` fields."""
 
     async def make(**web_overrides: Any) -> Dash:
@@ -117,9 +171,10 @@ def make_dash(aiohttp_client: Any, cfg: Config, bus: Bus) -> MakeDash:
             setattr(cfg.web, key, value)
         clock = SimClock()
         paths = FakePaths()
-        app = create_app(WebServices(cfg=cfg, clock=clock, bus=bus, token=TOKEN,
+        tokens = make_tokens(tmp_path / "tokens.json")
+        app = create_app(WebServices(cfg=cfg, clock=clock, bus=bus, tokens=tokens,
                                      robot=RobotModel.from_config(cfg.robot), paths=paths))
         client = await aiohttp_client(app)
-        return Dash(client, app[HUB], bus, clock, paths, cfg)
+        return Dash(client, app[HUB], bus, clock, paths, cfg, tokens)
 
     return make

@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-from collections.abc import Callable
 from typing import Any
 
 import aiohttp
@@ -38,25 +37,12 @@ from curio.core.topics import (
 )
 from curio.web import hub as hub_module
 from curio.web.encode import FRAME_PLAN, FRAME_POSE, FRAME_SCAN, decode_frame
-from tests.web.conftest import TOKEN, Dash, MakeDash
+from curio.web.tokens import VIEWER
+from tests.web.conftest import TOKEN, Dash, MakeDash, recv_json_until
 
 WsMsg = aiohttp.WSMessage
 
 
-async def recv_json_until(
-    ws: aiohttp.ClientWebSocketResponse, pred: Callable[[dict[str, Any]], bool],
-    limit: int = 200,
-) -> dict[str, Any]:
-    """Read messages until a JSON one satisfies ``pred`` (binary frames are skipped)."""
-    for _ in range(limit):
-        msg = await ws.receive(timeout=5.0)
-        if msg.type == WSMsgType.TEXT:
-            data = json.loads(msg.data)
-            if pred(data):
-                return data
-        elif msg.type in (WSMsgType.CLOSE, WSMsgType.CLOSED, WSMsgType.ERROR):
-            raise AssertionError(f"socket closed: {msg}")
-    raise AssertionError("message not received")
 
 
 async def connect(d: Dash, token: bool = True) -> aiohttp.ClientWebSocketResponse:
@@ -183,7 +169,7 @@ async def test_teleop_publishes_and_disconnect_stops_the_rover(make_dash: MakeDa
     msgs = teleop.drain()
     limit = min(d.cfg.robot.max_wheel_speed_mps, d.cfg.nav.safety.max_speed_mps)
     assert [(m.linear_mps, m.angular_radps) for m in msgs] == [(0.2, -0.5), (limit, 0.0)]
-    assert all(m.source == "web" for m in msgs)
+    assert all(m.source == "web:admin" for m in msgs)  # the token names the driver
     await ws.close()
     for _ in range(100):
         await spin()
@@ -231,7 +217,8 @@ async def test_reconnecting_client_gets_state_and_no_command_replay(make_dash: M
     assert state["status"]["text"] == "HELP ME!"
     assert state["progress"]["states"] == ["reached", "active", "pending"]
     assert state["help"]["active"] is True and state["help"]["message"] == "the door is blocked"
-    assert [e["kind"] for e in state["events"]] == ["help.requested"]
+    assert [e["kind"] for e in state["events"]] == ["operator.command", "help.requested"]
+    assert state["events"][0]["detail"]["who"] == "admin"  # who did what
     await spin(50)
     assert [c.action for c in ops.drain()] == ["pause"]  # published once, never replayed
     d.bus.publish(EVENTS, Event(3.0, "help.resolved", {}))
@@ -337,7 +324,7 @@ async def test_slow_client_is_dropped_without_stalling_others(
     d = await make_dash()
     ws = await connect(d)
     stalled = _StalledSocket()
-    slow = d.hub.register(stalled, control=False)  # type: ignore[arg-type]
+    slow = d.hub.register(stalled, VIEWER)  # type: ignore[arg-type]
     sender = asyncio.ensure_future(slow.send_loop())
     await spin()
     for i in range(40):  # the healthy client keeps up, the stalled one cannot
@@ -376,10 +363,30 @@ async def test_health_panel_has_components_system_and_bus(make_dash: MakeDash) -
     ws = await connect(d)
     await d.clock.advance(1.05)
     health = await recv_json_until(ws, lambda m: m["t"] == "health")
-    assert health["components"]["lidar"]["counters"] == {"bad_packets": 3.0}
-    assert health["components"]["lidar"]["state"] == "degraded"
+    lidar = next(c for c in health["components"] if c["name"] == "lidar")
+    assert [(c["key"], c["value"]) for c in lidar["counters"]] == [("bad_packets", 3.0)]
+    assert lidar["state"] == "degraded" and lidar["message"] == "3 bad packets"
+    assert lidar["age_s"] == pytest.approx(0.5, abs=0.06)  # reported at 0.5, panel at 1.0
     assert "loop_lag_ms" in health["system"] and health["system"]["cpu_count"] >= 1
-    assert health["bus"]["topics"]["/health"]["published"] >= 2
+    assert health["bus"]["dropped_total"] >= 0
     own = [h for h in web_health.drain() if h.name == "web"]
     assert own and own[0].counters["clients"] == 1.0
+    await ws.close()
+
+
+async def test_a_single_goal_clears_the_old_paths_squares(make_dash: MakeDash) -> None:
+    d = await make_dash()
+    ws = await connect(d)
+    d.bus.publish(PROGRESS, Progress(1.0, 1, "Path 1", ("reached", "reached"), 1))
+    msg = await recv_json_until(ws, lambda m: m["t"] == "progress")
+    assert msg["progress"]["path_id"] == 1
+    d.bus.publish(EVENTS, Event(2.0, "nav.goal_accepted", {
+        "goal_id": 7, "goal": [[2.0, 0.0]], "tag": "web:admin goto"}))
+    goal = await recv_json_until(ws, lambda m: m["t"] == "goal")
+    assert goal["goal"]["poses"] == [[2.0, 0.0]]
+    msg = await recv_json_until(ws, lambda m: m["t"] == "progress")
+    assert msg["progress"] is None and d.hub.snapshot()["progress"] is None
+    d.bus.publish(EVENTS, Event(3.0, "nav.goal_canceled", {"goal_id": 7}))
+    goal = await recv_json_until(ws, lambda m: m["t"] == "goal")
+    assert goal["goal"] is None
     await ws.close()

@@ -1,10 +1,9 @@
-"""Dashboard building blocks: token file, rate limiter, frame encoding, wiring into the App."""
+"""Dashboard building blocks: rate limiter, frame encoding, wiring into the App."""
 
 from __future__ import annotations
 
+import json
 import math
-import os
-import stat
 from pathlib import Path
 
 import numpy as np
@@ -16,22 +15,9 @@ from curio.core.config import Config
 from curio.core.geometry import Pose2D
 from curio.core.messages import LaserScan
 from curio.core.messages import Path as PathMsg
-from curio.web.auth import RateLimiter, load_or_create_token
+from curio.web.auth import RateLimiter
 from curio.web.encode import FRAME_LOCAL_PLAN, decode_frame, encode_path, encode_scan
 from curio.web.inputs import describe_path_ids
-
-
-def test_token_is_created_private_and_reused(tmp_path: Path) -> None:
-    path = tmp_path / "data" / "web_token"
-    token = load_or_create_token(path)
-    assert len(token) >= 32
-    assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
-    assert load_or_create_token(path) == token
-    os.chmod(path, 0o644)  # loosened by hand: tightened again on start
-    assert load_or_create_token(path) == token
-    assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
-    path.write_text("short\n")  # a truncated token is replaced, never accepted
-    assert load_or_create_token(path) not in (token, "short")
 
 
 def test_rate_limiter_bucket() -> None:
@@ -79,8 +65,10 @@ async def test_build_web_sets_the_control_url(cfg: Config) -> None:
     app = App(cfg, SimClock(), web=True)
     try:
         assert app.web is not None and app.web.port > 0
-        token = (Path(cfg.resolve(cfg.data_dir)) / cfg.web.token_file).read_text().strip()
-        assert app.web_url == f"http://127.0.0.1:{app.web.port}/?token={token}"
+        data = json.loads((Path(cfg.resolve(cfg.data_dir)) / cfg.web.tokens_file).read_text())
+        (admin,) = data["tokens"]
+        assert admin["name"] == "admin" and admin["role"] == "admin"
+        assert app.web_url == f"http://127.0.0.1:{app.web.port}/?token={admin['token']}"
         assert any(p.name == "web" for p in app.parts)
     finally:
         await app.web.close()
