@@ -47,7 +47,7 @@ from curio.nav.obstacles import BlockedDetector, ObstacleNode
 from curio.nav.planner import GlobalPlanner
 from curio.nav.wiring import build_navigation
 from curio.record.recorder import Recorder
-from curio.record.wiring import build_recorder
+from curio.record.wiring import build_recorder, recordings_directory
 from curio.robot import RobotModel
 from curio.safety.stage import SafetyStage
 from curio.safety.wiring import build_safety
@@ -127,7 +127,9 @@ class App:
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:
             self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths, self.tokens,
-                                 part_states=self.part_states)
+                                 part_states=self.part_states, tours=self.tours,
+                                 eventlog=self.eventlog,
+                                 recordings_dir=recordings_directory(cfg))
             self.web_url = self.web.control_url
 
     @property

@@ -19,7 +19,10 @@ simulated run is reproduced exactly (the poses to well under a millimetre); a ch
 shows as a divergence with its size and its first time. ``--from``/``--to`` are seconds from
 the start of the file; starting later seeds the localiser with the recorded pose there
 (commands given before it are not replayed). ``--web`` serves the dashboard meanwhile (real
-time by default).
+time by default) with a timeline to pause, change the speed and seek
+(:mod:`curio.record.timeline`: a seek backwards restarts the run from there on the same
+address); at the end of the recording the dashboard stays up until Finish on the page, a seek
+back or Ctrl-C, then the report covers the last run (up to where it was finished).
 
 **A ROS bag** (rosbag1, rosbag2, ``curio[ros]``): its ``sensor_msgs/LaserScan`` and
 ``nav_msgs/Odometry`` drive localisation in ``--map`` (or the configured map) from ``--start``;
@@ -32,9 +35,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import itertools
 import math
 import shutil
+import signal
 import tempfile
 from collections import Counter
 from pathlib import Path
@@ -64,8 +69,10 @@ from curio.record.compare import (
     compare_twists,
     truth_rmse,
 )
-from curio.record.reader import Recording, open_recording
+from curio.record.library import recording_info
+from curio.record.reader import Recording, RecordingError, open_recording
 from curio.record.replay import Recorded, ReplaySource, TimedInput, recording_inputs
+from curio.record.timeline import ReplayTimeline
 
 __all__ = ["main"]
 
@@ -173,9 +180,14 @@ def _first_time(rec: Recording) -> float:
 
 
 async def _run_app(cfg: Config, clock: SimClock, source: ReplaySource, web: bool,
-                   end_s: float | None, out: TextIO,
-                   halt_recorded: bool) -> tuple[_Capture, list[tuple[str, BaseException]]]:
-    """Build and run the application on the replayed inputs; return what it published."""
+                   end_s: float | None, out: TextIO, halt_recorded: bool,
+                   timeline: ReplayTimeline | None = None,
+                   ) -> tuple[_Capture, list[tuple[str, BaseException]]]:
+    """Build and run the application on the replayed inputs; return what it published.
+
+    With a ``timeline`` (``--web``) the page's timeline drives the clock (pause, speed, seek),
+    and at the end of the recording the dashboard stays up until Finish, a seek back or
+    Ctrl-C."""
     from curio.app import App
 
     captured: list[_Capture] = []
@@ -195,19 +207,50 @@ async def _run_app(cfg: Config, clock: SimClock, source: ReplaySource, web: bool
             app.navigator.send_goal(poses, tag=goal.tag)
 
     source.on_goal = give_goal
+    if timeline is not None and app.web is not None:
+        _attach_timeline(timeline, app.web, clock)
     await app.start()
     if app.web_url:
         out.write(f"dashboard: {app.web_url}\n")
         out.flush()
-    await clock.run(stop=lambda: source.done or bool(app.failed_parts()))
-    if end_s is not None and not app.failed_parts() and clock.now() < end_s:
+    if timeline is None:
+        await clock.run(stop=lambda: source.done or bool(app.failed_parts()))
+    else:
+        await timeline.drive(clock, lambda: source.done or bool(app.failed_parts()))
+    leaving = timeline is not None and (timeline.finished or timeline.restart_from_s is not None)
+    if end_s is not None and not app.failed_parts() and clock.now() < end_s and not leaving:
         await clock.run(until_s=end_s, stop=lambda: bool(app.failed_parts()))
+    if timeline is not None and not leaving and not app.failed_parts():
+        await timeline.hold_at_end()
     failed = app.failed_parts()
-    if not halt_recorded:
+    if not halt_recorded or (timeline is not None and not timeline.at_end):
         capture.stop()  # the recording goes on past the end: its shutdown is not compared
     await app.stop()
     capture.stop()
     return capture, failed
+
+
+def _attach_timeline(timeline: ReplayTimeline, web: Any, clock: SimClock) -> None:
+    """Give the page the timeline; Ctrl-C (or SIGTERM) finishes the replay."""
+    timeline.new_run(clock)
+    timeline.port = web.port
+    web.services.replay = timeline
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError):
+            loop.add_signal_handler(sig, timeline.finish)
+
+
+def _timeline(rec: Recording, args: argparse.Namespace, t0: float, first: float
+              ) -> ReplayTimeline:
+    """The timeline of ``--web``: the recording's length from its summary (or a scan)."""
+    try:
+        length: float | None = (first - t0) + recording_info(rec.path).duration_s
+    except (RecordingError, OSError):
+        length = None
+    if args.t_to is not None:
+        length = args.t_to if length is None else min(length, args.t_to)
+    return ReplayTimeline(rec.path.name, t0, length, _speed(args), args.t_from)
 
 
 def _compare(recorded: Recorded, capture: _Capture, t0: float,
@@ -268,20 +311,28 @@ def _replay_recording(args: argparse.Namespace, out: TextIO, err: TextIO) -> int
     run_start = float(rec.curio.get("start_s", "0"))
     first = _first_time(rec)
     t0 = first if int(rec.curio.get("part", "1")) > 1 else min(run_start, first)
-    start = t0 + args.t_from
     end = None if args.t_to is None else t0 + args.t_to
     data_dir = Path(tempfile.mkdtemp(prefix="curio-replay-"))
+    timeline = _timeline(rec, args, t0, first) if args.web else None
     try:
         cfg = _replay_config(_recorded_config(rec, args), args.web, data_dir,
                              rec.curio.get("drivers_mode", "sim"))
         offset = float(rec.curio.get("time_offset_s", "0"))
-        clock = SimClock(speed=_speed(args), start_s=start, epoch_wall_s=offset + start)
-        recorded = Recorded()
-        source = ReplaySource(recording_inputs(rec, start, end, run_start, recorded))
+        start = t0 + args.t_from
         wall0 = wall_perf_counter()
-        capture, failed = asyncio.run(_run_app(cfg, clock, source, args.web, end, out,
-                                               halt_recorded=end is None))
+        while True:  # one run, or one more after each seek backwards on the page
+            clock = SimClock(speed=_speed(args), start_s=start, epoch_wall_s=offset + start)
+            recorded = Recorded()
+            source = ReplaySource(recording_inputs(rec, start, end, run_start, recorded))
+            capture, failed = asyncio.run(_run_app(cfg, clock, source, args.web, end, out,
+                                                   end is None, timeline))
+            if timeline is None or timeline.restart_from_s is None or failed:
+                break
+            start = t0 + timeline.restart_from_s
+            cfg = _on_port(cfg, timeline.port)
         wall = wall_perf_counter() - wall0
+        if timeline is not None and not timeline.at_end:
+            recorded.until(clock.now())  # finished early: compare what was replayed
     finally:
         shutil.rmtree(data_dir, ignore_errors=True)
     if source.error is not None:
@@ -316,6 +367,13 @@ def _replay_recording(args: argparse.Namespace, out: TextIO, err: TextIO) -> int
             "seeded_from": to_jsonable(recorded.seeded_from, 6), **to_jsonable(result)})
         out.write(f"  report: {args.report}\n")
     return 1 if diverged else 0
+
+
+def _on_port(cfg: Config, port: int | None) -> Config:
+    """``cfg`` with the dashboard on ``port`` (a restarted replay keeps the page's address)."""
+    if port is None:
+        return cfg
+    return cfg.model_copy(update={"web": cfg.web.model_copy(update={"port": port})})
 
 
 def _bag_config(args: argparse.Namespace, data_dir: Path, laser: Any) -> Config:

@@ -25,7 +25,8 @@ from mcap.reader import make_reader
 from curio.core.errors import SetupError
 from curio.record.reader import MAGIC, RecordingError, open_recording
 
-__all__ = ["RecordingInfo", "list_recordings", "resolve_download", "summarize"]
+__all__ = ["RecordingInfo", "list_recordings", "recording_info", "resolve_download",
+           "summarize"]
 
 # Event kinds worth a word in a one-line summary, in the order they are told.
 NOTABLE = ("collision", "safety.estop", "help.requested", "nav.goal_aborted",
@@ -109,6 +110,16 @@ def _from_scan(path: Path) -> RecordingInfo:
                          count, False, dict(events), summarize(events))
 
 
+def recording_info(path: Path) -> RecordingInfo:
+    """One recording's summary (from its summary record, or a scan of a file cut short).
+
+    Raises:
+        RecordingError, OSError: the file cannot be read as a recording.
+    """
+    info = _from_summary(path) if _complete(path) else None
+    return info if info is not None else _from_scan(path)
+
+
 def list_recordings(directory: Path) -> list[RecordingInfo]:
     """Every recording in ``directory`` (``*.mcap``), newest first; unreadable files are left
     out (they are not Curio's)."""
@@ -117,8 +128,7 @@ def list_recordings(directory: Path) -> list[RecordingInfo]:
     out: list[RecordingInfo] = []
     for path in directory.glob("*.mcap"):
         try:
-            info = _from_summary(path) if _complete(path) else None
-            out.append(info if info is not None else _from_scan(path))
+            out.append(recording_info(path))
         except (RecordingError, OSError):
             continue
     out.sort(key=lambda r: (r.start_s, r.name), reverse=True)

@@ -72,6 +72,11 @@ class Recorded:
             "/cmd_vel_nav": self.cmd_vel_nav, "/ground_truth": self.truth}  # type: ignore[dict-item]
         stores[channel].append((t, msg))
 
+    def until(self, t_s: float) -> None:
+        """Forget the recorded outputs after clock time ``t_s`` (a replay ended early)."""
+        for name in ("poses", "plans", "cmd_vel", "cmd_vel_nav", "truth"):
+            setattr(self, name, [(t, m) for t, m in getattr(self, name) if t <= t_s])
+
 
 def recording_inputs(rec: Recording, start_s: float, end_s: float | None, run_start_s: float,
                      recorded: Recorded) -> Iterator[TimedInput]:

@@ -31,7 +31,7 @@ from curio.record.queue import RecordQueue
 from curio.record.recorder import Recorder, Sink
 from curio.robot import RobotModel
 
-__all__ = ["build_recorder", "recording_metadata"]
+__all__ = ["build_recorder", "recording_metadata", "recordings_directory"]
 
 _LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING,
            "error": logging.ERROR}
@@ -77,13 +77,19 @@ def _markers(cfg: Config) -> list[tuple[str, Pose2D]]:
     return out
 
 
+def recordings_directory(cfg: Config) -> Path | None:
+    """Where the recorder writes its rotated files (None: off, or one ``record.file``)."""
+    rc = cfg.record
+    if not rc.enabled or rc.file:
+        return None
+    given = Path(rc.directory).expanduser()
+    return given if given.is_absolute() else cfg.data_path(rc.directory)
+
+
 def _mcap_sink(cfg: Config, clock: Clock, offset: float) -> McapSink:
     rc = cfg.record
     file = cfg.resolve(rc.file) if rc.file else None
-    directory = None
-    if file is None:
-        given = Path(rc.directory).expanduser()
-        directory = given if given.is_absolute() else cfg.data_path(rc.directory)
+    directory = recordings_directory(cfg) if file is None else None
     return McapSink(directory=directory, file=file, started_wall_s=clock.wall_time(),
                     metadata=recording_metadata(cfg, clock, offset),
                     max_file_bytes=int(rc.max_file_mb * 1e6), max_file_s=rc.max_file_s,

@@ -91,17 +91,19 @@ class TourStop:
 
 @dataclass(frozen=True, slots=True)
 class Tour:
-    """A named tour: ``id`` (never reused), ``name``, ``revision`` and ordered ``stops``."""
+    """A named tour: ``id`` (never reused), ``name``, ``revision`` and ordered ``stops``;
+    ``kiosk``: offered to visitors on the kiosk page (a draft is not)."""
 
     id: int
     name: str
     stops: tuple[TourStop, ...] = ()
     revision: int = 1
+    kiosk: bool = True
 
     def to_json(self) -> dict[str, Any]:
         """JSON-safe form (the file and the dashboard)."""
         return {"id": self.id, "name": self.name, "revision": self.revision,
-                "stops": [s.to_json() for s in self.stops]}
+                "kiosk": self.kiosk, "stops": [s.to_json() for s in self.stops]}
 
     def bumped(self, **changes: Any) -> Tour:
         """A copy with ``changes`` and the next revision."""
@@ -212,4 +214,7 @@ def tour_from_json(item: Any) -> Tour:
             parsed.append(stop_from_json(stop))
         except TourError as exc:
             raise TourError(f"tour {tour_id}, stop {i + 1}: {exc}") from None
-    return Tour(tour_id, check_name(item.get("name")), tuple(parsed), revision)
+    kiosk = item.get("kiosk", True)
+    if not isinstance(kiosk, bool):
+        raise TourError(f"tour {tour_id}: 'kiosk' must be true or false, got {kiosk!r}.")
+    return Tour(tour_id, check_name(item.get("name")), tuple(parsed), revision, kiosk)

@@ -42,7 +42,7 @@ from .model import Tour, TourError, stop_from_json
 from .schedule import Occurrence, Schedule, ScheduleStore
 from .store import TourStore
 
-__all__ = ["TourEstimate", "TourService", "estimate"]
+__all__ = ["TourEstimate", "TourService", "estimate", "route_points"]
 
 
 @dataclass(frozen=True)
@@ -60,16 +60,25 @@ class TourEstimate:
                 "dwell_s": round(self.dwell_s, 1), "total_s": round(self.total_s, 1)}
 
 
-def estimate(tour: Tour, home: Pose2D, cfg: ToursConfig,
-             path_points: Callable[[int], Sequence[tuple[float, float]]] | None = None
-             ) -> TourEstimate:
-    """Estimate ``tour`` from ``home`` through every stop (and its route path) back home."""
+def route_points(tour: Tour, home: Pose2D,
+                 path_points: Callable[[int], Sequence[tuple[float, float]]] | None = None
+                 ) -> list[tuple[float, float]]:
+    """The straight-leg route of ``tour`` in ``map`` (metres): home, every stop (after the
+    waypoints of its route path), home."""
     points: list[tuple[float, float]] = [(home.x, home.y)]
     for stop in tour.stops:
         if stop.route_path_id is not None and path_points is not None:
             points.extend(path_points(stop.route_path_id))
         points.append((stop.x_m, stop.y_m))
     points.append((home.x, home.y))
+    return points
+
+
+def estimate(tour: Tour, home: Pose2D, cfg: ToursConfig,
+             path_points: Callable[[int], Sequence[tuple[float, float]]] | None = None
+             ) -> TourEstimate:
+    """Estimate ``tour`` from ``home`` through every stop (and its route path) back home."""
+    points = route_points(tour, home, path_points)
     straight = sum(math.dist(a, b) for a, b in itertools.pairwise(points))
     distance = straight * cfg.estimate_detour_factor
     driving = distance / cfg.estimate_speed_mps
@@ -130,6 +139,8 @@ class TourService:
         running = self.running()
         return {**tour.to_json(), "problems": self.tours.problems(tour),
                 "estimate": self.estimate(tour.id).to_json(),
+                "route": [[round(x, 3), round(y, 3)]
+                          for x, y in route_points(tour, self.home, self.path_points)],
                 "schedule_ids": [s.id for s in self.schedules.for_tour(tour.id)],
                 "running": running is not None and running.tour_id == tour.id}
 
@@ -137,9 +148,11 @@ class TourService:
         """Every tour, described."""
         return [self.describe(t) for t in self.tours.list_tours()]
 
-    def create_tour(self, name: Any, stops: Sequence[Any] = (), *, actor: str = "") -> Tour:
+    def create_tour(self, name: Any, stops: Sequence[Any] = (), *, kiosk: bool = True,
+                    actor: str = "") -> Tour:
         """Create a tour from a name and stops in their JSON form."""
-        return self.tours.create(name, [stop_from_json(s) for s in stops], actor=actor)
+        return self.tours.create(name, [stop_from_json(s) for s in stops], kiosk=kiosk,
+                                 actor=actor)
 
     def add_stop(self, tour_id: Any, stop: Any, index: int | None = None, *,
                  expect_revision: int | None = None, actor: str = "") -> Tour:

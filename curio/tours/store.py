@@ -240,14 +240,19 @@ class TourStore:
 
     # --- edits ------------------------------------------------------------------------------
 
-    def create(self, name: Any, stops: Sequence[TourStop] = (), *, actor: str = "") -> Tour:
-        """Create a tour (it may be empty: stops are added one by one) at the end of the list."""
+    def create(self, name: Any, stops: Sequence[TourStop] = (), *, kiosk: bool = True,
+               actor: str = "") -> Tour:
+        """Create a tour (it may be empty: stops are added one by one) at the end of the list;
+        ``kiosk``: offered to visitors at the kiosk."""
         if len(self._tours) >= MAX_TOURS:
             raise TourError(f"There are already {MAX_TOURS} tours; delete one first.")
         if len(stops) > MAX_STOPS:
             raise TourError(f"A tour can have at most {MAX_STOPS} stops.")
+        if not isinstance(kiosk, bool):
+            raise TourError(f"'kiosk' (offered at the kiosk) must be true or false, got "
+                            f"{kiosk!r}.")
         tour = Tour(self._next_id, self._unique_name(name),
-                    tuple(self._placed(s) for s in stops))
+                    tuple(self._placed(s) for s in stops), kiosk=kiosk)
         self._tours[tour.id] = tour
         self._next_id += 1
         return self._changed("created", tour, actor)
@@ -262,8 +267,18 @@ class TourStore:
         tour = self._editable(tour_id, expect_revision)
         return self._put(tour.bumped(name=self._unique_name(name, tour.id)), "renamed", actor)
 
+    def set_kiosk(self, tour_id: Any, offered: Any, *, expect_revision: int | None = None,
+                  actor: str = "") -> Tour:
+        """Offer a tour to visitors at the kiosk, or stop offering it."""
+        tour = self._editable(tour_id, expect_revision)
+        if not isinstance(offered, bool):
+            raise TourError(f"'kiosk' (offered at the kiosk) must be true or false, got "
+                            f"{offered!r}.")
+        return self._put(tour.bumped(kiosk=offered), "kiosk", actor)
+
     def duplicate(self, tour_id: Any, name: Any = None, *, actor: str = "") -> Tour:
-        """A copy of a tour with a new id, named ``name`` or "<name> (copy)"."""
+        """A copy of a tour with a new id, named ``name`` or "<name> (copy)"; the copy is not
+        offered at the kiosk until an operator says so (it is a draft)."""
         tour = self.get(tour_id)
         if name is None:
             base = tour.name[:MAX_NAME_CHARS - 9]
@@ -273,7 +288,7 @@ class TourStore:
             while name.casefold() in taken:
                 name = f"{base} (copy {n})"
                 n += 1
-        return self.create(name, tour.stops, actor=actor)
+        return self.create(name, tour.stops, kiosk=False, actor=actor)
 
     def delete(self, tour_id: Any, *, actor: str = "") -> Tour:
         """Delete a tour (its id is never given to another). The service refuses running or

@@ -60,6 +60,7 @@ from curio.core.messages import (
     PoseWithCovariance,
     Progress,
     StatusText,
+    TourState,
     TreeSnapshot,
     Twist,
 )
@@ -83,6 +84,7 @@ from curio.core.topics import (
     PROGRESS,
     SCAN,
     STATUS,
+    TOUR,
     TREE,
 )
 from curio.robot import RobotModel
@@ -163,6 +165,7 @@ class Hub:
         self.blocked: BlockedState | None = None
         self.localization: LocalizationStatus | None = None
         self.tree: TreeSnapshot | None = None
+        self.tour: TourState | None = None
         self.health: dict[str, DriverHealth] = {}
         self.help: dict[str, Any] = {"active": False, "message": "", "since": None,
                                       "resolved_at": None}
@@ -216,6 +219,7 @@ class Hub:
         self._sub(BATTERY, self._on_battery)
         self._sub(BLOCKED, self._on_blocked)
         self._sub(CMD_VEL, self._on_cmd_vel)
+        self._sub(TOUR, self._on_tour)
         for name, topic in GRID_TOPICS.items():
             self._sub(topic, self._grid_handler(name))
 
@@ -346,6 +350,7 @@ class Hub:
             "goal": self.goal,
             "blocker": self.blocker,
             "map_bounds": self._bounds_json(),
+            "tour": self.tour_json(),
             "now": self.clock.now(),
             "robot": {
                 "footprint": [list(p) for p in self.robot.footprint_points],
@@ -609,6 +614,17 @@ class Hub:
                                     self.blocked, self.robot)
         blocker = self.blocker
         self._stream("blocker", lambda: to_json({"t": "blocker", "blocker": blocker}))
+
+    def tour_json(self) -> dict[str, Any] | None:
+        """The running tour (``/tour``) with its age in clock seconds, or None."""
+        if self.tour is None:
+            return None
+        return {**to_jsonable(self.tour), "age_s": round(self.clock.now() - self.tour.stamp, 3)}
+
+    def _on_tour(self, msg: TourState) -> None:
+        """The tour, its stop, message, next stop and ETA: for the kiosk and the tours card."""
+        self.tour = msg
+        self._reliable({"t": "tour", "tour": self.tour_json()})
 
     def _on_cmd_vel(self, msg: Twist) -> None:
         self._stream("cmd_vel", lambda: to_json({"t": "cmd_vel", "linear_mps": msg.linear_mps,

@@ -42,6 +42,7 @@ __all__ = [
     "parse_path_number",
     "parse_pose",
     "parse_teleop",
+    "parse_tour_id",
 ]
 
 ACTIONS: tuple[str, ...] = get_args(OperatorAction)
@@ -217,7 +218,8 @@ def parse_path_number(value: Any, paths: Any) -> int:
 
 def build_command(body: dict[str, Any], clock: Clock, paths: Any,
                   source: str = "web", bounds: MapBounds | None = None) -> OperatorCommand:
-    """Turn ``{action, path_id?, goal?, request_id?}`` into an :class:`OperatorCommand`.
+    """Turn ``{action, path_id?, goal?, tour_id?, request_id?}`` into an
+    :class:`OperatorCommand` (``tour_id`` with ``start_tour``: which tour; none = the first).
 
     Args:
         body: the command as sent (``goal`` in map, metres and radians).
@@ -237,6 +239,9 @@ def build_command(body: dict[str, Any], clock: Clock, paths: Any,
         raise CommandError("request_id must be 1–64 characters of letters, digits, _ . : -")
     path_id: int | None = None
     goal: Pose2D | None = None
+    tour_id: int | None = None
+    if action == "start_tour" and body.get("tour_id") is not None:
+        tour_id = parse_tour_id(body["tour_id"])
     if action == "select_path":
         if "path_id" not in body:
             raise CommandError("select_path needs 'path_id' (the path number)")
@@ -249,4 +254,14 @@ def build_command(body: dict[str, Any], clock: Clock, paths: Any,
         if bounds is not None:
             bounds.require(goal.x, goal.y, "the goal")
     return OperatorCommand(clock.now(), action, path_id=path_id, goal=goal, source=source,
-                           request_id=request_id)
+                           request_id=request_id, tour_id=tour_id)
+
+
+def parse_tour_id(value: Any) -> int:
+    """A tour number (1 or more) as sent in a command or a URL."""
+    if isinstance(value, str) and re.fullmatch(r"\s*\d{1,9}\s*", value):
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise CommandError(f"a tour number must be a whole number of 1 or more, got "
+                           f"{_short(value)}")
+    return value

@@ -38,6 +38,7 @@ from pathlib import Path
 from aiohttp import web
 
 from curio.core.topics import HEALTH
+from curio.web import log_api, pages, records_api, tours_api
 from curio.web.api import ROUTES
 from curio.web.auth import WS_PROTOCOL, Gate, RedactTokens, check_origin, request_token
 from curio.web.control import RoverControl
@@ -96,6 +97,8 @@ def create_app(services: WebServices) -> web.Application:
     app.router.add_get("/", index)
     app.router.add_get("/ws", websocket)
     app.router.add_routes(ROUTES)
+    for routes in (tours_api.ROUTES, log_api.ROUTES, records_api.ROUTES, pages.ROUTES):
+        app.router.add_routes(routes)
     app.router.add_static("/static", STATIC_DIR, append_version=False)
     install_redaction(RedactTokens(services.tokens))
     return app

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from aiohttp import web
@@ -18,7 +19,10 @@ from aiohttp import web
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
+from curio.eventlog.store import EventLog
+from curio.record.timeline import ReplayTimeline
 from curio.robot import RobotModel
+from curio.tours.wiring import Tours
 from curio.web.auth import Gate
 from curio.web.control import RoverControl
 from curio.web.hub import Hub
@@ -39,6 +43,10 @@ class WebServices:
         paths: the path manager, or None.
         robot: the robot model (footprint, home, laser pose, limits).
         part_states: the application's task states for the health panel, or None.
+        tours: the tours subsystem (stores, service, scheduler), or None.
+        eventlog: the SQLite event log, or None (``eventlog.enabled`` off).
+        recordings_dir: where the flight recorder writes its MCAP files, or None.
+        replay: the replay's timeline when ``curio replay --web`` serves the page, or None.
     """
 
     cfg: Config
@@ -48,6 +56,10 @@ class WebServices:
     robot: RobotModel
     paths: Any = None
     part_states: Callable[[], dict[str, str]] | None = None
+    tours: Tours | None = None
+    eventlog: EventLog | None = None
+    recordings_dir: Path | None = None
+    replay: ReplayTimeline | None = None
 
 
 SERVICES = web.AppKey("services", WebServices)

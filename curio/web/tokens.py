@@ -4,8 +4,9 @@ Roles (what each may do is :data:`PERMISSIONS`):
 
 * **viewer** — no token: watch everything, change nothing.
 * **kiosk** — start and stop tours only (a lobby screen; the ``/kiosk`` page uses it).
-* **operator** — drive, send goals and paths, edit paths, set the pose, e-stop; release an
-  e-stop it set itself (or one the rover set).
+* **operator** — drive, send goals and paths, edit paths, tours and schedules, set the pose,
+  e-stop, download the event log and recordings; release an e-stop it set itself (or one the
+  rover set).
 * **admin** — everything an operator may, and release anybody's e-stop.
 
 The file is JSON ``{"version": 1, "tokens": [{"name", "role", "token", "created"}]}``, mode
@@ -63,9 +64,10 @@ NAME_RULE = "1–32 letters, digits, spaces or . _ @ -, starting with a letter o
 PERMISSIONS: dict[str, frozenset[str]] = {
     "viewer": frozenset(),
     "kiosk": frozenset({"tour"}),
-    "operator": frozenset({"tour", "estop", "command", "drive", "paths", "initial_pose"}),
+    "operator": frozenset({"tour", "estop", "command", "drive", "paths", "initial_pose",
+                           "tours", "data"}),
     "admin": frozenset({"tour", "estop", "command", "drive", "paths", "initial_pose",
-                        "release_any_estop"}),
+                        "tours", "data", "release_any_estop"}),
 }
 PERMISSION_WORDS = {
     "tour": "start and stop tours",
@@ -74,6 +76,8 @@ PERMISSION_WORDS = {
     "drive": "drive by hand",
     "paths": "edit paths",
     "initial_pose": "set the rover's position",
+    "tours": "edit tours and schedules",
+    "data": "download the event log and recordings",
     "release_any_estop": "release another operator's e-stop",
 }
 

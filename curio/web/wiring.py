@@ -13,6 +13,7 @@ import asyncio
 import logging
 import socket
 from collections.abc import Callable
+from pathlib import Path
 
 from aiohttp import web
 
@@ -22,7 +23,9 @@ from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.errors import SetupError
 from curio.core.parts import Part, Parts
+from curio.eventlog.store import EventLog
 from curio.robot import RobotModel
+from curio.tours.wiring import Tours
 from curio.web.hub import Hub
 from curio.web.server import SHUTDOWN_TIMEOUT_S, create_app
 from curio.web.services import HUB, WebServices
@@ -109,15 +112,21 @@ def open_tokens(cfg: Config, clock: Clock) -> TokenStore:
 
 def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
               paths: PathManager, tokens: TokenStore,
-              part_states: Callable[[], dict[str, str]] | None = None) -> WebServer:
+              part_states: Callable[[], dict[str, str]] | None = None,
+              tours: Tours | None = None, eventlog: EventLog | None = None,
+              recordings_dir: Path | None = None) -> WebServer:
     """Construct the dashboard from ``cfg.web`` and register it as a part.
 
     Args:
         tokens: the named tokens (:func:`open_tokens`).
         part_states: the application's task states, for the health panel (optional).
+        tours: the tours subsystem (tour authoring, schedules, the kiosk), or None.
+        eventlog: the event log (the log view, the report, recordings' summaries), or None.
+        recordings_dir: the flight recorder's directory (the recordings list), or None.
     """
     services = WebServices(cfg=cfg, clock=clock, bus=bus, tokens=tokens, robot=robot,
-                           paths=paths, part_states=part_states)
+                           paths=paths, part_states=part_states, tours=tours,
+                           eventlog=eventlog, recordings_dir=recordings_dir)
     server = WebServer(services)
     parts.add(Part("web", run=server.run, close=server.close))
     return server

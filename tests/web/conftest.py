@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import json
-from collections.abc import Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from zoneinfo import ZoneInfo
 
 import aiohttp
+import numpy as np
 import pytest
 from aiohttp import WSMsgType
 from aiohttp.test_utils import TestClient
@@ -16,7 +19,14 @@ from aiohttp.test_utils import TestClient
 from curio.core.bus import Bus
 from curio.core.clock import SimClock
 from curio.core.config import Config
+from curio.core.geometry import Pose2D
+from curio.core.messages import GridMessage
+from curio.core.parts import Parts
+from curio.core.topics import MAP
+from curio.estimation.maps import OccupancyGrid
+from curio.eventlog.store import EventLog
 from curio.robot import RobotModel
+from curio.tours.wiring import Tours, build_tours
 from curio.web.hub import Hub
 from curio.web.server import create_app
 from curio.web.services import HUB, WebServices
@@ -72,6 +82,9 @@ class FakePaths:
 
     def list_paths(self) -> list[FakePath]:
         return [self.paths[i] for i in sorted(self.paths)]
+
+    def ids(self) -> list[int]:
+        return sorted(self.paths)
 
     def get(self, path_id: int) -> FakePath:
         if path_id not in self.paths:
@@ -178,3 +191,80 @@ def make_dash(aiohttp_client: Any, cfg: Config, bus: Bus, tmp_path: Path) -> Mak
         return Dash(client, app[HUB], bus, clock, paths, cfg, tokens)
 
     return make
+
+
+# --- a dashboard on the real tours subsystem, event log and recordings ---------------------------
+
+LONDON = ZoneInfo("Europe/London")
+# Monday 2 June 2025, 09:00 in London: the clock's wall time at now() == 0.
+MONDAY_9 = dt.datetime(2025, 6, 2, 9, 0, tzinfo=LONDON).timestamp()
+
+
+async def ok(resp: Any, status: int = 200) -> Any:
+    """The JSON of a response that must have ``status``."""
+    data = await resp.json()
+    assert resp.status == status, data
+    return data
+
+
+async def refused(resp: Any, status: int, *words: str) -> str:
+    """The error sentence of a response that must be refused with ``status`` and ``words``."""
+    data = await resp.json()
+    assert resp.status == status, data
+    for word in words:
+        assert word in data["error"], data["error"]
+    return str(data["error"])
+
+
+def building() -> OccupancyGrid:
+    """30 m x 20 m from (-5, -5) at 0.1 m: walls all round and a wall block at x 8–9, y 0–5."""
+    data = np.zeros((200, 300), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    data[50:100, 130:140] = 100
+    return OccupancyGrid(data, 0.1, Pose2D(-5.0, -5.0, 0.0), name="building")
+
+
+@dataclass
+class TourDash:
+    """A dashboard on the real tours subsystem and event log."""
+
+    client: TestClient
+    bus: Bus
+    clock: SimClock
+    tours: Tours
+    log: EventLog
+    cfg: Config
+    recordings: Path
+
+
+MakeTourDash = Callable[..., Awaitable[TourDash]]
+
+
+@pytest.fixture
+async def make_tour_dash(aiohttp_client: Any, cfg: Config, bus: Bus, tmp_path: Path
+                         ) -> AsyncIterator[MakeTourDash]:
+    """Build a dashboard with real tours (tree = tour, Europe/London, Monday 09:00), an event
+    log and a recordings directory in ``tmp_path``."""
+    logs: list[EventLog] = []
+
+    async def make(replay: Any = None) -> TourDash:
+        cfg.bt.tree = "tour"
+        cfg.tours.timezone = "Europe/London"
+        clock = SimClock(epoch_wall_s=MONDAY_9)
+        grid = building()
+        bus.publish(MAP, GridMessage(0.0, grid.data, grid.resolution_m, grid.origin))
+        robot = RobotModel.from_config(cfg.robot)
+        tours = build_tours(cfg, bus, clock, Parts(), robot, lambda: grid, FakePaths())
+        log = EventLog(tmp_path / "events.sqlite3")
+        logs.append(log)
+        recordings = tmp_path / "recordings"
+        recordings.mkdir(exist_ok=True)
+        app = create_app(WebServices(
+            cfg=cfg, clock=clock, bus=bus, tokens=make_tokens(tmp_path / "tokens.json"),
+            robot=robot, paths=FakePaths(), tours=tours, eventlog=log,
+            recordings_dir=recordings, replay=replay))
+        return TourDash(await aiohttp_client(app), bus, clock, tours, log, cfg, recordings)
+
+    yield make
+    for log in logs:
+        log.close()
