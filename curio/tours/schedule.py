@@ -150,6 +150,7 @@ class ScheduleStore:
         duration_of: a tour's estimated duration in seconds (legs, dwell, way home).
         tour_problem: why a tour cannot be scheduled (unknown, no stops), or None.
         gap_s: ``tours.schedule_gap_s``.
+        tour_label: how a refusal names a tour (default ``tour 2``).
 
     Raises:
         DataFileError: the file exists but cannot be used (it is left as it is).
@@ -158,8 +159,10 @@ class ScheduleStore:
     def __init__(self, file: Path | None, timezone: ZoneInfo,
                  duration_of: Callable[[int], float],
                  tour_problem: Callable[[int], str | None] = lambda _id: None,
-                 gap_s: float = 300.0) -> None:
+                 gap_s: float = 300.0,
+                 tour_label: Callable[[int], str] = lambda tid: f"tour {tid}") -> None:
         self.tz = timezone
+        self.tour_label = tour_label
         self.duration_of = duration_of
         self.tour_problem = tour_problem
         self.gap_s = gap_s
@@ -307,7 +310,8 @@ class ScheduleStore:
                     where = "this schedule" if sid_a == candidate.id else f"schedule {sid_a}"
                     raise TourError(
                         f"Overlapping schedules: on {DAY_NAMES[WEEKDAYS.index(day)]} the "
-                        f"{t_b} tour {tour_b} would start before the {t_a} tour {tour_a} "
+                        f"{t_b} {self.tour_label(tour_b)} would start before the {t_a} "
+                        f"{self.tour_label(tour_a)} "
                         f"({where}) is over (about {_fmt_minutes(duration(tour_a))} including "
                         f"the way home, plus {_fmt_minutes(self.gap_s)} between tours); "
                         f"start it at {_hhmm(start_a + needed)} or later.")

@@ -96,8 +96,14 @@ def build_tours(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
         except TourError:
             return 0.0
 
+    def label(tour_id: int) -> str:
+        try:
+            return f"tour “{store.get(tour_id).name}”"
+        except TourError:
+            return f"tour {tour_id}"
+
     schedules = ScheduleStore(cfg.data_path(tcfg.schedules_file), tz, duration_of,
-                              store.schedule_problem, tcfg.schedule_gap_s)
+                              store.schedule_problem, tcfg.schedule_gap_s, label)
     service = TourService(store, schedules, bus, clock, tcfg, robot.home, path_points,
                           enabled=cfg.bt.tree == "tour")
 

@@ -180,7 +180,7 @@ async def test_schedules_refuse_overlaps_and_show_the_building_time(
     assert s1["tour"] == "Tour" and s1["days"] == ["mon", "wed"]
     why = await refused(await d.client.post("/api/schedules", json={
         "tour_id": 1, "days": ["weekdays"], "times": ["10:05"]}, headers=OP), 400,
-        "Overlapping schedules", "Monday", "10:00")
+        "Overlapping schedules", "Monday", "10:05 tour “Tour” would start before the 10:00")
     assert "or later" in why
     await refused(await d.client.post("/api/schedules", json={
         "tour_id": 1, "days": ["mon"], "times": ["25:00"]}, headers=OP), 400, "not a time")
