@@ -56,9 +56,9 @@ def add_token(cfg: Config, name: str, role: str = "operator") -> str:
 
 
 @contextlib.asynccontextmanager
-async def running_app(cfg: Config, speed: float = SPEED
+async def running_app(cfg: Config, speed: float = SPEED, epoch_wall_s: float = 1_700_000_000.0
                       ) -> AsyncIterator[tuple[App, SimClock]]:
-    clock = SimClock(speed=speed)
+    clock = SimClock(speed=speed, epoch_wall_s=epoch_wall_s)
     app = App(cfg, clock, web=True)
     await app.start()
     runner = asyncio.create_task(clock.run(), name="sim-clock")
@@ -93,11 +93,13 @@ class Browser:
         SHOTS.mkdir(parents=True, exist_ok=True)
         path = SHOTS / f"{self.viewport}-{name}.png"
         if selector is not None:
+            # window.scrollTo moves the page only (scrollIntoView near the end of a page on a
+            # phone also pans the visual viewport, which cut the sticky header off the shot).
             await self.page.evaluate("""(sel) => {
                 const el = document.querySelector(sel);
-                el.scrollIntoView({block: "start"});
-                const top = document.querySelector('#sticky').getBoundingClientRect().bottom;
-                if (el.getBoundingClientRect().top < top + 4) window.scrollBy(0, -(top + 4));
+                const sticky = document.querySelector('#sticky, #top');
+                const top = sticky ? sticky.getBoundingClientRect().height : 0;
+                window.scrollTo(0, el.getBoundingClientRect().top + window.scrollY - top - 4);
             }""", selector)
         await self.page.screenshot(path=str(path))
         return path

@@ -66,6 +66,7 @@
   }
 
   function onJson(m) {
+    for (const fn of C.listeners[m.t] || []) fn(m);  // other modules (tours, ...) hear it too
     switch (m.t) {
       case "hello":
         S.clientId = m.client; S.who = m.who || S.who; S.requireToken = !!m.require_token;

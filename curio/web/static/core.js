@@ -178,7 +178,12 @@
     }
   }
 
+  // Other modules listen to the rover's messages by type ("event", "tour", "state", ...).
+  const listeners = {};
+  const on = (type, fn) => { (listeners[type] = listeners[type] || []).push(fn); };
+
   window.curio = Object.assign(window.curio || {}, {
+    listeners, on,
     $, S, STALE_AFTER_S, may, mayOffline, ageS, isStale, fmtAge, clockTime, nameOf,
     loadToken, api, showMsg, toast, confirmBox, closeModal, newRequestId, expectAnswer,
     answer, answerAction, command, pending,

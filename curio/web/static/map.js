@@ -11,6 +11,10 @@
   const canvas = $("map");
   const ctx = canvas.getContext("2d");
   const view = { cx: 0, cy: 0, scale: 60, fitted: false, zoomedOnRover: false, dirty: true };
+  // Other modules add map tools ({hint, hit(sx, sy), onAction(kind, x, y, yaw, index)}) and
+  // layers ((ctx, kit) => draw) here before the page starts.
+  C.mapTools = C.mapTools || {};
+  C.mapLayers = C.mapLayers || [];
   let W = 0, H = 0, dpr = 1;
   let tool = "look";
   let measure = null;  // {ax, ay, bx, by} in map
@@ -349,14 +353,7 @@
     if ($("showGrid").checked) drawGridLines();
     drawPaths();
     if (S.robot && S.robot.home) drawMarker(S.robot.home[0], S.robot.home[1], "#7c3aed", "⌂", 11);
-    if (S.robot && S.robot.tree === "tour") {
-      (S.robot.tour_stops || []).forEach((t, i) => {
-        drawMarker(t.x_m, t.y_m, "#0f766e", String(i + 1), 10);
-        const [sx, sy] = toScreen(t.x_m, t.y_m);
-        ctx.font = "bold 12px system-ui, sans-serif"; ctx.fillStyle = "#0f766e";
-        ctx.fillText(t.name, sx + 13, sy + 4);
-      });
-    }
+    for (const layer of C.mapLayers) layer(ctx, drawKit);  // other modules' layers (tours, ...)
     const staleData = !S.connected;
     if ($("showTrail").checked && S.trail.length > 3) polyline(S.trail, staleData ? "rgba(107,114,128,.5)" : "rgba(29,78,216,.45)", 3);
     polyline(S.plan, staleData ? "rgba(107,114,128,.7)" : "#16a34a", 3);
@@ -390,6 +387,9 @@
     drawScaleBar();
   }
   function frame() { draw(); requestAnimationFrame(frame); }
+  // What other modules' layers may draw with (they are called after the paths, before the rover).
+  const drawKit = { toScreen, drawMarker, drawHeading, polyline,
+    get drag() { return dragState; }, get width() { return W; } };
 
   // ----- tools and pointer input ------------------------------------------------------------------------
   const HINTS = {
@@ -403,7 +403,9 @@
     tool = t;
     for (const b of document.querySelectorAll(".tool")) b.classList.toggle("active", b.dataset.tool === t);
     const hint = $("toolHint");
-    hint.textContent = HINTS[t];
+    const extra = C.mapTools[t];
+    hint.textContent = extra ? extra.hint : HINTS[t];
+    if (extra && extra.onSelect) extra.onSelect();
     hint.classList.remove("faded");
     clearTimeout(setTool.fade);
     setTool.fade = setTimeout(() => hint.classList.add("faded"), 6000);
@@ -462,6 +464,9 @@
       else if ((index = hitLeg(sx, sy)) !== null) kind = "insert";
     }
     if (kind === "arrow" && tool === "measure") kind = "measure";
+    const extra = C.mapTools[tool];  // another module's tool: it says what was pressed
+    const hit = kind === "arrow" && extra && extra.hit ? extra.hit(sx, sy) : null;
+    if (hit) { kind = hit.kind; index = hit.index; }
     dragState = { kind, index, sx0: sx, sy0: sy, sx, sy, wx0: wx, wy0: wy, wx, wy, cx: view.cx, cy: view.cy };
     if (kind === "measure") measure = { ax: wx, ay: wy, bx: wx, by: wy };
   });
@@ -494,9 +499,10 @@
     if (!dragState) return;
     const d = dragState; dragState = null; view.dirty = true;
     if (ev.type === "pointercancel" || d.kind === "pan" || d.kind === "measure") return;
-    const moved = Math.hypot(d.sx - d.sx0, d.sy - d.sy0) > (d.kind === "wp" ? 4 : 12);
-    const [wx, wy] = d.kind === "wp" ? [d.wx, d.wy] : [d.wx0, d.wy0];
-    if (d.kind === "wp" && !moved) return;
+    const dragged = d.kind === "wp" || d.kind === "stop";  // a marker moved by dragging
+    const moved = Math.hypot(d.sx - d.sx0, d.sy - d.sy0) > (dragged ? 4 : 12);
+    const [wx, wy] = dragged ? [d.wx, d.wy] : [d.wx0, d.wy0];
+    if (dragged && !moved) { if (d.kind === "stop") onMapAction("select", wx, wy, null, d.index); return; }
     if (!onMap(wx, wy)) {
       C.toast("That point is off the map (" + describeBounds() + "); nothing was sent.", true);
       return;
@@ -525,6 +531,8 @@
       else C.addWaypoint(r3(x), r3(y), yaw === null ? null : r3(yaw), kind === "insert" ? index : null);
     } else if (tool === "pose") {
       C.setPose(r3(x), r3(y), r3(yaw === null ? 0 : yaw));
+    } else if (C.mapTools[tool]) {
+      C.mapTools[tool].onAction(kind, r3(x), r3(y), yaw === null ? null : r3(yaw), index);
     }
   }
 

@@ -585,6 +585,6 @@
   $("treeCard").addEventListener("toggle", renderTree);
   $("healthCard").addEventListener("toggle", renderHealth);
 
-  Object.assign(C, { renderStatus, renderHelp, renderProgress, renderChips, renderPaths, renderWaypoints,
+  Object.assign(C, { EVENT_TEXT, renderStatus, renderHelp, renderProgress, renderChips, renderPaths, renderWaypoints,
     renderHealth, renderTree, addEvent, editPath, addWaypoint, moveWaypoint, setPose, renderEstop });
 })();
