@@ -110,25 +110,42 @@ def _from_scan(path: Path) -> RecordingInfo:
                          count, False, dict(events), summarize(events))
 
 
-def recording_info(path: Path) -> RecordingInfo:
-    """One recording's summary (from its summary record, or a scan of a file cut short).
+def _from_head(path: Path) -> RecordingInfo:
+    """An unfinished file without reading it all: its first message's time, and its length
+    until it was last written (the file's modification time)."""
+    first = next(iter(open_recording(path).messages()), None)
+    if first is None:
+        return RecordingInfo(path.name, 0.0, 0.0, path.stat().st_size, 0, False, {},
+                             "no messages yet")
+    stat = path.stat()
+    start = first.log_ns / 1e9
+    return RecordingInfo(path.name, start, max(0.0, stat.st_mtime - start), stat.st_size, 0,
+                         False, {}, "not read through (still being written or cut short)")
+
+
+def recording_info(path: Path, scan: bool = True) -> RecordingInfo:
+    """One recording's summary: from its summary record, or for a file without one (being
+    written, or cut short by a crash) a scan of it all (``scan``) or of its start only.
 
     Raises:
         RecordingError, OSError: the file cannot be read as a recording.
     """
     info = _from_summary(path) if _complete(path) else None
-    return info if info is not None else _from_scan(path)
+    if info is not None:
+        return info
+    return _from_scan(path) if scan else _from_head(path)
 
 
-def list_recordings(directory: Path) -> list[RecordingInfo]:
+def list_recordings(directory: Path, scan: bool = True) -> list[RecordingInfo]:
     """Every recording in ``directory`` (``*.mcap``), newest first; unreadable files are left
-    out (they are not Curio's)."""
+    out (they are not Curio's). ``scan=False`` reads only the start of unfinished files (the
+    one being written may be tens of megabytes)."""
     if not directory.is_dir():
         return []
     out: list[RecordingInfo] = []
     for path in directory.glob("*.mcap"):
         try:
-            out.append(recording_info(path))
+            out.append(recording_info(path, scan))
         except (RecordingError, OSError):
             continue
     out.sort(key=lambda r: (r.start_s, r.name), reverse=True)

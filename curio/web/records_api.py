@@ -71,7 +71,7 @@ def _directory(request: web.Request) -> Path:
 
 def _listing(directory: Path, log: EventLog | None, tz: ZoneInfo) -> list[dict[str, Any]]:
     rows = []
-    for i, info in enumerate(list_recordings(directory)):
+    for i, info in enumerate(list_recordings(directory, scan=False)):
         row = info.as_dict()
         row["start_local"] = local_time(info.start_s, tz) if info.start_s else ""
         row["log"] = happened(log, info.start_s, info.start_s + info.duration_s) \
