@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import struct
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +22,8 @@ from typing import Any
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.stream_reader import StreamReader
 
 from curio.core.errors import SetupError
 from curio.record.reader import MAGIC, RecordingError, open_recording
@@ -110,17 +113,24 @@ def _from_scan(path: Path) -> RecordingInfo:
                          count, False, dict(events), summarize(events))
 
 
-def _from_head(path: Path) -> RecordingInfo:
-    """An unfinished file without reading it all: its first message's time, and its length
-    until it was last written (the file's modification time)."""
-    first = next(iter(open_recording(path).messages()), None)
-    if first is None:
-        return RecordingInfo(path.name, 0.0, 0.0, path.stat().st_size, 0, False, {},
-                             "no messages yet")
-    stat = path.stat()
-    start = first.log_ns / 1e9
-    return RecordingInfo(path.name, start, max(0.0, stat.st_mtime - start), stat.st_size, 0,
-                         False, {}, "not read through (still being written or cut short)")
+def _from_chunks(path: Path) -> RecordingInfo:
+    """An unfinished file without decompressing it: its span from the chunks' headers (what
+    the recorder has flushed so far)."""
+    open_recording(path)  # a clear error for what is not a recording
+    start = end = None
+    with path.open("rb") as fh:
+        records = StreamReader(fh, emit_chunks=True, record_size_limit=1 << 30).records
+        with contextlib.suppress(McapError, struct.error, ValueError, EOFError):
+            for rec in records:
+                if isinstance(rec, Chunk) and rec.message_end_time:
+                    start = rec.message_start_time if start is None else \
+                        min(start, rec.message_start_time)
+                    end = rec.message_end_time if end is None else max(end, rec.message_end_time)
+    size = path.stat().st_size
+    if start is None or end is None:
+        return RecordingInfo(path.name, 0.0, 0.0, size, 0, False, {}, "no messages yet")
+    return RecordingInfo(path.name, start / 1e9, (end - start) / 1e9, size, 0, False, {},
+                         "not read through (still being written or cut short)")
 
 
 def recording_info(path: Path, scan: bool = True) -> RecordingInfo:
@@ -133,7 +143,7 @@ def recording_info(path: Path, scan: bool = True) -> RecordingInfo:
     info = _from_summary(path) if _complete(path) else None
     if info is not None:
         return info
-    return _from_scan(path) if scan else _from_head(path)
+    return _from_scan(path) if scan else _from_chunks(path)
 
 
 def list_recordings(directory: Path, scan: bool = True) -> list[RecordingInfo]:

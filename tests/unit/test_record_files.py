@@ -135,3 +135,19 @@ def test_open_recording_names_the_problem(tmp_path: Path) -> None:
                       (tmp_path / "text.mcap", "not an MCAP file"), (tmp_path, "directory")):
         with pytest.raises(RecordingError, match=why):
             open_recording(path)
+
+
+def test_an_unfinished_file_is_listed_from_its_chunks_without_reading_it_through(
+        tmp_path: Path) -> None:
+    s = sink(tmp_path)
+    for i in range(100):
+        s.write(SCAN, (5 + i) * S, i * S, i, payload(i))
+        if i in (29, 59):
+            s.flush()  # two chunks on disk; the file is still open (being written)
+    (info,) = list_recordings(tmp_path, scan=False)
+    assert not info.complete and info.messages == 0  # not counted: nothing was decompressed
+    assert (info.start_s, info.duration_s) == pytest.approx((5.0, 59.0))
+    assert "not read through" in info.summary
+    (scanned,) = list_recordings(tmp_path)  # read through: the same span, counted
+    assert scanned.messages == 60 and scanned.duration_s == pytest.approx(59.0)
+    s.close()
