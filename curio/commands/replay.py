@@ -237,7 +237,8 @@ def _attach_timeline(timeline: ReplayTimeline, web: Any, clock: SimClock) -> Non
     web.services.replay = timeline
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError):
+        # not on every platform's loop, nor outside the main thread (a test runs it in one)
+        with contextlib.suppress(NotImplementedError, ValueError, RuntimeError):
             loop.add_signal_handler(sig, timeline.finish)
 
 

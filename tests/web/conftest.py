@@ -25,6 +25,8 @@ from curio.core.parts import Parts
 from curio.core.topics import MAP
 from curio.estimation.maps import OccupancyGrid
 from curio.eventlog.store import EventLog
+from curio.record.codec import Codec
+from curio.record.mcap_sink import McapSink
 from curio.robot import RobotModel
 from curio.tours.wiring import Tours, build_tours
 from curio.web.hub import Hub
@@ -268,3 +270,43 @@ async def make_tour_dash(aiohttp_client: Any, cfg: Config, bus: Bus, tmp_path: P
     yield make
     for log in logs:
         log.close()
+
+
+# --- data for the log, report and recordings pages ---------------------------------------------
+
+
+def at(hhmm: str, day: int = 2) -> float:
+    """UNIX seconds of June ``day`` 2025, ``hhmm`` in London."""
+    h, m = (int(v) for v in hhmm.split(":"))
+    return dt.datetime(2025, 6, day, h, m, tzinfo=LONDON).timestamp()
+
+
+def fill_log(log: EventLog) -> None:
+    """Two days of a museum's records (1 and 2 June 2025)."""
+    for day in (1, 2):
+        log.append("tour.started", {"tour": "Highlights", "source": "kiosk:lobby", "stops": 2},
+                   wall_s=at("10:00", day), source="kiosk:lobby")
+        log.append("tour.stop", {"name": "Lobby"}, wall_s=at("10:02", day))
+        log.append("tour.finished", {"stops_reached": 2, "stops": 2, "duration_s": 600},
+                   wall_s=at("10:10", day))
+    log.append("help.requested", {"message": "the door is shut"}, wall_s=at("11:00"))
+    log.append("help.resolved", {"waited_s": 42.0}, wall_s=at("11:00") + 42)
+    log.append("tour.skipped", {"tour": "North wing", "reason": "the battery is low",
+                                "due": "2025-06-02T13:00"}, wall_s=at("13:00"))
+    log.append("operator.go_home", {"request_id": "r1"}, wall_s=at("12:00"), source="web:alice")
+    assert log.flush()
+
+
+def write_recording(directory: Path, start: float, events: list[str]) -> str:
+    """A small complete recording starting at UNIX ``start`` with these /events kinds."""
+    codec = Codec(start)
+    sink = McapSink(directory=directory, file=None, started_wall_s=start,
+                    metadata={"format": "curio-recording"}, max_file_bytes=10**9,
+                    max_file_s=1e9, max_total_bytes=10**10)
+    spec = codec.spec("/events")
+    for i, kind in enumerate(events):
+        ns = int((start + 60.0 * i) * 1e9)
+        sink.write(spec, ns, ns, i, json.dumps({"stamp": i, "kind": kind,
+                                                "detail": {}}).encode())
+    sink.close()
+    return sink.files[0].name

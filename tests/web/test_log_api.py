@@ -4,55 +4,29 @@
 from __future__ import annotations
 
 import csv
-import datetime as dt
 import io
-import json
 
 from curio.core.clock import SimClock
-from curio.record.codec import Codec
-from curio.record.mcap_sink import McapSink
 from curio.record.timeline import ReplayTimeline
 from tests.web.conftest import (
     ALICE,
-    LONDON,
     TOKEN,
     MakeTourDash,
-    TourDash,
+    at,
     bearer,
+    fill_log,
     ok,
     refused,
+    write_recording,
 )
 
 OP = bearer(ALICE)
 
 
-def at(hhmm: str, day: int = 2) -> float:
-    """UNIX seconds of June ``day`` 2025, ``hhmm`` in London."""
-    h, m = (int(v) for v in hhmm.split(":"))
-    return dt.datetime(2025, 6, day, h, m, tzinfo=LONDON).timestamp()
-
-
-def fill(d: TourDash) -> None:
-    """Two days of a museum's records."""
-    log = d.log
-    for day in (1, 2):
-        log.append("tour.started", {"tour": "Highlights", "source": "kiosk:lobby"},
-                   wall_s=at("10:00", day), source="kiosk:lobby")
-        log.append("tour.stop", {"name": "Lobby"}, wall_s=at("10:02", day))
-        log.append("tour.finished", {"stops_reached": 2, "stops": 2, "duration_s": 600},
-                   wall_s=at("10:10", day))
-    log.append("help.requested", {"message": "the door is shut"}, wall_s=at("11:00"))
-    log.append("help.resolved", {"waited_s": 42.0}, wall_s=at("11:00") + 42)
-    log.append("tour.skipped", {"tour": "North wing", "reason": "the battery is low",
-                                "due": "2025-06-02T13:00"}, wall_s=at("13:00"))
-    log.append("operator.go_home", {"request_id": "r1"}, wall_s=at("12:00"), source="web:alice")
-    assert log.flush()
-
-
 async def test_events_are_filtered_paged_and_in_the_buildings_time(
         make_tour_dash: MakeTourDash) -> None:
     d = await make_tour_dash()
-    fill(d)
+    fill_log(d.log)
     page = await ok(await d.client.get("/api/events?limit=3"))
     assert page["total"] == 10 and len(page["records"]) == 3
     assert page["records"][0]["kind"] == "tour.skipped"  # newest first
@@ -78,7 +52,7 @@ async def test_events_are_filtered_paged_and_in_the_buildings_time(
 async def test_csv_export_needs_an_operator_and_holds_every_match(
         make_tour_dash: MakeTourDash) -> None:
     d = await make_tour_dash()
-    fill(d)
+    fill_log(d.log)
     await refused(await d.client.get("/api/events.csv"), 401, "download the event log")
     resp = await d.client.get("/api/events.csv?kind=tour.started,help.", headers=OP)
     assert resp.status == 200 and resp.headers["Content-Type"].startswith("text/csv")
@@ -95,7 +69,7 @@ async def test_csv_export_is_streamed_in_chunks(make_tour_dash: MakeTourDash,
     import curio.web.log_api as log_api
 
     d = await make_tour_dash()
-    fill(d)
+    fill_log(d.log)
     monkeypatch.setattr(log_api, "CSV_CHUNK", 3)  # type: ignore[attr-defined]
     text = await (await d.client.get("/api/events.csv", headers=OP)).text()
     rows = list(csv.reader(io.StringIO(text)))
@@ -105,7 +79,7 @@ async def test_csv_export_is_streamed_in_chunks(make_tour_dash: MakeTourDash,
 
 async def test_daily_report_and_the_days_for_the_plots(make_tour_dash: MakeTourDash) -> None:
     d = await make_tour_dash()
-    fill(d)
+    fill_log(d.log)
     today = await ok(await d.client.get("/api/report"))  # the clock says 2 June
     assert today["day"] == "2025-06-02" and today["tours_completed"] == 1
     assert today["help_median_wait_s"] == 42.0 and today["tours_skipped"] == 1
@@ -121,25 +95,11 @@ async def test_daily_report_and_the_days_for_the_plots(make_tour_dash: MakeTourD
                   "is after")
 
 
-def record(directory: object, start: float, events: list[str]) -> str:
-    """A small complete recording starting at UNIX ``start`` with these /events kinds."""
-    codec = Codec(start)
-    sink = McapSink(directory=directory, file=None, started_wall_s=start,  # type: ignore[arg-type]
-                    metadata={"format": "curio-recording"}, max_file_bytes=10**9,
-                    max_file_s=1e9, max_total_bytes=10**10)
-    spec = codec.spec("/events")
-    for i, kind in enumerate(events):
-        ns = int((start + 60.0 * i) * 1e9)
-        sink.write(spec, ns, ns, i, json.dumps({"stamp": i, "kind": kind,
-                                                "detail": {}}).encode())
-    sink.close()
-    return sink.files[0].name
-
-
 async def test_recordings_list_what_happened_and_download(make_tour_dash: MakeTourDash) -> None:
     d = await make_tour_dash()
-    fill(d)
-    name = record(d.recordings, at("09:59"), ["nav.goal_succeeded", "collision", "path.finished"])
+    fill_log(d.log)
+    name = write_recording(d.recordings, at("09:59"),
+                           ["nav.goal_succeeded", "collision", "path.finished"])
     listing = await ok(await d.client.get("/api/recordings"))
     (rec,) = listing["recordings"]
     assert rec["name"] == name and rec["complete"] and rec["duration_s"] == 120.0

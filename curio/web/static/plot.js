@@ -29,8 +29,8 @@
     let top = niceMax(Math.max(0, ...(spec.stacked ? totals : spec.series.flatMap((s) => s.values.map((v) => v || 0)))));
     if (spec.integer) top = Math.max(4, Math.ceil(top / 4) * 4);  // counts: whole ticks
     const tick = (k) => { const v = top * k / 4; return (Number.isInteger(v) ? String(v) : v.toFixed(1)) + (k === 4 && spec.unit ? " " + spec.unit : ""); };
-    const labelW = Math.max(...[0, 1, 2, 3, 4].map((k) => ctx.measureText(tick(k)).width));
-    const left = 8 + labelW + 6, right = 8, legendH = 22, bottom = 24;
+    const tickW = Math.max(...[0, 1, 2, 3, 4].map((k) => ctx.measureText(tick(k)).width));
+    const left = 8 + tickW + 6, right = 8, legendH = 22, bottom = 24;
     const plotW = Math.max(10, w - left - right), plotH = Math.max(10, h - legendH - bottom - 6);
     const y0 = legendH + plotH;
     // axis and grid
@@ -43,7 +43,9 @@
     }
     // bars
     const slot = plotW / Math.max(1, n), barW = Math.max(2, Math.min(40, slot * 0.7));
-    const every = Math.max(1, Math.ceil(n / Math.max(1, Math.floor(plotW / 44))));
+    const dayW = Math.max(...spec.labels.map((l) => ctx.measureText(l).width), 1) + 8;
+    const every = Math.max(1, Math.ceil(n / Math.max(1, Math.floor(plotW / dayW))));
+    let lastLabelX = -Infinity;
     ctx.textAlign = "center"; ctx.textBaseline = "top";
     for (let i = 0; i < n; i++) {
       const cx = left + slot * (i + 0.5);
@@ -64,9 +66,10 @@
         if (spec.stacked) base -= bh;
       }
       if (!any) { ctx.fillStyle = "#cbd5e1"; ctx.fillRect(cx - barW / 4, y0 - 2, barW / 2, 2); }
-      if (i % every === 0 || i === n - 1) {
+      if ((i % every === 0 || i === n - 1) && cx - lastLabelX >= dayW) {  // never overlapping
         ctx.fillStyle = "#6b7280";
         ctx.fillText(spec.labels[i], cx, y0 + 5);
+        lastLabelX = cx;
       }
     }
     ctx.strokeStyle = "#9ca3af";

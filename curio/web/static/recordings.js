@@ -45,7 +45,7 @@
       const rp = document.createElement("button");
       rp.type = "button"; rp.textContent = "Replay…";
       rp.addEventListener("click", () => showReplay(r));
-      act.append(dl, " ", rp);
+      act.append(dl, rp);
     }
     if (!rows.length) {
       const td = tb.insertRow().insertCell();
@@ -65,15 +65,41 @@
     why.textContent = "A replay runs the recording through estimation, navigation and the behaviour tree again, and shows it on a dashboard of its own " +
       "with a timeline to pause and seek. It is not started from this page: it re-runs the whole stack, which would compete with the live rover for its " +
       "processor while it may be driving visitors around. Run it on a laptop (download the file first):";
-    const c1 = document.createElement("code"); c1.textContent = r.replay.laptop;
+    const code = (text) => {  // a command, and a button that copies it
+      const c = document.createElement("code");
+      c.textContent = text;
+      const b = document.createElement("button");
+      b.type = "button"; b.className = "copy"; b.textContent = "Copy";
+      b.addEventListener("click", () => copy(c, b));
+      const wrap = document.createElement("div");
+      wrap.className = "cmd";
+      wrap.append(c, b);
+      return wrap;
+    };
+    const c1 = code(r.replay.laptop);
     const also = document.createElement("p");
     also.textContent = "or on the rover over ssh, only while it is parked (another port, so this dashboard stays up):";
-    const c2 = document.createElement("code"); c2.textContent = r.replay.rover;
+    const c2 = code(r.replay.rover);
     const end = document.createElement("p");
     end.textContent = "The command prints a link to its dashboard, and at the end a report of where the new run differs from the recording.";
     box.append(h, why, c1, also, c2, end);
     box.classList.remove("hidden");
     box.scrollIntoView({ block: "nearest" });
+  }
+
+  async function copy(el, button) {
+    const text = el.textContent;
+    let done = false;
+    try { if (navigator.clipboard) { await navigator.clipboard.writeText(text); done = true; } } catch (e) { /* not a secure page */ }
+    if (!done) {  // plain http on the rover's network: select it and copy the old way
+      const range = document.createRange();
+      range.selectNodeContents(el);
+      const sel = window.getSelection();
+      sel.removeAllRanges(); sel.addRange(range);
+      try { done = document.execCommand("copy"); } catch (e) { done = false; }
+    }
+    button.textContent = done ? "Copied" : "Selected: copy it";
+    setTimeout(() => { button.textContent = "Copy"; }, 3000);
   }
 
   async function load() {

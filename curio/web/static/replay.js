@@ -64,7 +64,7 @@
     $("replayTime").textContent = mmss(st.position_s) + " / " + mmss(st.end_s) + (st.at_end ? " · end" : "") +
       (st.seeking_to_s !== null && st.seeking_to_s !== undefined ? " · seeking to " + mmss(st.seeking_to_s) : "");
     $("replayPlay").textContent = st.paused ? "▶" : "❚❚";
-    $("replayPlay").disabled = st.at_end;
+
     const sel = $("replaySpeed");
     if (!sel.options.length) {
       for (const v of st.speeds) {
@@ -75,7 +75,9 @@
       }
     }
     if (document.activeElement !== sel) sel.value = st.speed === null ? "max" : String(st.speed);
-    for (const id of ["replayPlay", "replaySeek", "replaySpeed", "replayFinish"]) if (!C.may("command")) $(id).disabled = true;
+    const may = C.may("command");  // a token that may send commands; not while offline
+    for (const id of ["replaySeek", "replaySpeed", "replayFinish"]) $(id).disabled = !may;
+    $("replayPlay").disabled = !may || st.at_end;
     bar.title = "Replay of " + st.file;
     if (st.restarts !== restarts) {  // a new run: what the map drew before is another run's
       restarts = st.restarts;
@@ -87,6 +89,7 @@
   async function poll() {
     try {
       const st = await C.api("GET", "/api/replay");
+      C.replayPolls = (C.replayPolls || 0) + 1;
       if (!st.active) { clearInterval(timer); return; }
       show(st);
     } catch (e) { /* offline while the replay restarts: the next poll finds it again */ }
