@@ -4,7 +4,11 @@ RViz and rqt_py_trees), working on a phone, a tablet or a laptop with no interne
 * :mod:`curio.web.server` — ``create_app(services)``: the aiohttp application (middleware,
   page, WebSocket endpoint, background tasks) and its route table.
 * :mod:`curio.web.api` — REST endpoints (state, grids as PNG, paths, commands) as module-level
-  handlers and their ``ROUTES``.
+  handlers and their ``ROUTES``; :mod:`curio.web.tours_api` (tours, schedules, the running
+  tour), :mod:`curio.web.log_api` (the event log, the daily report), :mod:`curio.web.records_api`
+  (recordings, the replay's timeline) likewise, with :mod:`curio.web.apikit` for what they share.
+* :mod:`curio.web.pages` — the other pages: ``/kiosk``, ``/events``, ``/report``,
+  ``/recordings``.
 * :mod:`curio.web.services` — ``WebServices`` and the typed app keys the handlers read.
 * :mod:`curio.web.hub` — the hub: one bus subscription per topic, fanned out to every client;
   the latched state a new client starts from.
@@ -22,7 +26,11 @@ RViz and rqt_py_trees), working on a phone, a tablet or a laptop with no interne
 * :mod:`curio.web.system` — CPU, temperature and event-loop lag for the health panel.
 * :mod:`curio.web.wiring` — ``build_web(...)``: the server as a Part, with its control URL.
 * ``static/`` — ``index.html``, ``core.js``, ``map.js``, ``panels.js``, ``drive.js``,
-  ``app.js``, ``style.css``: hand-written, no CDN, no build step.
+  ``tours.js``, ``schedule.js``, ``replay.js``, ``app.js``, ``style.css``; the other pages
+  (``kiosk``, ``events``, ``report``, ``recordings``: ``.html`` and ``.js``, ``pagekit.js``,
+  ``plot.js``, ``pages.css``): hand-written, no CDN, no build step. Modules add map tools and
+  layers (``curio.mapTools``, ``curio.mapLayers``) and listen to the rover's messages
+  (``curio.on(type, fn)``) without editing the shared files.
 
 Security: viewing is open; everything else needs a named token whose role allows it
 (:mod:`curio.web.tokens`: kiosk, operator, admin), kept in ``<data_dir>/<web.tokens_file>``

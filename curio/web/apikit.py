@@ -10,7 +10,7 @@ dates typed by people.
 from __future__ import annotations
 
 import datetime as dt
-from typing import Any
+from typing import Any, TypeVar
 from zoneinfo import ZoneInfo
 
 from aiohttp import web
@@ -19,8 +19,10 @@ from curio.core.jsonable import to_json
 from curio.web.inputs import http_error, parse_json_object
 from curio.web.services import SERVICES
 
-__all__ = ["building_zone", "json_ok", "local_time", "optional_int", "read_body",
+__all__ = ["building_zone", "json_ok", "local_time", "optional_int", "present", "read_body",
            "whole_number"]
+
+T = TypeVar("T")
 
 
 async def read_body(request: web.Request) -> dict[str, Any]:
@@ -61,3 +63,10 @@ def local_time(wall_s: float, tz: ZoneInfo) -> str:
 def json_ok(data: Any, status: int = 200) -> web.Response:
     """A JSON response through the project's encoder (dataclasses, numpy, NaN as null)."""
     return web.json_response(data, status=status, dumps=to_json)
+
+
+def present(value: T | None, why: str) -> T:
+    """``value``, or 503 saying ``why`` this rover has no such thing (a part that is off)."""
+    if value is None:
+        raise http_error(web.HTTPServiceUnavailable, why)
+    return value

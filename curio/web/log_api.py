@@ -29,7 +29,7 @@ from aiohttp import web
 
 from curio.eventlog.report import daily_report
 from curio.eventlog.store import EventLog, LogQuery
-from curio.web.apikit import building_zone, json_ok, local_time, whole_number
+from curio.web.apikit import building_zone, json_ok, local_time, present, whole_number
 from curio.web.inputs import http_error
 from curio.web.services import GATE, SERVICES
 
@@ -46,11 +46,8 @@ DAY_FIELDS = ("tours_started", "tours_completed", "tours_stopped", "tours_skippe
 
 
 def _log(request: web.Request) -> EventLog:
-    log = request.app[SERVICES].eventlog
-    if log is None:
-        raise http_error(web.HTTPServiceUnavailable,
-                         "the event log is off (eventlog.enabled = false in the config)")
-    return log
+    return present(request.app[SERVICES].eventlog,
+                   "the event log is off (eventlog.enabled = false in the config)")
 
 
 def parse_local_time(text: str, tz: ZoneInfo, what: str) -> float:

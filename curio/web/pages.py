@@ -23,10 +23,20 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 PAGES = ("kiosk", "events", "report", "recordings")
 
 
+# What every page's <head> holds ({{HEAD}} in the files): no referrer, no favicon request, the
+# dashboard's styles and the pages' own.
+HEAD = """<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1, viewport-fit=cover">
+<meta name="referrer" content="no-referrer">
+<link rel="icon" href="data:,">
+<link rel="stylesheet" href="/static/style.css?v={{VERSION}}">
+<link rel="stylesheet" href="/static/pages.css?v={{VERSION}}">"""
+
+
 async def page(request: web.Request) -> web.Response:
-    """One of :data:`PAGES`, with the static files' version in its URLs."""
+    """One of :data:`PAGES`, with the common head and the static files' version in its URLs."""
     name = request.path.strip("/")
-    html = (STATIC_DIR / f"{name}.html").read_text(encoding="utf-8")
+    html = (STATIC_DIR / f"{name}.html").read_text(encoding="utf-8").replace("{{HEAD}}", HEAD)
     return web.Response(text=html.replace("{{VERSION}}", request.app[STATIC_VERSION]),
                         content_type="text/html", headers={"Cache-Control": "no-cache"})
 

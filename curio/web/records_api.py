@@ -37,7 +37,7 @@ from aiohttp import web
 from curio.core.errors import SetupError
 from curio.eventlog.store import EventLog, LogQuery
 from curio.record.library import list_recordings, resolve_download
-from curio.web.apikit import building_zone, json_ok, local_time, read_body
+from curio.web.apikit import building_zone, json_ok, local_time, present, read_body
 from curio.web.inputs import http_error
 from curio.web.services import GATE, SERVICES
 
@@ -62,11 +62,8 @@ def happened(log: EventLog, since_s: float, until_s: float) -> dict[str, Any]:
 
 
 def _directory(request: web.Request) -> Path:
-    directory = request.app[SERVICES].recordings_dir
-    if directory is None:
-        raise http_error(web.HTTPServiceUnavailable,
-                         "the flight recorder is off (record.enabled = false in the config)")
-    return directory
+    return present(request.app[SERVICES].recordings_dir,
+                   "the flight recorder is off (record.enabled = false in the config)")
 
 
 def _listing(directory: Path, log: EventLog | None, tz: ZoneInfo) -> list[dict[str, Any]]:

@@ -8,7 +8,9 @@ Thin module-level handlers over the services stored on the application
 Routes: ``/`` (the page), ``/static/...`` (hand-written JS and CSS, no CDN), ``/ws`` (the
 WebSocket; a token as the subprotocol ``curio.token.<token>`` (next to ``curio.v1``), a header
 or ``?token=`` names the operator; the messages are described in :mod:`curio.web.session`),
-``/api/...`` (REST, see :mod:`curio.web.api`).
+``/api/...`` (REST, see :mod:`curio.web.api`, :mod:`curio.web.tours_api`,
+:mod:`curio.web.log_api`, :mod:`curio.web.records_api`), ``/kiosk``, ``/events``, ``/report``,
+``/recordings`` (:mod:`curio.web.pages`).
 
 Every response carries security headers (:data:`SECURITY_HEADERS`: a Content-Security-Policy
 with ``frame-ancestors 'none'``, ``nosniff``, ``Referrer-Policy: no-referrer``); every request

@@ -49,6 +49,7 @@ from curio.web.apikit import (
     json_ok,
     local_time,
     optional_int,
+    present,
     read_body,
     whole_number,
 )
@@ -63,11 +64,8 @@ _NOT_FIELDS = ("revision",)
 
 
 def _tours(request: web.Request) -> Tours:
-    tours = request.app[SERVICES].tours
-    if tours is None:
-        raise http_error(web.HTTPServiceUnavailable,
-                         "tours are not available in this application (no tour store)")
-    return tours
+    return present(request.app[SERVICES].tours,
+                   "tours are not available in this application (no tour store)")
 
 
 def _editor(request: web.Request) -> tuple[Tours, Identity]:

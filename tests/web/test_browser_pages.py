@@ -20,14 +20,7 @@ from curio.commands.replay import main as replay_main
 from curio.core.clock import SimClock
 from curio.core.geometry import Pose2D
 from curio.eventlog.store import EventLog
-from tests.web.browser_kit import (
-    add_token,
-    browser_on,
-    chromium,
-    make_cfg,
-    open_page,
-    running_app,
-)
+from tests.web import browser_kit as kit
 from tests.web.conftest import at, fill_log, write_recording
 
 pytestmark = [pytest.mark.browser]
@@ -45,18 +38,18 @@ PIXELS = """([id, r, g, b]) => {
 async def test_event_log_report_and_recordings_pages(tmp_path: Path, viewport: str) -> None:
     """Two days of records and a recording made before the App starts. Drives: the event log
     (SQLite, the recorder part), the daily report, the recordings list; the web pages."""
-    cfg = make_cfg(tmp_path / "data", 'tours.timezone="Europe/London"')
+    cfg = kit.make_cfg(tmp_path / "data", 'tours.timezone="Europe/London"')
     log = EventLog(cfg.data_path(cfg.eventlog.file))
     fill_log(log)
     log.close()
     recordings = cfg.data_path("recordings")
     recordings.mkdir(parents=True)
     name = write_recording(recordings, at("09:59"), ["nav.goal_succeeded", "collision", "x"])
-    token = add_token(cfg, "alice")
-    async with running_app(cfg, epoch_wall_s=at("17:00")) as (app, _clock):
+    token = kit.add_token(cfg, "alice")
+    async with kit.running_app(cfg, epoch_wall_s=at("17:00")) as (app, _clock):
         base = (app.web_url or "").split("?")[0]
-        async with chromium() as browser:
-            b = await open_page(browser, base + f"events?token={token}", viewport,
+        async with kit.chromium() as browser:
+            b = await kit.open_page(browser, base + f"events?token={token}", viewport,
                                 connected=False)
             page = b.page
             await b.wait_js("document.querySelectorAll('#log tbody tr[data-kind]').length > 5")
@@ -106,13 +99,13 @@ class _Lines(io.StringIO):
     """The replay command's output, read by the test while the command runs."""
 
 
-async def test_replay_timeline_pauses_and_seeks(tmp_path: Path, viewport: str) -> None:
+async def test_replay_timeline_pauses_and_seeks(tmp_path: Path) -> None:
     """``curio replay --web`` of a short recorded run: the timeline bar pauses the replay,
     seeks forwards (computed up to there) and backwards (the run restarts on the same address),
-    and Finish ends the command with its report. Drives: the recorder, replay, the whole stack
-    again, the dashboard."""
+    and Finish ends the command with its report. On a desktop; a phone looks at the bar too.
+    Drives: the recorder, replay, the whole stack again, the dashboard."""
     run = tmp_path / "run.mcap"
-    cfg = make_cfg(tmp_path / "data", f'record.file="{run}"')
+    cfg = kit.make_cfg(tmp_path / "data", f'record.file="{run}"')
     clock = SimClock()
     from curio.app import App
 
@@ -133,7 +126,12 @@ async def test_replay_timeline_pauses_and_seeks(tmp_path: Path, viewport: str) -
                 break
             await asyncio.sleep(0.05)  # noqa: TID251 - the command starts in its own thread
         assert found, out.getvalue()
-        async with browser_on(found.group(1), viewport) as b:
+        async with kit.chromium() as browser:
+            phone = await kit.open_page(browser, found.group(1), "phone")
+            await phone.wait_js("!!document.getElementById('replayBar') && "
+                                "!document.getElementById('replayFinish').disabled")
+            await phone.shot("replay")
+            b = await kit.open_page(browser, found.group(1), "desktop")
             page = b.page
             await b.wait_js("!!document.getElementById('replayBar')")
             await page.click("#replayPlay")  # pause

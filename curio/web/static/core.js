@@ -47,16 +47,17 @@
   };
 
   // ----- token ------------------------------------------------------------------------------------
-  function loadToken() {
+  function loadToken(key) {  // ?token= (then kept under `key`, and taken out of the URL), or the kept one
+    const store = key || "curio.token";
     const url = new URL(location.href);
     const fromUrl = url.searchParams.get("token");
     if (fromUrl) {
-      try { localStorage.setItem("curio.token", fromUrl); } catch (e) { /* private mode */ }
+      try { localStorage.setItem(store, fromUrl); } catch (e) { /* private mode */ }
       url.searchParams.delete("token");
       history.replaceState(null, "", url.pathname + url.search + url.hash);
       return fromUrl;
     }
-    try { return localStorage.getItem("curio.token"); } catch (e) { return null; }
+    try { return localStorage.getItem(store); } catch (e) { return null; }
   }
 
   function authHeaders() {

@@ -10,18 +10,6 @@
   const { $, S } = C;
   const K = { tours: [], tour: null, tourAt: 0, status: null, estop: null, help: null, starting: null, ws: null, backoff: 250 };
 
-  function kioskToken() {
-    const url = new URL(location.href);
-    const given = url.searchParams.get("token");
-    if (given) {
-      try { localStorage.setItem("curio.kioskToken", given); } catch (e) { /* private mode */ }
-      url.searchParams.delete("token");
-      history.replaceState(null, "", url.pathname + url.search);
-      return given;
-    }
-    try { return localStorage.getItem("curio.kioskToken"); } catch (e) { return null; }
-  }
-
   const fmtIn = (s) => (s < 10 ? "a few seconds" : s < 90 ? "about " + Math.round(s / 5) * 5 + " seconds" :
     "about " + Math.round(s / 60) + " minute" + (Math.round(s / 60) === 1 ? "" : "s"));
   const running = () => K.tour && K.tour.tour_id !== null && K.tour.tour_id !== undefined;
@@ -186,7 +174,7 @@
   }, 1000);
 
   async function startPage() {
-    S.token = kioskToken();
+    S.token = C.loadToken("curio.kioskToken");
     if (S.token) {
       try { S.who = (await C.api("GET", "/api/auth")).who; } catch (e) {
         S.token = null;

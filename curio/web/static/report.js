@@ -58,7 +58,7 @@
       figure("e-stops", String(r.estops), r.estops > 0),
       figure("operator commands", String(r.operator_commands)),
     );
-    rows("toursTable", r.tours, (t) => [[t.time, "time"], [t.tour], [t.source], [t.outcome + (t.reason ? " (" + t.reason + ")" : "")],
+    rows("toursTable", r.tours, (t) => [[t.time, "time"], [t.tour], [t.source, "optional"], [t.outcome + (t.reason ? " (" + t.reason + ")" : "")],
       [t.stops_reached === null || t.stops_reached === undefined ? "—" : t.stops_reached + (t.stops ? " / " + t.stops : ""), "num"], [C.fmtDuration(t.duration_s), "num optional"]], "No tours this day.");
     rows("skippedTable", r.skipped, (s) => [[s.due, "time"], [s.tour], [s.reason]], "None skipped.");
     rows("faultsTable", r.fault_list, (x) => [[x.time, "time"], [x.kind + (x.what ? ": " + x.what : "")], [x.message]], "None.");
