@@ -20,8 +20,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 
 from curio.bt.paths import PathManager
 from curio.bt.runner import TreeRunner
@@ -32,10 +34,12 @@ from curio.core.config import Config
 from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
 from curio.core.topics import CMD_VEL, make_bus
+from curio.docking.docker import Docker
+from curio.docking.home import HomeDock, seed_home
 from curio.drivers.base import BaseDriver
 from curio.drivers.wiring import build_drivers
 from curio.estimation.ekf import EkfNode
-from curio.estimation.wiring import Localiser, MapServer, build_estimation
+from curio.estimation.wiring import Localiser, MapServer, build_estimation, map_path
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
 from curio.nav.controller import LocalController
@@ -44,6 +48,8 @@ from curio.nav.navigator import NavigatorNode
 from curio.nav.obstacles import BlockedDetector, ObstacleNode
 from curio.nav.planner import GlobalPlanner
 from curio.nav.wiring import build_navigation
+from curio.power.monitor import PowerMonitor
+from curio.power.wiring import build_power
 from curio.robot import RobotModel
 from curio.safety.stage import SafetyStage
 from curio.safety.wiring import build_safety
@@ -51,6 +57,8 @@ from curio.sim.wiring import Simulator, build_sim
 from curio.sim.world import World
 from curio.tours.wiring import Tours, build_tours
 from curio.web.wiring import WebServer, build_web
+from curio.zones.service import ZoneService
+from curio.zones.wiring import build_zones
 
 __all__ = ["App"]
 
@@ -68,12 +76,21 @@ class App:
         self.cfg = cfg
         self.clock = clock
         self.bus: Bus = make_bus()
-        self.robot = RobotModel.from_config(cfg.robot)
+        # Home is the dock and the start pose: the last waypoint of path 0 (one source of
+        # truth, curio/docking/home.py); the robot model carries it to every part.
+        paths_file = cfg.data_path(cfg.bt.paths_file)
+        fresh = not Path(paths_file).exists()
+        paths = PathManager(cfg.bt.paths, paths_file)
+        seed_home(paths, cfg, fresh)
+        self.home = HomeDock(paths, cfg.dock.staging_distance_m)
+        self.robot = dataclasses.replace(RobotModel.from_config(cfg.robot),
+                                         home=self.home.pose())
         self._registry = Parts()
         self._tasks: list[asyncio.Task[None]] = []
         reg = self._registry
         logging_ = build_eventlog(cfg, self.bus, clock, reg)
         self.eventlog: EventLog | None = logging_.log if logging_ else None
+        self.power: PowerMonitor = build_power(cfg, self.bus, clock, reg)
         sim = build_sim(cfg, self.bus, clock, reg, self.robot)
         self.world: World | None = sim.world if sim else None
         self.simulator: Simulator | None = sim.simulator if sim else None
@@ -95,10 +112,19 @@ class App:
         self.navigator: NavigatorNode = nav.navigator
         self.obstacles: ObstacleNode = nav.obstacles
         self.blocked: BlockedDetector = nav.obstacles.detector
-        paths = PathManager(cfg.bt.paths, cfg.data_path(cfg.bt.paths_file))
+        self.zones: ZoneService | None = build_zones(
+            cfg, self.bus, clock, self.robot, est.map_server.grid, Path(map_path(cfg)).stem,
+            costmap=nav.costmap, controller=nav.controller, safety=self.safety,
+            home=self.home.pose)
+        self.docker: Docker | None = None
+        if cfg.dock.enabled:
+            self.docker = Docker(cfg, self.bus, clock, self.robot, nav.navigator, self.home,
+                                 self.safety)
+            reg.add(Part("docking", run=self.docker.run))
         self.tours: Tours = build_tours(cfg, self.bus, clock, reg, self.robot,
                                         lambda: est.map_server.grid, paths)
-        behaviour = build_behaviour(cfg, self.bus, clock, reg, nav, paths, self.tours.store)
+        behaviour = build_behaviour(cfg, self.bus, clock, reg, nav, paths, self.tours.store,
+                                    docker=self.docker)
         self.paths: PathManager = behaviour.paths
         self.tree: TreeRunner = behaviour.tree
         self.web: WebServer | None = None

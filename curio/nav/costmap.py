@@ -110,11 +110,12 @@ class Costmap:
         self._near_static = self._near_static_mask(self._static_lethal)
         self._unknown: BoolArray = static_map.unknown_mask() & ~self._static_lethal
         self._obstacles: BoolArray = np.zeros((h, w), dtype=bool)
+        self._keepout: BoolArray = np.zeros((h, w), dtype=bool)  # zones (set_keepout)
         self._seen: BoolArray = np.zeros((h, w), dtype=bool)
         self._touched = np.zeros((h, w), dtype=np.uint8)  # trace_scan's scratch
         self._margin_cells = math.ceil(self.cfg.inflation_radius_m / self.resolution_m) + 1
         self._footprint_samples = self._make_footprint_samples()
-        master = self._inflate(self._static_lethal)
+        master = self._inflate(self._static_lethal | self._keepout)
         self._apply_unknown(master, (slice(0, h), slice(0, w)))
         master.setflags(write=False)
         self._master: U8Array = master
@@ -203,7 +204,8 @@ class Costmap:
             return
         m = self._margin_cells
         R0, R1, C0, C1 = max(0, r0 - m), min(h, r1 + m), max(0, c0 - m), min(w, c1 + m)
-        lethal = self._static_lethal[R0:R1, C0:C1] | self._obstacles[R0:R1, C0:C1]
+        lethal = (self._static_lethal[R0:R1, C0:C1] | self._obstacles[R0:R1, C0:C1]
+                  | self._keepout[R0:R1, C0:C1])
         sub = self._inflate(lethal)[r0 - R0:r1 - R0, c0 - C0:c1 - C0]
         master = self._master.copy()
         master[r0:r1, c0:c1] = sub
@@ -307,6 +309,30 @@ class Costmap:
         window[within] = False
         m = self._margin_cells
         self._recompute(r0 - m, r1 + m, c0 - m, c1 + m)
+
+    def set_keepout(self, mask: BoolArray) -> None:
+        """The keep-out layer: cells of keep-out zones drawn on the map (``curio/zones``),
+        lethal like a wall and inflated with the rest, so no plan and no checked trajectory
+        enters them. Scans never clear them; a new static map on another grid drops them.
+
+        Raises:
+            ValueError: ``mask`` is not of the costmap's shape.
+        """
+        if mask.shape != self._keepout.shape:
+            raise ValueError(f"keep-out mask of shape {mask.shape}, the costmap is "
+                             f"{self._keepout.shape}")
+        changed = mask != self._keepout
+        if not changed.any():
+            return
+        self._keepout = np.array(mask, dtype=bool)
+        rr = np.flatnonzero(changed.any(axis=1))
+        cc = np.flatnonzero(changed.any(axis=0))
+        m = self._margin_cells
+        self._recompute(int(rr[0]) - m, int(rr[-1]) + 1 + m, int(cc[0]) - m, int(cc[-1]) + 1 + m)
+
+    def keepout_mask(self) -> BoolArray:
+        """Cells of the keep-out layer (a copy)."""
+        return self._keepout.copy()
 
     def reset_obstacles(self) -> None:
         """Forget every obstacle-layer mark (the static map stays)."""
