@@ -42,6 +42,9 @@ from curio.estimation.ekf import EkfNode
 from curio.estimation.wiring import Localiser, MapServer, build_estimation, map_path
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
+from curio.help.desk import HelpDesk
+from curio.help.wiring import build_help
+from curio.nav.clearance import ClearanceProbe
 from curio.nav.controller import LocalController
 from curio.nav.costmap import Costmap
 from curio.nav.navigator import NavigatorNode
@@ -91,6 +94,7 @@ class App:
         logging_ = build_eventlog(cfg, self.bus, clock, reg)
         self.eventlog: EventLog | None = logging_.log if logging_ else None
         self.power: PowerMonitor = build_power(cfg, self.bus, clock, reg)
+        self.help: HelpDesk = build_help(cfg, self.bus, clock, reg)
         sim = build_sim(cfg, self.bus, clock, reg, self.robot)
         self.world: World | None = sim.world if sim else None
         self.simulator: Simulator | None = sim.simulator if sim else None
@@ -123,8 +127,10 @@ class App:
             reg.add(Part("docking", run=self.docker.run))
         self.tours: Tours = build_tours(cfg, self.bus, clock, reg, self.robot,
                                         lambda: est.map_server.grid, paths)
+        probe = ClearanceProbe(nav.planner, nav.costmap, self.bus, clock,
+                               self.robot.laser_in_base, nav.costmap.inscribed_radius_m)
         behaviour = build_behaviour(cfg, self.bus, clock, reg, nav, paths, self.tours.store,
-                                    docker=self.docker)
+                                    docker=self.docker, probe=probe)
         self.paths: PathManager = behaviour.paths
         self.tree: TreeRunner = behaviour.tree
         self.web: WebServer | None = None

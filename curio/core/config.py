@@ -516,7 +516,9 @@ class BtConfig(Section):
     )
     help_timeout_s: float = Field(120.0, gt=0.0)
     help_timeout_action: Literal["replan", "go_home", "keep_waiting"] = "replan"
-    help_clear_s: float = Field(2.0, ge=0.0, description="way must stay clear this long")
+    help_clear_s: float = Field(
+        1.0, ge=0.0, description="the way must be seen clear (fresh scans along the route) "
+        "this long before Thanks!")
     help_rearm_s: float = Field(
         15.0, ge=0.0,
         description="after a help episode that ended without the way clearing (help_done, "
