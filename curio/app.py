@@ -36,9 +36,11 @@ from curio.core.parts import Part, Parts
 from curio.core.topics import CMD_VEL, make_bus
 from curio.docking.docker import Docker
 from curio.docking.home import HomeDock, seed_home
+from curio.docking.station import DockShape, stamp_dock
 from curio.drivers.base import BaseDriver
 from curio.drivers.wiring import build_drivers
 from curio.estimation.ekf import EkfNode
+from curio.estimation.maps import OccupancyGrid
 from curio.estimation.wiring import Localiser, MapServer, build_estimation, map_path
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
@@ -104,7 +106,14 @@ class App:
         self.lidar = drivers.lidar
         self.imu = drivers.imu
         self.emulators = drivers.emulators
-        est = build_estimation(cfg, self.bus, clock, reg, self.robot)
+        amend = None
+        if cfg.dock.enabled and not cfg.dock.in_map:
+            shape = DockShape.for_footprint(self.robot.footprint)
+
+            def amend(grid: OccupancyGrid) -> OccupancyGrid:
+                return stamp_dock(grid, self.robot.home, shape)
+
+        est = build_estimation(cfg, self.bus, clock, reg, self.robot, amend_map=amend)
         self.map_server: MapServer = est.map_server
         self.ekf: EkfNode | None = est.ekf
         self.localizer: Localiser | None = est.localizer

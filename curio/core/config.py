@@ -602,6 +602,9 @@ class DockConfig(Section):
     enabled: bool = Field(
         False, description="a dock stands at home: Go Home and low battery dock the rover, "
         "and the simulator places one there")
+    in_map: bool = Field(
+        False, description="the navigation map already shows the dock (mapped with it in "
+        "place); else its shape is drawn into the map at home")
     staging_distance_m: float = Field(
         0.7, ge=0.4, le=3.0, description="the staging pose is this far straight out of the dock")
     approach_speed_mps: float = Field(0.06, gt=0.0, le=0.15, description="final approach")

@@ -25,6 +25,7 @@ the rover is within ``dock.contact_xy_m`` and ``dock.contact_yaw_rad`` of the do
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -32,8 +33,9 @@ import numpy as np
 import numpy.typing as npt
 
 from curio.core.geometry import Pose2D, wrap_angle
+from curio.estimation.maps import OccupancyGrid
 
-__all__ = ["FRONT_GAP_M", "DockShape", "DockStation"]
+__all__ = ["FRONT_GAP_M", "DockShape", "DockStation", "stamp_dock"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -133,3 +135,35 @@ class DockStation:
         """Whether the charging contact touches the rover at ``rover`` (``map``)."""
         dx, dy, dyaw = self.error(rover)
         return math.hypot(dx, dy) <= self.contact_xy_m and abs(dyaw) <= self.contact_yaw_rad
+
+
+def stamp_dock(grid: OccupancyGrid, pose: Pose2D, shape: DockShape) -> OccupancyGrid:
+    """``grid`` (an :class:`~curio.estimation.maps.OccupancyGrid`) with the dock at ``pose``
+    (the docked pose in ``map``) drawn as occupied cells: the dock stands at home for good, so
+    it belongs in the map the localiser matches scans against (docked, it fills a third of the
+    lidar's view) and in the costmap's static layer. A map made with the dock in place already
+    shows it (``dock.in_map``)."""
+    data = np.array(grid.data, copy=True)
+    h, w = data.shape
+    inv = grid.origin.inverse()
+    res = grid.resolution_m
+    for block in shape.blocks():
+        poly = inv.transform_points(pose.transform_points(block)) / res
+        c0, c1 = int(np.floor(poly[:, 0].min())), int(np.ceil(poly[:, 0].max()))
+        r0, r1 = int(np.floor(poly[:, 1].min())), int(np.ceil(poly[:, 1].max()))
+        for r in range(max(0, r0), min(h, r1 + 1)):
+            for c in range(max(0, c0), min(w, c1 + 1)):
+                if _inside(c + 0.5, r + 0.5, poly):
+                    data[r, c] = 100
+    return dataclasses.replace(grid, data=data)
+
+
+def _inside(x: float, y: float, poly: F64) -> bool:
+    inside = False
+    n = len(poly)
+    for i in range(n):
+        x1, y1 = poly[i]
+        x2, y2 = poly[(i + 1) % n]
+        if (y1 > y) != (y2 > y) and x < x1 + (y - y1) * (x2 - x1) / (y2 - y1):
+            inside = not inside
+    return inside

@@ -5,7 +5,9 @@ safety stage.
 
 * :meth:`ZoneGuard.speed_limit_at` — the lowest limit of the speed zones the footprint at a
   pose in ``map`` is within ``zones.speed_margin_m`` of (so the rover has slowed down before any
-  part of it enters), ``inf`` when none; the local controller caps its target speed with it.
+  part of it enters), times ``SPEED_MARGIN`` (0.9: the true wheel radius differs from the
+  nominal one the base commands with), ``inf`` when none; the local controller caps its target
+  speed with it.
 * :meth:`ZoneGuard.limit` — for the safety stage: the commanded body twist scaled so that the
   footprint, swept along the commanded arc for ``zones.lookahead_s``, stops short of every
   keep-out zone (the costmap already keeps the planner and the controller out; this is the
@@ -35,6 +37,10 @@ __all__ = ["ZoneGuard"]
 
 F64 = npt.NDArray[np.float64]
 STEPS = 10
+# Speed zones are driven at this share of their limit: the base turns speeds into wheel duties
+# with the nominal wheel radius, and the true one differs (robot.wheel_radius_multiplier, and
+# each rover's own scale error), so the true speed may be up to ~10 % above the command.
+SPEED_MARGIN = 0.9
 
 
 def _bbox(poly: F64) -> tuple[float, float, float, float]:
@@ -87,7 +93,7 @@ class ZoneGuard:
             fp = self.footprint_at(pose) if fp is None else fp
             if polygon_distance(fp, poly) <= margin:
                 limit = mps
-        return limit
+        return limit * SPEED_MARGIN if math.isfinite(limit) else limit
 
     def in_keepout(self, pose: Pose2D) -> bool:
         """Whether the footprint at ``pose`` overlaps a keep-out zone."""
