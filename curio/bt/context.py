@@ -53,6 +53,8 @@ BB_DEFAULTS: dict[str, Any] = {
     "docked": False,          # the docker says the rover is on its dock
     "charging": False,        # ... and the charger's voltage is on the contacts
     "lost": False,            # localisation lost (confirmed; curio/bt/unattended.py)
+    "lost_hint": None,        # after a jump: (x, y, yaw) where the rover was, moved by odometry
+    "relocalising": False,    # the rover turns in place to relocalise
     "curr_path": None,        # route id being followed (0 = Home, -1 = tour) or None
     "waypoint": 0,            # index of the current waypoint (the original's goal_cnt)
     "phase": "idle",          # follower phase: idle/moving/dwelling/held/finished/failed/...

@@ -1,7 +1,8 @@
 """Unattended operation in the tree: battery on every tree, the dock, lost and found.
 
 Feeds (SUCCESS every tick): :class:`Localization2BB` (``lost``: localisation lost, or uncertain
-with a wide spread, for a while; found again when good for ``found_confirm_s``) and
+with a wide spread, for a while, or a jump of its estimate; found again when ``ok``, or after the
+operator set the pose) and
 :class:`Dock2BB` (``docked``, ``charging`` from the docker). ``Battery2BB`` (levels with
 hysteresis) is in :mod:`curio.bt.feeds` and now runs in every tree.
 
@@ -10,7 +11,7 @@ Branches (:func:`unattended_branches`, placed after E-stop and Pause in every tr
 * **Battery critical** — :class:`BatteryCritical`: stop where it is (the route is abandoned,
   docking cancelled), ask for help (``help.requested``, reason ``battery_critical``); until
   the battery is charged back to ``battery_ok_v``. On the dock it only waits.
-* **Lost** — :class:`Relocalise`: hold the route, say so (status ``Lost: ...``, event
+* **Lost** — :class:`Relocalise` (``lost``: see :class:`Localization2BB`): hold the route, say so (status ``Lost: ...``, event
   ``localization.lost``), start a global relocalisation (unless the localiser runs its own),
   turn in place through at most ``relocalise_rotation_rad`` so the lidar sees more, and after
   ``relocalise_timeout_s`` ask a person (``help.requested``, reason ``lost``). Found (the
@@ -39,7 +40,15 @@ from py_trees.common import Status
 
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.core.messages import PoseWithCovariance, Twist
-from curio.core.topics import CMD_VEL_NAV, INITIAL_POSE, LOCALIZATION, ODOM, POWER
+from curio.core.topics import (
+    CMD_VEL_NAV,
+    INITIAL_POSE,
+    LOCALIZATION,
+    MAP_TO_ODOM,
+    ODOM,
+    POSE,
+    POWER,
+)
 
 from .context import CurioBehaviour, TreeContext
 from .guards import check_key
@@ -51,20 +60,42 @@ __all__ = ["BatteryCritical", "Dock2BB", "DockAction", "Localization2BB", "Needs
 log = logging.getLogger("curio.bt.unattended")
 
 GLOBAL_STD_XY_M = 1.0e3  # an INITIAL_POSE this wide asks the localiser for a global search
+HINT_STD_XY_M = 0.3      # after a jump: start again around the pose before it, this wide
+HINT_STD_YAW_RAD = 0.3
 
 
 # --- feeds -------------------------------------------------------------------------------------
 
 
 class Localization2BB(CurioBehaviour):
-    """``lost`` from ``/localization``: set when the state is ``lost`` for ``lost_confirm_s``,
-    or ``uncertain`` with a spread above ``lost_std_xy_m`` for ``lost_uncertain_s``; cleared
-    when it is ``ok`` (or uncertain with half that spread) for ``found_confirm_s``. No
-    localiser (or state ``off``): never lost."""
+    """``lost`` from the localiser (``/localization``, ``/tf/map_odom``, ``/pose``, ``/odom``).
+
+    Lost when the state is ``lost`` for ``lost_confirm_s``; or ``uncertain`` with a spread
+    above ``lost_std_xy_m`` for ``lost_uncertain_s`` (a fit degrading slowly); or at once when
+    the localiser's correction jumps by more than ``JUMP_M`` / ``JUMP_RAD`` while it was
+    tracking (it put the rover somewhere else: a look-alike place where furniture moved, or
+    the right place after a drift; either way the rover stops and checks). After a jump
+    ``lost_hint`` holds where the rover was before it, moved on by odometry (the Relocalise
+    behaviour starts from there), and the estimate must come back near it (or near a pose the
+    operator sets) to count: a far-away answer alone is not trusted, the rover asks a person.
+    Found again when, with the turn in place over
+    (``relocalising`` false), the localiser has not been ``lost``, has not jumped and has been
+    confident (``ok``, or a spread within half of ``lost_std_xy_m``) for ``found_confirm_s``.
+    No localiser (or state ``off``): never lost.
+    """
+
+    JUMP_M = 0.5
+    JUMP_RAD = 0.5
+    SETTLE_S = 3.0  # a pose set on /initialpose is applied (the correction jumps) within this
 
     def __init__(self, ctx: TreeContext, name: str = "Localization2BB") -> None:
-        super().__init__(name, ctx, write=("lost",))
+        super().__init__(name, ctx, read=("relocalising",), write=("lost", "lost_hint"))
         self._since: dict[str, float | None] = {"lost": None, "bad": None, "good": None}
+        self._correction: Pose2D | None = None
+        self._initial_stamp = -math.inf
+        self._track: tuple[Pose2D, Pose2D] | None = None  # (pose in map, odometry) last tick
+        self._anchor: tuple[Pose2D, Pose2D] | None = None  # after a jump: (pose, odometry)
+        self._expect_jump = False
 
     def _held(self, key: str, on: bool, now: float) -> float:
         """How long condition ``key`` has held (0 when it does not hold now)."""
@@ -76,26 +107,99 @@ class Localization2BB(CurioBehaviour):
             self._since[key] = start = now
         return now - start
 
+    def _jumped(self, now: float) -> float | None:
+        """How far the map→odom correction jumped since the last tick (None: it did not). The
+        first jump within ``SETTLE_S`` of a pose set on ``/initialpose`` is that pose being
+        applied, not a jump."""
+        bus = self.ctx.bus
+        ip = bus.latest(INITIAL_POSE)
+        if ip is not None and ip.stamp > self._initial_stamp:
+            self._initial_stamp = ip.stamp
+            self._expect_jump = True
+            self._since["good"] = None  # judge the localiser afresh from here
+            odom_now = bus.latest(ODOM)
+            if ip.covariance[0] < GLOBAL_STD_XY_M and odom_now is not None and self.get("lost") \
+                    and self._anchor is not None:
+                self._anchor = (ip.pose, odom_now.pose)  # the operator (or the tree) set the pose
+        corr_msg = bus.latest(MAP_TO_ODOM)
+        corr = corr_msg.transform if corr_msg is not None else None
+        prev, self._correction = self._correction, corr
+        if now - self._initial_stamp > self.SETTLE_S:
+            self._expect_jump = False
+        odom = bus.latest(ODOM)
+        if prev is None or corr is None or odom is None:
+            return None
+        # Where the rover is in map under each correction (a small turn of the correction
+        # moves the odom origin far when the rover is far from it: compare the rover).
+        before, after = prev @ odom.pose, corr @ odom.pose
+        dist = before.distance_to(after)
+        if dist > self.JUMP_M or abs(wrap_angle(after.yaw - before.yaw)) > self.JUMP_RAD:
+            if self._expect_jump:
+                self._expect_jump = False
+                return None
+            return dist
+        return None
+
+    def _hint(self) -> tuple[float, float, float] | None:
+        """Where the rover was before the jump, moved on by the odometry since."""
+        odom = self.ctx.bus.latest(ODOM)
+        if self._track is None or odom is None:
+            return None
+        pose, odom_then = self._track
+        here = pose @ (odom_then.inverse() @ odom.pose)
+        return (here.x, here.y, here.yaw)
+
+    def _near_anchor(self) -> bool:
+        """After a jump, the estimate must come back near where the rover was (or where the
+        operator put it), moved on by odometry: a far-away answer is not trusted alone."""
+        if self._anchor is None:
+            return True
+        pose, odom = self.ctx.bus.latest(POSE), self.ctx.bus.latest(ODOM)
+        if pose is None or odom is None:
+            return False
+        anchor, odom_then = self._anchor
+        expected = anchor @ (odom_then.inverse() @ odom.pose)
+        return pose.pose.distance_to(expected) <= 2 * self.JUMP_M
+
+    def _remember(self) -> None:
+        pose, odom = self.ctx.bus.latest(POSE), self.ctx.bus.latest(ODOM)
+        self._track = (pose.pose, odom.pose) if pose is not None and odom is not None else None
+
     def update(self) -> Status:
         """Never RUNNING."""
         msg = self.ctx.bus.latest(LOCALIZATION)
         now = self.ctx.clock.now()
         cfg = self.ctx.cfg
+        jump = self._jumped(now)
         if msg is None or msg.state == "off":
             self.set("lost", False)
             return Status.SUCCESS
         lost_for = self._held("lost", msg.state == "lost", now)
         bad_for = self._held("bad", msg.state == "uncertain"
                              and msg.std_xy_m > cfg.lost_std_xy_m, now)
-        good_for = self._held("good", msg.state == "ok" or (
-            msg.state == "uncertain" and msg.std_xy_m <= 0.5 * cfg.lost_std_xy_m
-            and msg.std_yaw_rad <= 0.15), now)
+        good_for = self._held("good", jump is None and msg.state != "lost" and (
+            msg.state == "ok" or msg.std_xy_m <= 0.5 * cfg.lost_std_xy_m), now)
         if not self.get("lost"):
-            if (msg.state == "lost" and lost_for >= cfg.lost_confirm_s) or (
-                    bad_for >= cfg.lost_uncertain_s):
+            if jump is not None:
+                self.ctx.sink.event("localization.jump", distance_m=round(jump, 3),
+                                    message="My position estimate jumped: checking where I "
+                                            "am.")
+                hint = self._hint()
+                self.set("lost_hint", hint)
+                odom = self.ctx.bus.latest(ODOM)
+                self._anchor = ((Pose2D(*hint), odom.pose) if hint is not None
+                                and odom is not None else None)
+            else:
+                self._remember()
+                self.set("lost_hint", None)
+            if (jump is not None or (msg.state == "lost" and lost_for >= cfg.lost_confirm_s)
+                    or bad_for >= cfg.lost_uncertain_s):
                 self.set("lost", True)
-        elif msg.state != "lost" and good_for >= cfg.found_confirm_s:
+        elif not self.get("relocalising") and good_for >= cfg.found_confirm_s and \
+                self._near_anchor():
             self.set("lost", False)
+            self._anchor = None
+            self._remember()
         return Status.SUCCESS
 
 
@@ -232,7 +336,8 @@ class Relocalise(CurioBehaviour):
     """Lost: hold, relocalise in place (bounded turn), then ask for help; found: resume."""
 
     def __init__(self, ctx: TreeContext, name: str = "Relocalise") -> None:
-        super().__init__(name, ctx, read=("lost", "docked"))
+        super().__init__(name, ctx, read=("lost", "docked", "lost_hint"),
+                         write=("relocalising",))
         self.spinner = Spinner(ctx)
         self.started_s = 0.0
         self.asked = False
@@ -250,24 +355,35 @@ class Relocalise(CurioBehaviour):
         if ctx.docker is not None and ctx.docker.busy:
             ctx.docker.cancel("localisation lost")
         ctx.cancel_foreign_goal()
-        status = ctx.bus.latest(LOCALIZATION)
-        if status is None or status.state != "lost":
-            # Uncertain for long: ask for a global search ("lost": the localiser runs its own,
-            # localization.auto_relocalize).
-            ctx.bus.publish(INITIAL_POSE, PoseWithCovariance(
-                ctx.clock.now(), Pose2D(), covariance=(GLOBAL_STD_XY_M ** 2, 0.0, 0.0, 0.0,
-                                                       GLOBAL_STD_XY_M ** 2, 0.0, 0.0, 0.0,
-                                                       math.pi ** 2)))
+        self._ask_localiser()
         turn = 0.0 if self.get("docked") else cfg.relocalise_rotation_rad
         self.spinner.start(turn, cfg.relocalise_speed_radps)
+        self.set("relocalising", not self.spinner.done)
         ctx.sink.event("localization.lost", message="I am not sure where I am: looking "
                        "around to find my way.", turning_rad=round(turn, 3))
         ctx.sink.status("Lost: looking around to find my way", "lost")
+
+    def _ask_localiser(self) -> None:
+        """After a jump: start again around where the rover was (it stopped at once). Uncertain
+        for long: a global search. Lost: nothing (the localiser searches by itself,
+        ``localization.auto_relocalize``)."""
+        ctx = self.ctx
+        hint = self.get("lost_hint")
+        status = ctx.bus.latest(LOCALIZATION)
+        if hint is not None:
+            std_xy, std_yaw, pose = HINT_STD_XY_M, HINT_STD_YAW_RAD, Pose2D(*hint)
+        elif status is None or status.state != "lost":
+            std_xy, std_yaw, pose = GLOBAL_STD_XY_M, math.pi, Pose2D()
+        else:
+            return
+        ctx.bus.publish(INITIAL_POSE, PoseWithCovariance(ctx.clock.now(), pose, covariance=(
+            std_xy ** 2, 0.0, 0.0, 0.0, std_xy ** 2, 0.0, 0.0, 0.0, std_yaw ** 2)))
 
     def update(self) -> Status:
         """Turn, wait for the localiser, then ask a person."""
         ctx = self.ctx
         ctx.cancel_foreign_goal()
+        self.set("relocalising", not self.spinner.done)
         now = ctx.clock.now()
         if not self.asked and self.spinner.done and \
                 now - self.started_s >= ctx.cfg.relocalise_timeout_s:
@@ -284,6 +400,7 @@ class Relocalise(CurioBehaviour):
         """Found: resume the route; pre-empted: withdraw the help request."""
         ctx = self.ctx
         self.spinner.stop()
+        self.set("relocalising", False)
         found = not self.get("lost")
         if found:
             ctx.sink.event("localization.found", message="I know where I am again.",

@@ -271,6 +271,10 @@ class LocalizationConfig(Section):
         0.7, ge=0.0, le=1.0, description="'ok' needs this share of beams on the map")
     recheck_after_scans: int = Field(
         20, ge=1, description="middling fit this many updates in a row: search the map")
+    recheck_after_set_m: float = Field(
+        5.0, ge=0.0, description="after a pose is set (the operator on the map, or the "
+        "tree's relocalisation) no such re-check until the rover has driven this far: where "
+        "the map is wrong (furniture moved) a look-alike place elsewhere can fit better")
     lost_std_xy_m: float = Field(0.6, gt=0.0)
     lost_after_scans: int = Field(5, ge=1, description="poor scans in a row before 'lost'")
     auto_relocalize: bool = Field(True, description="global search when lost")

@@ -48,6 +48,10 @@ __all__ = ["Costmap", "CostmapNode", "GridInfo", "costs_to_percent"]
 
 log = logging.getLogger("curio.nav.costmap")
 
+# Between two updates (0.2 s) the rover moves a few centimetres: a bigger jump of its pose in
+# map is a relocalisation (or a pose set on the map).
+RELOCALISATION_JUMP_M = 0.5
+
 U8Array = npt.NDArray[np.uint8]
 BoolArray = npt.NDArray[np.bool_]
 FloatArray = npt.NDArray[np.float64]
@@ -456,6 +460,8 @@ class CostmapNode:
         self._last_scan_stamp = -math.inf
         self._pose_sub = bus.subscribe(POSE, maxsize=256)
         self._poses = PoseHistory(256, interpolation="linear")
+        self._last_pose: Pose2D | None = None
+        self.relocalisation_resets = 0
 
     def pose_at(self, stamp: float) -> Pose2D | None:
         """The rover's pose in ``map`` at ``stamp``, from the recent ``POSE`` history."""
@@ -472,6 +478,7 @@ class CostmapNode:
         pose = self.pose_at(math.inf)
         if pose is None:
             return
+        self._forget_marks_on_jump(pose)
         if scan is not None and scan.stamp != self._last_scan_stamp:
             self._last_scan_stamp = scan.stamp
             scan_pose = self.pose_at(scan.stamp)
@@ -484,6 +491,16 @@ class CostmapNode:
             self._published_version = cm.version
             self._last_global_publish = now
         self.bus.publish(LOCAL_COSTMAP, cm.local_message(now, pose))
+
+    def _forget_marks_on_jump(self, pose: Pose2D) -> None:
+        """The rover's pose in ``map`` jumped (relocalisation, a pose set on the map): the
+        obstacle marks were placed with the old pose, so they are wrong; forget them."""
+        last, self._last_pose = self._last_pose, pose
+        if last is not None and last.distance_to(pose) > RELOCALISATION_JUMP_M:
+            self.costmap.reset_obstacles()
+            self.relocalisation_resets += 1
+            log.info("costmap: the pose jumped %.2f m (relocalised): obstacle marks cleared",
+                     last.distance_to(pose))
 
     async def run(self) -> None:
         """Update at ``update_rate_hz`` until cancelled."""
