@@ -61,6 +61,7 @@ from curio.safety.wiring import build_safety
 from curio.sim.wiring import Simulator, build_sim
 from curio.sim.world import World
 from curio.tours.wiring import Tours, build_tours
+from curio.web.unattended_api import UnattendedServices
 from curio.web.wiring import WebServer, build_web
 from curio.zones.service import ZoneService
 from curio.zones.wiring import build_zones
@@ -145,7 +146,10 @@ class App:
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:
-            self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths)
+            self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths,
+                                 unattended=UnattendedServices(
+                                     self.home, self.docker, self.zones, self.help,
+                                     self.tours.placement))
             self.web_url = self.web.control_url
 
     @property

@@ -99,6 +99,8 @@ def _build_parser() -> argparse.ArgumentParser:
         ("check", "diagnose the hardware and say how to fix what is wrong"),
         ("emulate", "serve a device emulator (arduino, rplidar) on a pseudo-terminal"),
         ("map", "build, save and inspect maps"),
+        ("pose", "relocalise a running rover or set its pose on the map"),
+        ("zones", "list a map's keep-out and speed zones, export them as Nav2 masks"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -279,13 +281,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _delegate(command: str, rest: list[str]) -> int:
-    """Hand ``check``, ``emulate`` and ``map`` to the modules that own them."""
+    """Hand ``check``, ``emulate``, ``map``, ``pose`` and ``zones`` to the modules that own
+    them."""
     import importlib
 
     module_name = {
         "check": "curio.commands.check",
         "emulate": "curio.commands.emulate",
         "map": "curio.commands.map",
+        "pose": "curio.commands.pose",
+        "zones": "curio.commands.zones",
     }[command]
     try:
         module = importlib.import_module(module_name)
@@ -337,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-_DELEGATED = ("check", "emulate", "map")
+_DELEGATED = ("check", "emulate", "map", "pose", "zones")
 
 
 def _setup_logging(verbose: bool) -> None:

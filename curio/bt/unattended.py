@@ -11,11 +11,13 @@ Branches (:func:`unattended_branches`, placed after E-stop and Pause in every tr
 * **Battery critical** — :class:`BatteryCritical`: stop where it is (the route is abandoned,
   docking cancelled), ask for help (``help.requested``, reason ``battery_critical``); until
   the battery is charged back to ``battery_ok_v``. On the dock it only waits.
-* **Lost** — :class:`Relocalise` (``lost``: see :class:`Localization2BB`): hold the route, say so (status ``Lost: ...``, event
-  ``localization.lost``), start a global relocalisation (unless the localiser runs its own),
-  turn in place through at most ``relocalise_rotation_rad`` so the lidar sees more, and after
-  ``relocalise_timeout_s`` ask a person (``help.requested``, reason ``lost``). Found (the
-  feed clears ``lost``): ``localization.found``, the held route resumes where it was.
+* **Lost** — :class:`Relocalise` (``lost``: see :class:`Localization2BB`): hold the route, say
+  so (status ``Lost: ...``, event ``localization.lost``), ask the localiser to start again
+  (around the pose before a jump; a global search when uncertain for long; nothing when it
+  searches by itself), turn in place through at most ``relocalise_rotation_rad`` so the lidar
+  sees more, and after ``relocalise_timeout_s`` ask a person (``help.requested``, reason
+  ``lost``). Found (the feed clears ``lost``): ``localization.found``, the held route resumes
+  where it was.
 * **Battery** (low) — ``BatteryHome``: with a dock, asks to dock (``dock_request``, reason
   ``battery``) and abandons the route; without one, drives path 0 as before.
 * **Dock** — :class:`DockAction`: drives the docker (staging, approach, retries) until docked;

@@ -116,13 +116,18 @@ class Docker:
         """Docking or undocking in progress."""
         return self.state in ("staging", "approaching", "backing_off", "waiting", "undocking")
 
-    def dock(self, reason: str = "") -> None:
-        """Start docking (nothing when docked or already docking)."""
+    def dock(self, reason: str = "", *, from_here: bool = False) -> None:
+        """Start docking (nothing when docked or already docking); ``from_here``: skip the
+        staging goal and start the final approach where the rover stands (it must be near the
+        staging pose, facing the dock: ``curio bench docking``)."""
         if self.docked or self.state in ("staging", "approaching", "backing_off", "waiting"):
             return
         self.reason = reason
         self.attempt = 0
         self._event("dock.started", reason=reason)
+        if from_here:
+            self._begin_attempt()
+            return
         staging = self.home.staging()
         self._goal = self.navigator.send_goal([*self.home.route(), staging], tag="dock staging")
         self._set("staging", f"going to the dock ({reason})" if reason else "going to the dock")

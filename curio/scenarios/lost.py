@@ -2,15 +2,16 @@
 asks for help, then finishes its tour.
 
 The simulated building is the default one with the lab rearranged (``moved_grid``): its
-long bench, its south bench and its island stand elsewhere, while the rover still localises in
+south bench and its island stand elsewhere, while the rover still localises in
 the original map (``localization.map_yaml`` = ``maps/curio_building.yaml``). On the tour the fit
 degrades slowly as the rover enters the lab (``/localization`` goes ``uncertain``), until the
-localiser gives up or re-checks the whole map and puts the rover somewhere else. The tree notices (``localization.jump`` / ``localization.lost``), stops, asks for a
-global relocalisation and turns in place (``bt.relocalise_rotation_rad``); if that does not
-find a good fit within ``bt.relocalise_timeout_s`` it asks for help (``help.requested``,
-reason ``lost``). An operator answers ``OPERATOR_S`` later by setting the pose on the map (the
-dashboard's set-pose, ``/initialpose`` at the true pose with a 0.1 m / 0.05 rad spread); the
-rover is found and the tour resumes where it was held. ``--start``/``--map`` are not used.
+localiser gives up or re-checks the whole map and puts the rover somewhere else. The tree
+notices (``localization.jump`` / ``localization.lost``), stops, asks the localiser to start
+again and turns in place (``bt.relocalise_rotation_rad``); if that does not find a good fit
+within ``bt.relocalise_timeout_s`` it asks for help (``help.requested``, reason ``lost``). An
+operator answers ``OPERATOR_S`` later by setting the pose on the map (the dashboard's set-pose,
+``/initialpose`` at the true pose with a 0.1 m / 0.05 rad spread); the rover is found and the
+tour resumes where it was held. ``--start``/``--map`` are not used.
 
 Metrics: ``lost_episodes``, ``help_requests``, ``relocalised_alone`` (episodes found without
 help), ``moved_while_lost_m`` (the most the rover's centre moved during an episode: it turns in

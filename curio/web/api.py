@@ -41,6 +41,7 @@ from curio.web.inputs import (
     parse_pose,
 )
 from curio.web.services import GATE, HUB, ROVER
+from curio.web.unattended_api import UNATTENDED_ROUTES
 
 __all__ = ["ROUTES"]
 
@@ -262,4 +263,5 @@ ROUTES: list[web.RouteDef] = [
     web.delete("/api/paths/{path_id}/waypoints/{index}", remove_waypoint),
     web.post("/api/command", command),
     web.post("/api/initial_pose", initial_pose),
+    *UNATTENDED_ROUTES,  # issue 11: battery, dock, pose, zones, help (curio/web/unattended_api.py)
 ]

@@ -36,6 +36,7 @@ class WebServices:
         token: the control token (see :func:`curio.web.auth.load_or_create_token`).
         paths: the path manager, or None.
         robot: the robot model (footprint, home, laser pose, limits).
+        unattended: battery, dock, zones, help (``curio.web.unattended_api``), or None.
     """
 
     cfg: Config
@@ -44,6 +45,7 @@ class WebServices:
     token: str
     robot: RobotModel
     paths: Any = None
+    unattended: Any = None
 
 
 SERVICES = web.AppKey("services", WebServices)

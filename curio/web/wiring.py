@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
+from typing import Any
 
 from aiohttp import web
 
@@ -94,10 +95,12 @@ class WebServer:
 
 
 def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
-              paths: PathManager) -> WebServer:
-    """Construct the dashboard from ``cfg.web`` and register it as a part."""
+              paths: PathManager, unattended: Any = None) -> WebServer:
+    """Construct the dashboard from ``cfg.web`` and register it as a part (``unattended``:
+    the services of ``curio/web/unattended_api.py``)."""
     token = load_or_create_token(cfg.data_path(cfg.web.token_file))
-    services = WebServices(cfg=cfg, clock=clock, bus=bus, token=token, robot=robot, paths=paths)
+    services = WebServices(cfg=cfg, clock=clock, bus=bus, token=token, robot=robot, paths=paths,
+                           unattended=unattended)
     server = WebServer(services)
     parts.add(Part("web", run=server.run, close=server.close))
     return server
