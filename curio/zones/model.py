@@ -101,13 +101,13 @@ def _polygon(value: Any) -> tuple[tuple[float, float], ...]:
                             f"±{MAX_COORD_M:g} m, got {pt!r}")
         out.append((round(x, 4), round(y, 4)))
     arr = np.asarray(out, dtype=np.float64)
+    if self_intersects(arr):
+        raise ZoneError("the polygon's edges cross each other; draw its outline without "
+                        "crossings (a simple polygon)")
     area = abs(polygon_area(arr))
     if area < MIN_AREA_M2:
         raise ZoneError(f"the polygon encloses {area:.4f} m²; a zone needs at least "
                         f"{MIN_AREA_M2} m² (are the points in a line?)")
-    if self_intersects(arr):
-        raise ZoneError("the polygon's edges cross each other; draw its outline without "
-                        "crossings (a simple polygon)")
     return tuple(out)
 
 
