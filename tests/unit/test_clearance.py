@@ -54,7 +54,7 @@ def _scan(bus: object, world: World, t: float, costmap: Costmap | None = None) -
 
 
 async def test_a_cleared_costmap_is_not_evidence_but_an_open_door_is() -> None:
-    cfg, world, costmap, planner, robot = _setup()
+    _, world, costmap, planner, robot = _setup()
     bus, clock = make_bus(), SimClock()
     goal = Pose2D(6.0, 2.0, 0.0)
     for k in range(5):
@@ -86,7 +86,7 @@ async def test_a_cleared_costmap_is_not_evidence_but_an_open_door_is() -> None:
 
 
 def test_judge_route_sees_a_box_beside_the_line_of_sight_and_not_past_a_corner() -> None:
-    cfg, world, _, _, robot = _setup()
+    _, world, _, _, robot = _setup()
     world.set_door("door", True)
     static = StaticView(_room().occupied_mask(), RES, Pose2D())
     route = np.array([[1.2 + 0.05 * k, 2.0] for k in range(100)])

@@ -10,9 +10,10 @@ are exact binary fractions (0.25 s) so the boundaries are exact.
 * **Pause keeps the current path** (so far pinned only by the operator-demo scenario): the
   goal is cancelled, the route, the waypoint and the progress are kept, nothing is sent while
   paused, and Resume sends the same waypoint again and finishes the path.
-* **Help timings at their defaults** (``bt.help_clear_s`` = 1 s since issue 11: the way is now
-  judged from fresh scans, and a door that opens must be noticed within 3 s; ``bt.help_rearm_s`` = 15 s,
-  ``bt.help_timeout_s`` = 120 s): each just before and at its boundary.
+* **Help timings at their defaults** (``bt.help_clear_s`` = 1 s since issue 11: the way is
+  now judged from fresh scans, and a door that opens must be noticed within 3 s;
+  ``bt.help_rearm_s`` = 15 s, ``bt.help_timeout_s`` = 120 s): each just before and at its
+  boundary.
 """
 
 from __future__ import annotations

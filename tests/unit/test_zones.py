@@ -63,7 +63,7 @@ def test_store_persists_never_reuses_ids_and_refuses_stale_edits(tmp_path: Path)
     assert again.get(2).speed_limit_mps == 0.2
     assert json.loads(path.read_text())["version"] == 1
     path.write_text("{not json")
-    with pytest.raises(ZoneFileError, match="building.json"):
+    with pytest.raises(ZoneFileError, match=r"building\.json"):
         ZoneStore(path, "building", 0.37)
 
 
