@@ -49,11 +49,12 @@ from .home import HomeDock
 from .perception import DockDetector, DockFix
 from .station import DockShape
 
-__all__ = ["Docker"]
+__all__ = ["BUSY_STATES", "Docker"]
 
 log = logging.getLogger("curio.docking")
 
 RATE_HZ = 20.0
+BUSY_STATES = ("staging", "approaching", "backing_off", "waiting", "undocking")
 LOST_SIGHT_S = 2.0
 BACK_OFF_X_M = ENTRY_X_M - 0.15
 ON_DOCK_M = 0.05
@@ -114,13 +115,13 @@ class Docker:
     @property
     def busy(self) -> bool:
         """Docking or undocking in progress."""
-        return self.state in ("staging", "approaching", "backing_off", "waiting", "undocking")
+        return self.state in BUSY_STATES
 
     def dock(self, reason: str = "", *, from_here: bool = False) -> None:
         """Start docking (nothing when docked or already docking); ``from_here``: skip the
         staging goal and start the final approach where the rover stands (it must be near the
         staging pose, facing the dock: ``curio bench docking``)."""
-        if self.docked or self.state in ("staging", "approaching", "backing_off", "waiting"):
+        if self.docked or self.state in BUSY_STATES[:-1]:
             return
         self.reason = reason
         self.attempt = 0

@@ -21,6 +21,7 @@ from curio.core.messages import (
     Transform,
 )
 from curio.core.topics import INITIAL_POSE, LOCALIZATION, MAP_TO_ODOM, ODOM, POSE
+from curio.docking.docker import Docker
 
 from .bt_fakes import Harness, make_harness
 
@@ -34,13 +35,8 @@ class FakeDocker:
         self.detail = ""
         self.calls: list[str] = []
 
-    @property
-    def docked(self) -> bool:
-        return self.state == "docked"
-
-    @property
-    def busy(self) -> bool:
-        return self.state in ("staging", "approaching", "backing_off", "waiting", "undocking")
+    docked = Docker.docked
+    busy = Docker.busy
 
     def dock(self, reason: str = "") -> None:
         self.calls.append(f"dock:{reason}")
