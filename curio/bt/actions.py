@@ -151,6 +151,8 @@ class BatteryHome(CurioBehaviour):
         """Consume the pending go-home; SUCCESS."""
         self.set("battery_home_pending", False)
         f = self.ctx.follower
+        if f.speak is not None:  # say why the tour ends here
+            f.speak("My battery is low: I am going to charge it. Sorry!")
         if self.ctx.docker is not None:
             if f.active:
                 f.stop(f"Battery low ({self.get('battery_v')} V)")

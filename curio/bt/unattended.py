@@ -363,6 +363,8 @@ class Relocalise(CurioBehaviour):
         self.set("relocalising", not self.spinner.done)
         ctx.sink.event("localization.lost", message="I am not sure where I am: looking "
                        "around to find my way.", turning_rad=round(turn, 3))
+        if ctx.follower.speak is not None:
+            ctx.follower.speak("I am not sure where I am. Let me look around.")
         ctx.sink.status("Lost: looking around to find my way", "lost")
 
     def _ask_localiser(self) -> None:
