@@ -226,8 +226,9 @@ class Dock2BB(CurioBehaviour):
 
 class Spinner:
     """Turns the rover in place through up to ``angle_rad`` (odometry) on ``/cmd_vel_nav`` at
-    10 Hz, in a task the behaviour starts and polls (it never awaits). Without a running event
-    loop (unit tests that tick by hand) it does nothing and reports done."""
+    10 Hz, in a task the behaviour starts and polls (it never awaits); it gives up after twice
+    the time the turn should take (something in the way). Without a running event loop (unit
+    tests that tick by hand) it does nothing and reports done."""
 
     def __init__(self, ctx: TreeContext) -> None:
         self.ctx = ctx
@@ -263,8 +264,13 @@ class Spinner:
     async def _turn(self, angle_rad: float, speed_radps: float) -> None:
         bus, clock = self.ctx.bus, self.ctx.clock
         last: float | None = None
+        # Something in the way may hold the turn (the safety stage): give up after twice the
+        # time the turn should take.
+        deadline = clock.now() + 2.0 * angle_rad / speed_radps + 5.0
         try:
             async for now in clock.every(0.1):
+                if now > deadline:
+                    break
                 odom = bus.latest(ODOM)
                 if odom is not None:
                     if last is not None:

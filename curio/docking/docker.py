@@ -9,8 +9,9 @@ polls (behaviours never await). Docking:
    (:class:`~curio.docking.perception.DockDetector`: first around where the map puts it, then
    tracking the previous fix moved by odometry, so the approach is aligned on the dock itself,
    not on the map), and :class:`~curio.docking.approach.DockApproach` drives the final metres
-   slowly on ``/cmd_vel_nav``; the safety stage is told the rover may close on the dock
-   (``SafetyStage.allow_docking``);
+   slowly on ``/cmd_vel_nav``; on its last, straight piece the safety stage is told the rover
+   may close on the dock (``SafetyStage.allow_docking``: a 5 mm stop margin, the approach
+   speed as the cap);
 3. on the stop line it waits ``dock.contact_wait_s`` for the charger's voltage on the contacts
    (``/battery`` ``charger_v``); no voltage (a missed contact), or a fix off by more than the
    tolerance, and it **backs off** (``backing_off``) and tries again, up to
@@ -230,14 +231,14 @@ class Docker:
             self._retry(step.retry)
             return
         if step.done:
-            self._drive(0.0, 0.0, now)
+            self._drive(0.0, 0.0, now, close=True)
             self._phase_start = now
             self._set("waiting", "on the dock: waiting for the charger")
             return
-        self._drive(step.linear_mps, step.angular_radps, now)
+        self._drive(step.linear_mps, step.angular_radps, now, close=step.phase == "final")
 
     def _waiting(self, now: float) -> None:
-        self._drive(0.0, 0.0, now)
+        self._drive(0.0, 0.0, now, close=True)
         rover = self.rover_in_dock()
         charger = self._charger_v()
         touching = charger is not None and charger > self.cfg.power.charger_detect_v
@@ -378,9 +379,11 @@ class Docker:
             return 0.0
         return now.distance_to(start)
 
-    def _drive(self, v: float, w: float, now: float) -> None:
-        if self.safety is not None:
-            self.safety.allow_docking(now + 0.3, max(0.15, self.dcfg.undock_speed_mps))
+    def _drive(self, v: float, w: float, now: float, close: bool = False) -> None:
+        """Command ``(v, w)``; ``close``: creeping onto the dock, the safety stage may let
+        the rover close on it (elsewhere its stop zone applies as always)."""
+        if close and self.safety is not None:
+            self.safety.allow_docking(now + 0.3, self.dcfg.approach_speed_mps)
         self.bus.publish(CMD_VEL_NAV, Twist(now, v, w, source="docking"))
 
     def _stop(self) -> None:

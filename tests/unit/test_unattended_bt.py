@@ -287,3 +287,39 @@ def test_lost_is_pre_empted_by_the_e_stop_and_does_not_resume() -> None:
     h.tick()
     assert h.node("Relocalise").status == Status.INVALID
     assert not h.of("localization.found") and h.nav.active is None
+
+
+async def test_spinner_turns_through_its_bound_and_gives_up_when_held() -> None:
+    import asyncio
+    from types import SimpleNamespace
+
+    from curio.bt.unattended import Spinner
+    from curio.core.clock import SimClock
+    from curio.core.topics import CMD_VEL_NAV, make_bus
+
+    bus, clock = make_bus(), SimClock()
+    ctx = SimpleNamespace(bus=bus, clock=clock)
+    yaw = {"v": 0.0, "turning": True}
+
+    async def base() -> None:  # odometry follows the last command (or not, when held)
+        async for now in clock.every(0.05):
+            cmd = bus.latest(CMD_VEL_NAV)
+            if cmd is not None and yaw["turning"]:
+                yaw["v"] += cmd.angular_radps * 0.05
+            bus.publish(ODOM, Odometry(now, Pose2D(0.0, 0.0, yaw["v"])))
+
+    task = asyncio.ensure_future(base())
+    spinner = Spinner(ctx)  # type: ignore[arg-type]
+    spinner.start(math.pi, 0.5)
+    await clock.run(until_s=4.0)
+    assert not spinner.done and 1.5 < spinner.turned_rad < 2.5
+    await clock.run(until_s=8.0)
+    assert spinner.done and math.pi <= spinner.turned_rad < math.pi + 0.2
+    assert bus.latest(CMD_VEL_NAV).angular_radps == 0.0  # type: ignore[union-attr]
+    yaw["turning"] = False  # held by the safety stage: it gives up in 2 × 2π/0.5 + 5 s
+    spinner.start(2 * math.pi, 0.5)
+    await clock.run(until_s=8.0 + 4 * math.pi / 0.5 + 4.0)
+    assert not spinner.done
+    await clock.run(until_s=8.0 + 4 * math.pi / 0.5 + 6.0)
+    assert spinner.done
+    task.cancel()
