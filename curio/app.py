@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 
 from curio.bt.paths import PathManager
 from curio.bt.runner import TreeRunner
@@ -33,19 +35,28 @@ from curio.core.config import Config
 from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
 from curio.core.topics import CMD_VEL, make_bus
+from curio.docking.docker import Docker
+from curio.docking.home import HomeDock, seed_home
+from curio.docking.station import DockShape, stamp_dock
 from curio.drivers.base import BaseDriver
 from curio.drivers.modes import driver_mode
 from curio.drivers.wiring import build_drivers
 from curio.estimation.ekf import EkfNode
-from curio.estimation.wiring import Localiser, MapServer, build_estimation
+from curio.estimation.maps import OccupancyGrid
+from curio.estimation.wiring import Localiser, MapServer, build_estimation, map_path
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
+from curio.help.desk import HelpDesk
+from curio.help.wiring import build_help
+from curio.nav.clearance import ClearanceProbe
 from curio.nav.controller import LocalController
 from curio.nav.costmap import Costmap
 from curio.nav.navigator import NavigatorNode
 from curio.nav.obstacles import BlockedDetector, ObstacleNode
 from curio.nav.planner import GlobalPlanner
 from curio.nav.wiring import build_navigation
+from curio.power.monitor import PowerMonitor
+from curio.power.wiring import build_power
 from curio.record.recorder import Recorder
 from curio.record.wiring import build_recorder, recordings_directory
 from curio.robot import RobotModel
@@ -54,7 +65,10 @@ from curio.safety.wiring import build_safety
 from curio.sim.wiring import Simulator, build_sim
 from curio.sim.world import World
 from curio.tours.wiring import Tours, build_tours
+from curio.web.services import UnattendedServices
 from curio.web.wiring import WebServer, build_web, open_tokens
+from curio.zones.service import ZoneService
+from curio.zones.wiring import build_zones
 
 __all__ = ["App"]
 
@@ -80,7 +94,15 @@ class App:
         self.cfg = cfg
         self.clock = clock
         self.bus: Bus = make_bus()
-        self.robot = RobotModel.from_config(cfg.robot)
+        # Home is the dock and the start pose: the last waypoint of path 0 (one source of
+        # truth, curio/docking/home.py); the robot model carries it to every part.
+        paths_file = cfg.data_path(cfg.bt.paths_file)
+        fresh = not Path(paths_file).exists()
+        paths = PathManager(cfg.bt.paths, paths_file)
+        seed_home(paths, cfg, fresh)
+        self.home = HomeDock(paths, cfg.dock.staging_distance_m)
+        self.robot = dataclasses.replace(RobotModel.from_config(cfg.robot),
+                                         home=self.home.pose())
         self._registry = Parts()
         self._tasks: list[asyncio.Task[None]] = []
         reg = self._registry
@@ -90,6 +112,8 @@ class App:
             may_drive=lambda presented: self.tokens.permits(presented, "drive"))
         logging_ = build_eventlog(cfg, self.bus, clock, reg)
         self.eventlog: EventLog | None = logging_.log if logging_ else None
+        self.power: PowerMonitor = build_power(cfg, self.bus, clock, reg)
+        self.help: HelpDesk = build_help(cfg, self.bus, clock, reg)
         if inputs is None:
             sim = build_sim(cfg, self.bus, clock, reg, self.robot)
         elif not driver_mode(cfg).simulated:
@@ -105,7 +129,14 @@ class App:
         self.lidar = drivers.lidar
         self.imu = drivers.imu
         self.emulators = drivers.emulators
-        est = build_estimation(cfg, self.bus, clock, reg, self.robot)
+        amend = None
+        if cfg.dock.enabled and not cfg.dock.in_map:
+            shape = DockShape.for_footprint(self.robot.footprint)
+
+            def amend(grid: OccupancyGrid) -> OccupancyGrid:
+                return stamp_dock(grid, self.robot.home, shape)
+
+        est = build_estimation(cfg, self.bus, clock, reg, self.robot, amend_map=amend)
         self.map_server: MapServer = est.map_server
         self.ekf: EkfNode | None = est.ekf
         self.localizer: Localiser | None = est.localizer
@@ -117,10 +148,21 @@ class App:
         self.navigator: NavigatorNode = nav.navigator
         self.obstacles: ObstacleNode = nav.obstacles
         self.blocked: BlockedDetector = nav.obstacles.detector
-        paths = PathManager(cfg.bt.paths, cfg.data_path(cfg.bt.paths_file))
+        self.zones: ZoneService | None = build_zones(
+            cfg, self.bus, clock, self.robot, est.map_server.grid, Path(map_path(cfg)).stem,
+            costmap=nav.costmap, controller=nav.controller, safety=self.safety,
+            home=self.home.pose)
+        self.docker: Docker | None = None
+        if cfg.dock.enabled:
+            self.docker = Docker(cfg, self.bus, clock, self.robot, nav.navigator, self.home,
+                                 self.safety)
+            reg.add(Part("docking", run=self.docker.run))
         self.tours: Tours = build_tours(cfg, self.bus, clock, reg, self.robot,
                                         lambda: est.map_server.grid, paths)
-        behaviour = build_behaviour(cfg, self.bus, clock, reg, nav, paths, self.tours.store)
+        probe = ClearanceProbe(nav.planner, nav.costmap, self.bus, clock,
+                               self.robot.laser_in_base, nav.costmap.inscribed_radius_m)
+        behaviour = build_behaviour(cfg, self.bus, clock, reg, nav, paths, self.tours.store,
+                                    docker=self.docker, probe=probe)
         self.paths: PathManager = behaviour.paths
         self.tree: TreeRunner = behaviour.tree
         self.web: WebServer | None = None
@@ -129,7 +171,10 @@ class App:
             self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths, self.tokens,
                                  part_states=self.part_states, tours=self.tours,
                                  eventlog=self.eventlog,
-                                 recordings_dir=recordings_directory(cfg))
+                                 recordings_dir=recordings_directory(cfg),
+                                 unattended=UnattendedServices(
+                                     self.home, self.docker, self.zones, self.help,
+                                     self.tours.placement))
             self.web_url = self.web.control_url
 
     @property

@@ -106,6 +106,8 @@ def _build_parser() -> argparse.ArgumentParser:
                    "report where it diverges"),
         ("export", "convert a recording: --ros2 writes a ROS 2 bag (ros2 bag play)"),
         ("token", "create, list, revoke and rotate the dashboard's named tokens"),
+        ("pose", "relocalise a running rover or set its pose on the map"),
+        ("zones", "list a map's keep-out and speed zones, export them as Nav2 masks"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -291,8 +293,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _delegate(command: str, rest: list[str]) -> int:
-    """Hand ``check``, ``emulate``, ``map``, ``replay``, ``export`` and ``token`` to the modules
-    that own them."""
+    """Hand ``check``, ``emulate``, ``map``, ``replay``, ``export``, ``token``, ``pose`` and
+    ``zones`` to the modules that own them."""
     import importlib
 
     module_name = {
@@ -302,6 +304,8 @@ def _delegate(command: str, rest: list[str]) -> int:
         "replay": "curio.commands.replay",
         "export": "curio.commands.export",
         "token": "curio.commands.token",
+        "pose": "curio.commands.pose",
+        "zones": "curio.commands.zones",
     }[command]
     try:
         module = importlib.import_module(module_name)
@@ -353,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-_DELEGATED = ("check", "emulate", "map", "replay", "export", "token")
+_DELEGATED = ("check", "emulate", "map", "replay", "export", "token", "pose", "zones")
 
 
 def _setup_logging(verbose: bool) -> None:

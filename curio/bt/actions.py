@@ -140,15 +140,25 @@ class DriveHome(CurioBehaviour):
 
 
 class BatteryHome(CurioBehaviour):
-    """Low battery: start the home path once per low episode (hysteresis in Battery2BB)."""
+    """Low battery: start the home path once per low episode (hysteresis in Battery2BB); with
+    a dock, ask for docking instead (the Dock branch, ``curio/bt/unattended.py``)."""
 
     def __init__(self, ctx: TreeContext, name: str = "Battery Home") -> None:
-        super().__init__(name, ctx, read=("battery_v",), write=("battery_home_pending",))
+        super().__init__(name, ctx, read=("battery_v",),
+                         write=("battery_home_pending", "dock_request"))
 
     def update(self) -> Status:
         """Consume the pending go-home; SUCCESS."""
         self.set("battery_home_pending", False)
         f = self.ctx.follower
+        if f.speak is not None:  # say why the tour ends here
+            f.speak("My battery is low: I am going to charge it. Sorry!")
+        if self.ctx.docker is not None:
+            if f.active:
+                f.stop(f"Battery low ({self.get('battery_v')} V)")
+            if not self.ctx.docker.docked:
+                self.set("dock_request", {"reason": "battery", "action": "dock"})
+            return Status.SUCCESS
         if not (f.route_id == HOME_PATH_ID and f.phase in ("moving", "finished")):
             f.switch(self.ctx.home_route())
         return Status.SUCCESS

@@ -48,6 +48,13 @@ BB_DEFAULTS: dict[str, Any] = {
     "battery_v": None,        # latest supply voltage, volts
     "battery_low": False,     # low with hysteresis (low < low_battery_v, ok >= battery_ok_v)
     "battery_home_pending": False,  # a low-battery go-home not yet started
+    "battery_critical": False,  # below critical_battery_v until battery_ok_v (stop, ask help)
+    "dock_request": None,     # docking asked for (a dict with "reason": battery / home)
+    "docked": False,          # the docker says the rover is on its dock
+    "charging": False,        # ... and the charger's voltage is on the contacts
+    "lost": False,            # localisation lost (confirmed; curio/bt/unattended.py)
+    "lost_hint": None,        # after a jump: (x, y, yaw) where the rover was, moved by odometry
+    "relocalising": False,    # the rover turns in place to relocalise
     "curr_path": None,        # route id being followed (0 = Home, -1 = tour) or None
     "waypoint": 0,            # index of the current waypoint (the original's goal_cnt)
     "phase": "idle",          # follower phase: idle/moving/dwelling/held/finished/failed/...
@@ -70,6 +77,7 @@ class TreeContext:
         namespace: blackboard namespace of this tree (``/curio_<n>``).
         tree_kind: ``follow_path``, ``two_step`` or ``tour``.
         tour_route: the configured tour as a route (None when no stops are configured).
+        docker: docks and undocks the rover (None without a dock).
     """
 
     cfg: BtConfig
@@ -84,6 +92,7 @@ class TreeContext:
     tour_route: Route | None = None
     probe: WayProbe | None = None
     clients: list[py_trees.blackboard.Client] = field(default_factory=list)
+    docker: Any = None  # curio/docking/docker.py (None: no dock, Go Home drives path 0)
 
     def key(self, name: str) -> str:
         """The absolute blackboard key of ``name`` in this tree's namespace."""

@@ -18,6 +18,7 @@ from py_trees.common import Status
 from curio.core.bus import Subscription
 from curio.core.messages import OperatorCommand
 from curio.core.topics import BATTERY, BLOCKED, ESTOP, OPERATOR
+from curio.power.model import battery_level
 
 from .context import CurioBehaviour, TreeContext
 from .follower import TOUR_ROUTE_ID
@@ -238,14 +239,18 @@ class EStop2BB(CurioBehaviour):
 
 
 class Battery2BB(CurioBehaviour):
-    """Low battery with hysteresis: low below ``low_battery_v``, ok again at ``battery_ok_v``.
+    """Battery levels with hysteresis (:func:`curio.power.model.battery_level`): low below
+    ``low_battery_v``, critical below ``critical_battery_v``, ok again at ``battery_ok_v``.
 
-    Going low raises ``battery.low`` and one pending go-home (the original's mock battery sent
-    go-home at 5 Hz for ever, §9.7).
+    Going low raises ``battery.low`` and one pending go-home or dock (the original's mock
+    battery sent go-home at 5 Hz for ever, §9.7); going critical raises ``battery.critical``.
+    ``battery_low`` holds for both levels (route commands are refused with the voltage).
     """
 
     def __init__(self, ctx: TreeContext, name: str = "Battery2BB") -> None:
-        super().__init__(name, ctx, write=("battery_v", "battery_low", "battery_home_pending"))
+        super().__init__(name, ctx, write=("battery_v", "battery_low", "battery_home_pending",
+                                           "battery_critical"))
+        self.level = "ok"
 
     def update(self) -> Status:
         """Track the voltage; never RUNNING."""
@@ -254,15 +259,25 @@ class Battery2BB(CurioBehaviour):
             return Status.SUCCESS
         volts = float(msg.voltage_v)
         self.set("battery_v", round(volts, 3))
-        low = bool(self.get("battery_low"))
         cfg = self.ctx.cfg
-        if not low and volts < cfg.low_battery_v:
-            self.set("battery_low", True)
+        before = self.level
+        self.level = battery_level(before, volts, cfg.low_battery_v, cfg.battery_ok_v,
+                                   cfg.critical_battery_v)
+        if self.level == before:
+            return Status.SUCCESS
+        where = "the dock" if self.ctx.docker is not None else "home"
+        self.set("battery_low", self.level != "ok")
+        self.set("battery_critical", self.level == "critical")
+        if before == "ok":
             self.set("battery_home_pending", True)
             self.ctx.sink.event("battery.low", voltage_v=round(volts, 3),
-                                message=f"Battery low ({volts:.2f} V): going home.")
-        elif low and volts >= cfg.battery_ok_v:
-            self.set("battery_low", False)
+                                message=f"Battery low ({volts:.2f} V): going to {where} to "
+                                        "charge.")
+        if self.level == "critical":
+            self.ctx.sink.event("battery.critical", voltage_v=round(volts, 3),
+                                message=f"Battery critical ({volts:.2f} V): stopping here; "
+                                        "please take me to my charger.")
+        elif self.level == "ok":
             self.set("battery_home_pending", False)
             self.ctx.sink.event("battery.ok", voltage_v=round(volts, 3),
                                 message=f"Battery recovered ({volts:.2f} V).")

@@ -357,6 +357,17 @@ class PathManager:
         self._changed("changed", path_id)
         return path.copy()
 
+    def set_home(self, x_m: float, y_m: float, yaw_rad: float | None) -> NamedPath:
+        """Move home: the last waypoint of path 0 (the waypoints before it are the route home).
+
+        Home is the one named pose that is also the dock (``curio/docking/home.py``): the start
+        pose after a restart and where Go Home (and docking) ends.
+        """
+        path = self._paths[HOME_PATH_ID]
+        path.waypoints[-1] = make_waypoint(x_m, y_m, yaw_rad)
+        self._changed("changed", HOME_PATH_ID)
+        return path.copy()
+
     def rename(self, path_id: int, name: str) -> NamedPath:
         """Rename path ``path_id``."""
         path = self._editable(path_id)

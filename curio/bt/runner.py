@@ -205,6 +205,7 @@ def build_tree_runner(
     probe: WayProbe | None = None,
     tours: TourStore | None = None,
     tours_cfg: ToursConfig | None = None,
+    docker: Any = None,
 ) -> TreeRunner:
     """Build the configured tree (``cfg.tree``) and its runner.
 
@@ -220,6 +221,7 @@ def build_tree_runner(
         tours: the tour store: the tour tree's ``start_tour`` runs the tour it names (None: the
             configured ``bt.tour_stops``).
         tours_cfg: ``[tours]`` (defaults when None).
+        docker: docks the rover (``curio/docking/docker.py``; None: no dock).
     """
     sink = StatusSink(bus, clock)
     follower = PathFollower(navigator, sink, clock,
@@ -227,7 +229,7 @@ def build_tree_runner(
     ctx = TreeContext(cfg=cfg, bus=bus, clock=clock, navigator=navigator, paths=paths,
                       follower=follower, sink=sink, namespace=f"/curio_{id(follower):x}",
                       tree_kind=cfg.tree, tour_route=tour_route_from_config(cfg),
-                      probe=probe)
+                      probe=probe, docker=docker)
     init = py_trees.blackboard.Client(name="Init", namespace=ctx.namespace)
     ctx.clients.append(init)
     for key, value in BB_DEFAULTS.items():

@@ -11,9 +11,11 @@ Each factory returns the root of a py_trees 2.x tree; the structure mirrors the 
   dropped by a flickering BLOCKED flag (py_trees 0.6 semantics, §1.0); one-shot branches (Go
   Home, Change Path) have no memory.
 
-Follow-path priorities: E-stop > Pause > Go Home > operator route command > blocked (ask for
-help) > follow path > idle. The tour tree adds *Battery* (after Pause) and tour commands; the
-two-step tree patrols between two goals under E-stop > Pause > Go Home.
+Follow-path priorities: E-stop > Pause > battery critical > lost > battery low > (dock) > Go
+Home > (undock) > operator route command > blocked (ask for help) > follow path > (docked) >
+idle; every tree has the battery and the lost-and-found branches (``curio/bt/unattended.py``)
+and, with a dock, Go Home docks. The tour tree adds tour commands; the two-step tree patrols
+between two goals under the same upper branches.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from .context import TreeContext
 from .feeds import Battery2BB, Blocked2BB, EStop2BB, Follower2BB, Operator2BB
 from .follower import TOUR_ROUTE_ID, Route, Stop
 from .guards import IsBlocked, check_key
+from .unattended import docked_branch, unattended_branches, unattended_feeds, undock_branch
 
 __all__ = ["build_root", "tour_route_from_config"]
 
@@ -69,26 +72,27 @@ def _estop_branch(ctx: TreeContext) -> Behaviour:
     ])
 
 
-def _feeds(ctx: TreeContext, operator_feed: Operator2BB, battery: bool) -> list[Behaviour]:
-    feeds: list[Behaviour] = [operator_feed, Blocked2BB(ctx), EStop2BB(ctx)]
-    if battery:
-        feeds.append(Battery2BB(ctx))
-    feeds.append(Follower2BB(ctx))
-    return feeds
+def _feeds(ctx: TreeContext, operator_feed: Operator2BB) -> list[Behaviour]:
+    return [operator_feed, Blocked2BB(ctx), EStop2BB(ctx), Battery2BB(ctx), Follower2BB(ctx),
+            *unattended_feeds(ctx)]
+
+
+def _battery_branch(ctx: TreeContext) -> Behaviour:
+    return py_trees.composites.Sequence("Battery", memory=False, children=[
+        check_key(ctx, "Battery low?", "battery_home_pending", True),
+        BatteryHome(ctx),
+    ])
 
 
 def _follow_priorities(ctx: TreeContext, *, tour: bool) -> list[Behaviour]:
     branches: list[Behaviour] = [_estop_branch(ctx), Pause(ctx)]
-    if tour:
-        branches.append(py_trees.composites.Sequence("Battery", memory=False, children=[
-            check_key(ctx, "Battery low?", "battery_home_pending", True),
-            BatteryHome(ctx),
-        ]))
-    branches += [
-        py_trees.composites.Sequence("Go Home", memory=False, children=[
+    branches += unattended_branches(ctx, _battery_branch(ctx), py_trees.composites.Sequence(
+        "Go Home", memory=False, children=[
             check_key(ctx, "GoHome?", "home_request", None, operator.ne),
             DriveHome(ctx),
-        ]),
+        ]))
+    branches += undock_branch(ctx)
+    branches += [
         py_trees.composites.Sequence("Change Path?", memory=False, children=[
             check_key(ctx, "Command?", "command", None, operator.ne),
             ChangePath(ctx),
@@ -98,6 +102,7 @@ def _follow_priorities(ctx: TreeContext, *, tour: bool) -> list[Behaviour]:
             Ask4Help(ctx),
         ]),
         FollowPath(ctx, name="Guide Tour" if tour else "Follow Path"),
+        *docked_branch(ctx),
         Idle(ctx),
     ]
     return branches
@@ -109,15 +114,27 @@ def _two_step_priorities(ctx: TreeContext) -> list[Behaviour]:
     home = Pose2D(home_cfg.x_m, home_cfg.y_m, home_cfg.yaw_rad or 0.0)
     patrol = [MoveClient(ctx, f"MoveRobot {i + 1}", Pose2D(x, y, yaw))
               for i, (x, y, yaw) in enumerate(goals)]
+    if ctx.docker is None:  # no dock: low battery drives home and the patrol waits
+        battery: Behaviour = py_trees.composites.Sequence("Battery", memory=True, children=[
+            check_key(ctx, "Battery low?", "battery_home_pending", True),
+            ClearKey(ctx, "battery_home_pending", False, name="Take Battery"),
+            MoveClient(ctx, "MoveRobot Home (battery)", home, home=True),
+        ])
+    else:
+        battery = _battery_branch(ctx)
+    go_home = py_trees.composites.Sequence("Go Home", memory=True, children=[
+        check_key(ctx, "GoHome?", "home_request", None, operator.ne),
+        ClearKey(ctx, "home_request", None, name="Take Request"),
+        MoveClient(ctx, "MoveRobot Home", home, home=True),
+    ])
     return [
         _estop_branch(ctx),
         Pause(ctx),
-        py_trees.composites.Sequence("Go Home", memory=True, children=[
-            check_key(ctx, "GoHome?", "home_request", None, operator.ne),
-            ClearKey(ctx, "home_request", None, name="Take Request"),
-            MoveClient(ctx, "MoveRobot Home", home, home=True),
-        ]),
-        py_trees.composites.Sequence("Patrol", memory=True, children=list(patrol)),
+        *unattended_branches(ctx, battery, go_home),
+        *undock_branch(ctx),
+        py_trees.composites.Sequence("Patrol", memory=True, children=[
+            check_key(ctx, "Battery ok?", "battery_low", False), *patrol]),
+        *docked_branch(ctx),
         Idle(ctx),
     ]
 
@@ -145,5 +162,5 @@ def build_root(ctx: TreeContext, operator_feed: Operator2BB,
     root = py_trees.composites.Parallel(
         "Root", policy=ParallelPolicy.SuccessOnAll(synchronise=False),
         children=[*([tour_feed] if tour_feed is not None else []),
-                  *_feeds(ctx, operator_feed, battery=kind == "tour"), selector])
+                  *_feeds(ctx, operator_feed), selector])
     return root

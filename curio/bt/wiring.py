@@ -7,6 +7,7 @@ request asks the way probe (the planner on the live costmap) whether the way is 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from curio.bt.paths import PathManager
 from curio.bt.probe import WayProbe
@@ -34,9 +35,12 @@ class Behaviour:
 
 def build_behaviour(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
                     nav: Navigation, paths: PathManager | None = None,
-                    tours: TourStore | None = None) -> Behaviour:
+                    tours: TourStore | None = None, docker: Any = None,
+                    probe: Any = None) -> Behaviour:
     """Construct the path manager (unless given) and the configured tree; register the tree
-    as a part. With ``tours`` the tour tree runs the tours of the tour store."""
+    as a part. With ``tours`` the tour tree runs the tours of the tour store; with ``docker``
+    Go Home and low battery dock the rover; ``probe`` judges "the way is clear" while asking
+    for help (default: a :class:`WayProbe` on the live costmap)."""
     paths = paths or PathManager(cfg.bt.paths, cfg.data_path(cfg.bt.paths_file))
 
     def on_paths_changed(what: str, path_id: int) -> None:
@@ -45,9 +49,9 @@ def build_behaviour(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
 
     paths.add_listener(on_paths_changed)
     speaker = Speaker(enabled=cfg.bt.speak)
-    probe = WayProbe(nav.planner, nav.costmap, bus, clock)
+    probe = probe if probe is not None else WayProbe(nav.planner, nav.costmap, bus, clock)
     runner = build_tree_runner(cfg.bt, bus, clock, nav.navigator, paths, speaker, probe=probe,
-                               tours=tours, tours_cfg=cfg.tours)
+                               tours=tours, tours_cfg=cfg.tours, docker=docker)
 
     async def close() -> None:
         await runner.close()

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import itertools
 import math
 import tomllib
 from pathlib import Path
@@ -106,6 +107,9 @@ class ArduinoConfig(Section):
     )
     steer_move_ms: int = Field(50, ge=0, le=30000)
     low_battery_v: float = Field(6.6, ge=0.0, le=20.0)
+    adc_is_charger: bool = Field(
+        False, description="A0 (BATTERY adc_mV) measures the dock's charging contacts through a "
+        "divider: the rover knows when it is on its charger")
     persist_steer_trim: bool = Field(False, description="also save trims in servo EEPROM")
     rc_enabled: bool = Field(
         False, description="RC transmitter teleop: the Mega reports the receiver's channels and "
@@ -269,6 +273,10 @@ class LocalizationConfig(Section):
         0.7, ge=0.0, le=1.0, description="'ok' needs this share of beams on the map")
     recheck_after_scans: int = Field(
         20, ge=1, description="middling fit this many updates in a row: search the map")
+    recheck_after_set_m: float = Field(
+        5.0, ge=0.0, description="after a pose is set (the operator on the map, or the "
+        "tree's relocalisation) no such re-check until the rover has driven this far: where "
+        "the map is wrong (furniture moved) a look-alike place elsewhere can fit better")
     lost_std_xy_m: float = Field(0.6, gt=0.0)
     lost_after_scans: int = Field(5, ge=1, description="poor scans in a row before 'lost'")
     auto_relocalize: bool = Field(True, description="global search when lost")
@@ -514,14 +522,36 @@ class BtConfig(Section):
     )
     help_timeout_s: float = Field(120.0, gt=0.0)
     help_timeout_action: Literal["replan", "go_home", "keep_waiting"] = "replan"
-    help_clear_s: float = Field(2.0, ge=0.0, description="way must stay clear this long")
+    help_clear_s: float = Field(
+        1.0, ge=0.0, description="the way must be seen clear (fresh scans along the route) "
+        "this long before Thanks!")
     help_rearm_s: float = Field(
         15.0, ge=0.0,
         description="after a help episode that ended without the way clearing (help_done, "
         "timeout, pre-emption), ignore BLOCKED this long unless it first reports clear",
     )
-    low_battery_v: float = Field(6.6, ge=0.0)
-    battery_ok_v: float = Field(7.0, ge=0.0)
+    low_battery_v: float = Field(6.6, ge=0.0, description="below this the rover leaves what "
+                                 "it does and goes to its dock (or home) to charge")
+    battery_ok_v: float = Field(7.0, ge=0.0, description="low (or critical) ends at or above "
+                                "this (hysteresis): route commands are accepted again")
+    critical_battery_v: float = Field(
+        6.3, ge=0.0, description="below this the rover stops where it is and asks for help "
+        "(it cannot be trusted to reach the dock); ends at battery_ok_v")
+    lost_confirm_s: float = Field(
+        1.0, ge=0.0, description="localisation 'lost' this long: the rover stops and "
+        "relocalises (lost and found)")
+    lost_uncertain_s: float = Field(
+        20.0, gt=0.0, description="localisation 'uncertain' with a spread above "
+        "lost_std_xy_m this long also counts as lost (a slowly degrading fit)")
+    lost_std_xy_m: float = Field(0.3, gt=0.0, description="see lost_uncertain_s")
+    found_confirm_s: float = Field(
+        1.0, ge=0.0, description="localisation 'ok' this long: found, the route resumes")
+    relocalise_rotation_rad: float = Field(
+        6.3, ge=0.0, le=31.5, description="bounded rotation in place while relocalising "
+        "(0 = none): turn up to this much to let the lidar see more")
+    relocalise_speed_radps: float = Field(0.4, gt=0.0, le=1.45)
+    relocalise_timeout_s: float = Field(
+        30.0, gt=0.0, description="not found within this long: ask a person for help")
     speak: bool = True
     two_step_goals: list[tuple[float, float, float]] = Field(
         default_factory=lambda: [(1.0, 1.0, 0.0), (2.0, 2.0, 0.0)]
@@ -530,6 +560,132 @@ class BtConfig(Section):
     paths_file: str = "paths.json"
     tour_stops: list[TourStopConfig] = Field(default_factory=list)
     tour_loop: bool = False
+
+
+class PowerConfig(Section):
+    """The servo battery: a NiMH pack read as a voltage (curio/power, docs/unattended.md)."""
+
+    cells: int = Field(6, ge=1, le=40, description="cells in series (Curio: 6 x 1.2 V NiMH)")
+    capacity_ah: float = Field(5.0, gt=0.0, le=100.0, description="rated capacity, Ah")
+    ocv_table: list[tuple[float, float]] = Field(
+        default_factory=lambda: [
+            (0.0, 1.00), (0.05, 1.10), (0.10, 1.15), (0.20, 1.18), (0.40, 1.21),
+            (0.60, 1.24), (0.80, 1.28), (0.90, 1.31), (0.95, 1.34), (1.00, 1.40)],
+        description="state of charge (0..1) -> resting cell voltage, V; increasing in both")
+    filter_s: float = Field(
+        10.0, ge=0.0, le=600.0, description="time constant of the voltage low-pass (load sag "
+        "and servo read noise); 0 = raw")
+    trend_window_s: float = Field(
+        600.0, ge=30.0, le=7200.0, description="time left: fitted on the state of charge over "
+        "this long")
+    average_current_a: float = Field(
+        1.5, gt=0.0, le=50.0, description="time left before a trend exists: capacity left / "
+        "this current")
+    charge_current_a: float = Field(0.5, gt=0.0, le=50.0, description="the charger's current "
+                                    "(time to full while charging)")
+    charger_detect_v: float = Field(
+        5.0, ge=0.0, description="a voltage at the dock contacts above this means the rover "
+        "is on its charger")
+
+    @field_validator("ocv_table")
+    @classmethod
+    def _increasing(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        if len(value) < 2:
+            raise ValueError("ocv_table needs at least 2 [soc, volts_per_cell] rows")
+        socs = [r[0] for r in value]
+        volts = [r[1] for r in value]
+        if socs[0] != 0.0 or socs[-1] != 1.0:
+            raise ValueError("ocv_table must run from soc 0.0 to soc 1.0")
+        if any(b <= a for a, b in itertools.pairwise(socs)) or any(
+                b <= a for a, b in itertools.pairwise(volts)):
+            raise ValueError("ocv_table: soc and volts must both increase from row to row")
+        return value
+
+
+class DockConfig(Section):
+    """The charging dock: one named pose that is home and dock (curio/docking)."""
+
+    enabled: bool = Field(
+        False, description="a dock stands at home: Go Home and low battery dock the rover, "
+        "and the simulator places one there")
+    in_map: bool = Field(
+        False, description="the navigation map already shows the dock (mapped with it in "
+        "place); else its shape is drawn into the map at home")
+    staging_distance_m: float = Field(
+        0.7, ge=0.4, le=3.0, description="the staging pose is this far straight out of the dock")
+    approach_speed_mps: float = Field(0.06, gt=0.0, le=0.15, description="final approach")
+    min_approach_speed_mps: float = Field(0.02, gt=0.0, le=0.1)
+    xy_tolerance_m: float = Field(0.012, gt=0.0, le=0.1, description="docked when within this")
+    yaw_tolerance_rad: float = Field(0.026, gt=0.0, le=0.2)
+    max_attempts: int = Field(3, ge=1, le=10, description="approaches before docking fails")
+    contact_wait_s: float = Field(2.0, ge=0.0, le=30.0, description="wait this long at the "
+                                  "dock for the charger's voltage before retrying")
+    undock_distance_m: float = Field(0.7, gt=0.0, le=3.0)
+    undock_speed_mps: float = Field(0.12, gt=0.0, le=0.3)
+    detect_range_m: float = Field(
+        0.35, gt=0.0, le=1.0, description="the lidar looks for the dock's shape this far "
+        "around where the map says it is")
+    charge_rate_v_per_h: float = Field(
+        0.5, gt=0.0, le=10000.0, description="simulator: how fast the pack's resting voltage "
+        "rises on the charger (scenarios speed it up)")
+    contact_xy_m: float = Field(0.02, gt=0.0, le=0.1, description="simulator: the charging "
+                                "contact touches within this of the docked pose")
+    contact_yaw_rad: float = Field(0.05, gt=0.0, le=0.3)
+    charger_v: float = Field(9.0, gt=0.0, le=30.0, description="simulator: voltage at the "
+                             "contacts while they touch")
+
+
+class HelpConfig(Section):
+    """Help that reaches a person: the spoken request, notifications (curio/help)."""
+
+    blocked_message: str = Field("Excuse me, could you help me? My way is blocked.",
+                                 min_length=1, max_length=300)
+    lost_message: str = Field("Excuse me, could you help me? I am lost: please show me where "
+                              "I am on the map.", min_length=1, max_length=300)
+    battery_message: str = Field("Excuse me, could you help me? My battery is almost empty: "
+                                 "please take me to my charger.", min_length=1, max_length=300)
+    dock_message: str = Field("Excuse me, could you help me? I cannot reach my charger.",
+                              min_length=1, max_length=300)
+    repeat_s: float = Field(60.0, ge=10.0, le=3600.0, description="say it again this often")
+    max_repeats: int = Field(10, ge=0, le=1000, description="then only the notifications "
+                             "and the dashboard keep asking")
+    speak: bool = True
+    webhook_urls: list[str] = Field(default_factory=list, description="HTTP POST of a JSON "
+                                    "body to each, on every help request and resolution")
+    ntfy_urls: list[str] = Field(default_factory=list, description="ntfy-style topic URLs "
+                                 "(POST of the text, Title/Priority/Tags headers)")
+    notify_kinds: list[str] = Field(
+        default_factory=lambda: ["help.requested", "help.resolved", "battery.critical",
+                                 "dock.failed", "tour.skipped"],
+        description="event kinds that are sent to the notification channels")
+    timeout_s: float = Field(5.0, gt=0.0, le=60.0, description="per delivery attempt")
+    retries: int = Field(5, ge=0, le=50)
+    backoff_s: float = Field(2.0, gt=0.0, le=600.0, description="first retry delay; doubles")
+    backoff_max_s: float = Field(300.0, gt=0.0, le=3600.0)
+    queue_size: int = Field(100, ge=1, le=10000, description="undelivered messages kept; "
+                            "the oldest is dropped beyond this")
+
+    @field_validator("webhook_urls", "ntfy_urls")
+    @classmethod
+    def _http(cls, value: list[str]) -> list[str]:
+        for url in value:
+            if not url.startswith(("http://", "https://")):
+                raise ValueError(f"{url!r} is not an http:// or https:// URL")
+        return value
+
+
+class ZonesConfig(Section):
+    """Keep-out and speed zones drawn on the map (curio/zones)."""
+
+    enabled: bool = True
+    directory: str = Field("zones", description="in data_dir: one <map name>.json per map")
+    keepout_margin_m: float = Field(
+        0.05, ge=0.0, le=1.0, description="keep-out zones are grown by this before they "
+        "become lethal in the costmap (localisation error)")
+    lookahead_s: float = Field(1.5, gt=0.0, le=10.0, description="the safety stage sweeps "
+                               "the footprint this far ahead against keep-out zones")
+    speed_margin_m: float = Field(0.25, ge=0.0, le=3.0, description="slow down this far "
+                                  "before the footprint reaches a speed zone")
 
 
 class ToursConfig(Section):
@@ -703,6 +859,10 @@ class Config(Section):
     eventlog: EventLogConfig = Field(default_factory=EventLogConfig)
     record: RecordConfig = Field(default_factory=RecordConfig)
     foxglove: FoxgloveConfig = Field(default_factory=FoxgloveConfig)
+    power: PowerConfig = Field(default_factory=PowerConfig)
+    dock: DockConfig = Field(default_factory=DockConfig)
+    help: HelpConfig = Field(default_factory=HelpConfig)
+    zones: ZonesConfig = Field(default_factory=ZonesConfig)
 
     # Where relative paths are resolved; not a config key.
     base_dir: Path = Field(default_factory=lambda: REPO_ROOT, exclude=True)
@@ -721,6 +881,12 @@ class Config(Section):
                 f"nav.recovery.rotate_speed_radps = {rec.rotate_speed_radps:g} is faster than the "
                 f"robot can turn (robot.max_angular_radps = {robot.max_angular_radps:g}); "
                 "allowed: 0 < rotate_speed_radps <= robot.max_angular_radps")
+        bt = self.bt
+        if not bt.critical_battery_v < bt.low_battery_v < bt.battery_ok_v:
+            raise ValueError(
+                f"bt.critical_battery_v = {bt.critical_battery_v:g}, bt.low_battery_v = "
+                f"{bt.low_battery_v:g} and bt.battery_ok_v = {bt.battery_ok_v:g} must increase "
+                "in that order (critical < low < ok)")
         return self
 
     def resolve(self, path_str: str) -> Path:

@@ -234,11 +234,85 @@ class BlockedState:
 
 @dataclass(frozen=True, slots=True)
 class BatteryState:
-    """Servo supply voltage, volts, and whether it counts as low."""
+    """Servo supply voltage, volts, and whether it counts as low.
+
+    ``charger_v``: the voltage at the dock's charging contacts, volts (None: not measured, e.g.
+    no divider fitted on the Arduino's A0); above ``power.charger_detect_v`` the rover is on
+    its charger.
+    """
 
     stamp: float
     voltage_v: float
     low: bool = False
+    charger_v: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class PowerState:
+    """The battery as the operator sees it (curio/power): filtered voltage, state of charge,
+    time left, charging, level.
+
+    Attributes:
+        voltage_v: the low-passed pack voltage, volts; ``raw_v`` the last reading.
+        soc: state of charge 0..1 from the pack's voltage curve (``power.ocv_table``).
+        time_left_s: time until empty at the present drain (None while charging or unknown).
+        time_to_low_s: time until ``bt.low_battery_v`` (None while charging or unknown).
+        time_to_full_s: while charging, time until full (None otherwise).
+        charging: on the charger (the dock's contacts carry the charger's voltage).
+        level: ``ok``, ``low`` or ``critical`` (the tree's hysteresis on the raw voltage).
+    """
+
+    stamp: float
+    voltage_v: float
+    raw_v: float
+    soc: float
+    time_left_s: float | None = None
+    time_to_low_s: float | None = None
+    time_to_full_s: float | None = None
+    charging: bool = False
+    level: str = "ok"
+
+
+@dataclass(frozen=True, slots=True)
+class DockState:
+    """The docking behaviour (curio/docking): where it is and how the last docking went.
+
+    Attributes:
+        state: ``idle``, ``staging``, ``approaching``, ``backing_off``, ``docked``,
+            ``undocking`` or ``failed``.
+        attempt: the approach being made (1-based; 0 before the first).
+        error_m, error_deg: the last docked pose's error against the dock's pose, from the
+            lidar's view of the dock (None before one).
+        charging: the charger's voltage is on the contacts.
+        detail: a sentence for the operator.
+    """
+
+    stamp: float
+    state: str = "idle"
+    attempt: int = 0
+    error_m: float | None = None
+    error_deg: float | None = None
+    charging: bool = False
+    detail: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class HelpState:
+    """The open help request, if any (curio/help): why, what the rover says, since when.
+
+    ``reason``: ``blocked``, ``lost``, ``battery_critical`` or ``dock_failed``;
+    ``sound``: the dashboard should play its help sound (set at the request and at every
+    repeat, cleared when answered); ``repeats``: how often it was said again.
+    """
+
+    stamp: float
+    active: bool = False
+    reason: str = ""
+    message: str = ""
+    since_s: float | None = None
+    repeats: int = 0
+    sound: bool = False
+    blocked_at: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -12,10 +12,12 @@ from curio.core.bus import Bus, Topic
 from curio.core.messages import (
     BatteryState,
     BlockedState,
+    DockState,
     DriverHealth,
     EStop,
     Event,
     GridMessage,
+    HelpState,
     Imu,
     LaserScan,
     LocalizationStatus,
@@ -25,6 +27,7 @@ from curio.core.messages import (
     OperatorCommand,
     Path,
     PoseWithCovariance,
+    PowerState,
     Progress,
     ServoCommand,
     StatusText,
@@ -86,6 +89,18 @@ HEALTH = Topic("/health", DriverHealth, doc="every driver/component: health, cou
 TOUR = Topic("/tour", TourState, kind="reliable", latched=True,
              doc="tour feed (curio/bt/tour_feed.py): the running tour, its stop and the next")
 
+# --- unattended operation (curio/power, curio/docking, curio/help, curio/zones) -------------
+POWER = Topic("/power", PowerState, latched=True,
+              doc="power monitor: state of charge, time left, charging, level")
+DOCK = Topic("/dock", DockState, kind="reliable", latched=True,
+             doc="docking (curio/docking/docker.py): docking state and last error")
+HELP = Topic("/help", HelpState, kind="reliable", latched=True,
+             doc="help desk (curio/help): the open help request, its sound and repeats")
+HELP_BLOCKAGE = Topic("/help_blockage", Obstacles, latched=True,
+                      doc="clearance probe: scan points that block the held route (map)")
+ZONES = Topic("/zones", Event, kind="reliable", latched=True,
+              doc="zone service (curio/zones): the zones of the current map (detail: zones)")
+
 ALL_TOPICS: list[Topic[Any]] = [
     SCAN,
     WHEELS,
@@ -118,6 +133,11 @@ ALL_TOPICS: list[Topic[Any]] = [
     TREE,
     HEALTH,
     TOUR,
+    POWER,
+    DOCK,
+    HELP,
+    HELP_BLOCKAGE,
+    ZONES,
 ]
 
 

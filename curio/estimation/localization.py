@@ -297,6 +297,7 @@ class Localizer:
         self.updates = 0
         self.search: _GlobalSearch | None = None
         self.searches = 0  # global searches started (diagnostics)
+        self.since_set_m = math.inf  # distance driven since a pose was set from outside
         self.initialized = False
         # Tracking prior: the last estimate moved by odometry, with its covariance (map frame).
         self._delta = Pose2D()
@@ -320,6 +321,8 @@ class Localizer:
         self.covariance = np.diag([sxy**2, sxy**2, syaw**2])
         self.search = None
         self.poor_scans = 0
+        self.mediocre_scans = 0
+        self.since_set_m = 0.0  # a pose set from outside: no re-check until driven a while
         self.w_slow = self.w_fast = 0.0
         self.state = "uncertain"
         self._force_update = True
@@ -366,6 +369,7 @@ class Localizer:
         self._force_update = False
         self._last_odom = odom_pose
         self._delta = delta
+        self.since_set_m += math.hypot(delta.x, delta.y)
         self._motion_update(delta)
         if self.search is not None:
             self.search.top_odom = (self.search.top_odom @ delta
@@ -596,7 +600,8 @@ class Localizer:
             # A middling fit for a long time: maybe a look-alike place. Check the whole map;
             # the current pose stays a candidate, so a right pose amid clutter is kept.
             if (self.cfg.auto_relocalize and self.search is None
-                    and self.mediocre_scans >= self.cfg.recheck_after_scans):
+                    and self.mediocre_scans >= self.cfg.recheck_after_scans
+                    and self.since_set_m >= self.cfg.recheck_after_set_m):
                 self._start_search(recheck=True)
         else:
             self.state = "ok"

@@ -18,6 +18,7 @@ mapping node.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,8 +158,13 @@ class Estimation:
 
 
 def build_estimation(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
-                     robot: RobotModel) -> Estimation:
-    """Load the map, then build the EKF and the localiser (or mapper) and register them."""
+                     robot: RobotModel,
+                     amend_map: Callable[[OccupancyGrid], OccupancyGrid] | None = None
+                     ) -> Estimation:
+    """Load the map, then build the EKF and the localiser (or mapper) and register them.
+
+    ``amend_map`` changes the loaded map before anything uses it (the dock drawn at home).
+    """
     start = start_pose(cfg, robot)
     mapping = cfg.localization.enabled and cfg.localization.mode == "map"
     if mapping:
@@ -170,6 +176,8 @@ def build_estimation(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
                              Pose2D(start.x - 10.0, start.y - 10.0, 0.0), name="mapping")
     else:
         grid = load_map(map_path(cfg))
+        if amend_map is not None:
+            grid = amend_map(grid)
     map_server = MapServer(bus, clock, grid)
     map_server.publish()
     ekf = None

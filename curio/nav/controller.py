@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -255,6 +256,8 @@ class LocalController:
         self.goal: Pose2D | None = None
         self.check_yaw = True
         self.progress = ProgressChecker(cfg.progress_min_distance_m, cfg.progress_timeout_s)
+        # Speed zones (curio/zones): the speed limit for the rover at a pose in map, m/s.
+        self.speed_limit: Callable[[Pose2D], float] | None = None
         self.reset()
 
     # --- state ------------------------------------------------------------------------------
@@ -522,6 +525,10 @@ class LocalController:
         kappa = pursuit_curvature(aim.x_r, aim.y_r, kmax)
         v_target, detail = regulated_speed(cfg, self.robot, kappa, self._clearance_m(cyc.pose),
                                            cyc.dist_goal, cyc.now_s < self._settle_until)
+        if self.speed_limit is not None:
+            zone_limit = self.speed_limit(cyc.pose)
+            if zone_limit < v_target:
+                v_target, detail = zone_limit, detail or "speed zone"
         if abs(self._v) < 1e-3 and abs(self._w) < 1e-3:
             self._kappa = kappa  # standing still: the servos swing while the speed ramps up
         else:

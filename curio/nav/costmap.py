@@ -48,6 +48,10 @@ __all__ = ["Costmap", "CostmapNode", "GridInfo", "costs_to_percent"]
 
 log = logging.getLogger("curio.nav.costmap")
 
+# Between two updates (0.2 s) the rover moves a few centimetres: a bigger jump of its pose in
+# map is a relocalisation (or a pose set on the map).
+RELOCALISATION_JUMP_M = 0.5
+
 U8Array = npt.NDArray[np.uint8]
 BoolArray = npt.NDArray[np.bool_]
 FloatArray = npt.NDArray[np.float64]
@@ -110,11 +114,12 @@ class Costmap:
         self._near_static = self._near_static_mask(self._static_lethal)
         self._unknown: BoolArray = static_map.unknown_mask() & ~self._static_lethal
         self._obstacles: BoolArray = np.zeros((h, w), dtype=bool)
+        self._keepout: BoolArray = np.zeros((h, w), dtype=bool)  # zones (set_keepout)
         self._seen: BoolArray = np.zeros((h, w), dtype=bool)
         self._touched = np.zeros((h, w), dtype=np.uint8)  # trace_scan's scratch
         self._margin_cells = math.ceil(self.cfg.inflation_radius_m / self.resolution_m) + 1
         self._footprint_samples = self._make_footprint_samples()
-        master = self._inflate(self._static_lethal)
+        master = self._inflate(self._static_lethal | self._keepout)
         self._apply_unknown(master, (slice(0, h), slice(0, w)))
         master.setflags(write=False)
         self._master: U8Array = master
@@ -203,7 +208,8 @@ class Costmap:
             return
         m = self._margin_cells
         R0, R1, C0, C1 = max(0, r0 - m), min(h, r1 + m), max(0, c0 - m), min(w, c1 + m)
-        lethal = self._static_lethal[R0:R1, C0:C1] | self._obstacles[R0:R1, C0:C1]
+        lethal = (self._static_lethal[R0:R1, C0:C1] | self._obstacles[R0:R1, C0:C1]
+                  | self._keepout[R0:R1, C0:C1])
         sub = self._inflate(lethal)[r0 - R0:r1 - R0, c0 - C0:c1 - C0]
         master = self._master.copy()
         master[r0:r1, c0:c1] = sub
@@ -307,6 +313,30 @@ class Costmap:
         window[within] = False
         m = self._margin_cells
         self._recompute(r0 - m, r1 + m, c0 - m, c1 + m)
+
+    def set_keepout(self, mask: BoolArray) -> None:
+        """The keep-out layer: cells of keep-out zones drawn on the map (``curio/zones``),
+        lethal like a wall and inflated with the rest, so no plan and no checked trajectory
+        enters them. Scans never clear them; a new static map on another grid drops them.
+
+        Raises:
+            ValueError: ``mask`` is not of the costmap's shape.
+        """
+        if mask.shape != self._keepout.shape:
+            raise ValueError(f"keep-out mask of shape {mask.shape}, the costmap is "
+                             f"{self._keepout.shape}")
+        changed = mask != self._keepout
+        if not changed.any():
+            return
+        self._keepout = np.array(mask, dtype=bool)
+        rr = np.flatnonzero(changed.any(axis=1))
+        cc = np.flatnonzero(changed.any(axis=0))
+        m = self._margin_cells
+        self._recompute(int(rr[0]) - m, int(rr[-1]) + 1 + m, int(cc[0]) - m, int(cc[-1]) + 1 + m)
+
+    def keepout_mask(self) -> BoolArray:
+        """Cells of the keep-out layer (a copy)."""
+        return self._keepout.copy()
 
     def reset_obstacles(self) -> None:
         """Forget every obstacle-layer mark (the static map stays)."""
@@ -430,6 +460,8 @@ class CostmapNode:
         self._last_scan_stamp = -math.inf
         self._pose_sub = bus.subscribe(POSE, maxsize=256)
         self._poses = PoseHistory(256, interpolation="linear")
+        self._last_pose: Pose2D | None = None
+        self.relocalisation_resets = 0
 
     def pose_at(self, stamp: float) -> Pose2D | None:
         """The rover's pose in ``map`` at ``stamp``, from the recent ``POSE`` history."""
@@ -446,6 +478,7 @@ class CostmapNode:
         pose = self.pose_at(math.inf)
         if pose is None:
             return
+        self._forget_marks_on_jump(pose)
         if scan is not None and scan.stamp != self._last_scan_stamp:
             self._last_scan_stamp = scan.stamp
             scan_pose = self.pose_at(scan.stamp)
@@ -458,6 +491,16 @@ class CostmapNode:
             self._published_version = cm.version
             self._last_global_publish = now
         self.bus.publish(LOCAL_COSTMAP, cm.local_message(now, pose))
+
+    def _forget_marks_on_jump(self, pose: Pose2D) -> None:
+        """The rover's pose in ``map`` jumped (relocalisation, a pose set on the map): the
+        obstacle marks were placed with the old pose, so they are wrong; forget them."""
+        last, self._last_pose = self._last_pose, pose
+        if last is not None and last.distance_to(pose) > RELOCALISATION_JUMP_M:
+            self.costmap.reset_obstacles()
+            self.relocalisation_resets += 1
+            log.info("costmap: the pose jumped %.2f m (relocalised): obstacle marks cleared",
+                     last.distance_to(pose))
 
     async def run(self) -> None:
         """Update at ``update_rate_hz`` until cancelled."""

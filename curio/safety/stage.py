@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+from typing import Any
 
 from curio.core.bus import Bus, Subscription
 from curio.core.clock import Clock
@@ -63,7 +64,9 @@ from curio.core.topics import (
 from curio.robot import RobotModel
 from curio.safety.stop_zone import StopZone, StopZoneResult
 
-__all__ = ["SafetyStage"]
+__all__ = ["DOCK_MARGIN_M", "SafetyStage"]
+
+DOCK_MARGIN_M = 0.005  # what the stop zone keeps to the dock while docking
 
 class SafetyStage:
     """Turns the wanted velocities into the one the base executes (see the module docstring).
@@ -107,6 +110,14 @@ class SafetyStage:
             "cycles": 0, "stop_zone_stops": 0, "slowed_cycles": 0, "estops": 0,
             "watchdog_trips": 0, "wheel_limited_cycles": 0,
         }
+        # Zones drawn on the map (curio/zones/guard.py): limit(v, w) -> (v, w) or None.
+        self.zone_guard: Any = None
+        # Docking (curio/docking): until this clock time the stop zone only prevents contact
+        # and the speed is capped, so the rover can close on its dock.
+        self._docking_until = -math.inf
+        self._docking_speed_mps = 0.0
+        self.dock_zone = StopZone(robot.footprint_points, DOCK_MARGIN_M, DOCK_MARGIN_M,
+                                  0.5, DOCK_MARGIN_M, 1.0)
 
     # --- inputs ---------------------------------------------------------------------------
     def on_nav(self, msg: Twist) -> None:
@@ -166,6 +177,13 @@ class SafetyStage:
             self.bus.publish(EVENTS, Event(now, "safety.estop",
                                            {"engaged": False, "source": source}))
 
+    def allow_docking(self, until_s: float, max_speed_mps: float) -> None:
+        """Let the rover close on its dock until clock time ``until_s``: the stop zone then
+        keeps only ``DOCK_MARGIN_M`` to what is ahead and the speed is capped at
+        ``max_speed_mps`` (the docking behaviour renews it every cycle of its approach)."""
+        self._docking_until = until_s
+        self._docking_speed_mps = max_speed_mps
+
     # --- the control step -------------------------------------------------------------------
     def _event(self, kind: str, **detail: object) -> None:
         self.bus.publish(EVENTS, Event(self.clock.now(), kind, dict(detail)))
@@ -177,6 +195,23 @@ class SafetyStage:
         if self._nav is not None and now - self._nav.stamp <= s.cmd_timeout_s:
             return self._nav.linear_mps, self._nav.angular_radps, "nav"
         return 0.0, 0.0, ""
+
+    def _zones_and_docking(self, v: float, w: float,
+                           now: float) -> tuple[float, float, StopZone, bool]:
+        """Zones drawn on the map (keep-out ahead, speed limits), then the docking allowance:
+        the command, the stop zone to use and whether the command was reduced."""
+        v0, w0 = v, w
+        if self.zone_guard is not None and (v or w):
+            v, w = self.zone_guard.limit(v, w)
+        stop_zone = self.zone
+        if now < self._docking_until:
+            stop_zone = self.dock_zone
+            cap = self._docking_speed_mps
+            if abs(v) > cap:
+                w *= cap / abs(v)
+                v = math.copysign(cap, v)
+        limited = abs(v) < abs(v0) - 1e-9 or abs(w) < abs(w0) - 1e-9
+        return v, w, stop_zone, limited
 
     def step(self) -> Twist:
         """Compute, publish and return the next ``/cmd_vel`` (call at ``rate_hz``)."""
@@ -219,8 +254,10 @@ class SafetyStage:
         if blind:
             v = w = 0.0
             braking = True
+        v, w, stop_zone, limited = self._zones_and_docking(v, w, now)
+        braking = braking or limited
         # Stop zone.
-        zone = self.zone.evaluate(v, w) if (v or w) else StopZoneResult(1.0)
+        zone = stop_zone.evaluate(v, w) if (v or w) else StopZoneResult(1.0)
         self.last_zone = zone
         if zone.factor < 1.0:
             self.counters["slowed_cycles"] += 1

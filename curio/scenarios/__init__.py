@@ -19,6 +19,9 @@ SCENARIOS: dict[str, str] = {
     "blocked-door": "curio.scenarios.blocked_door:BlockedDoorScenario",
     "guided-tour": "curio.scenarios.guided_tour:GuidedTourScenario",
     "tour-day": "curio.scenarios.tour_day:TourDayScenario",
+    "low-battery": "curio.scenarios.low_battery:LowBatteryScenario",
+    "keepout": "curio.scenarios.keepout:KeepoutScenario",
+    "lost": "curio.scenarios.lost:LostScenario",
 }
 
 

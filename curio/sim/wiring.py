@@ -88,7 +88,8 @@ class Simulator:
         async for t in self.clock.every(1.0, phase_s=0.003):
             if self.publish_sensors:
                 volts = self.world.battery_voltage()
-                self.bus.publish(BATTERY, BatteryState(t, volts, low=volts < LOW_BATTERY_V))
+                self.bus.publish(BATTERY, BatteryState(t, volts, low=volts < LOW_BATTERY_V,
+                                                       charger_v=self.world.charger_voltage()))
             self.bus.publish(HEALTH, DriverHealth(t, "simulator", "ok", counters={
                 "collisions": float(self.world.collisions),
                 "physics_steps": float(self.physics_steps),

@@ -17,7 +17,12 @@ Public API (other parts — the sim wiring, the device emulators, scenarios — 
   −π, counter-clockwise), with range noise, dropouts (``inf``) and invalid returns (``nan``).
 * ``world.imu_sample(stamp) -> Imu`` — BNO055 in ``imu_link``: yaw, yaw rate with bias and
   noise, linear acceleration (gravity removed).
-* ``world.battery_voltage() -> float`` and ``world.set_battery_voltage(v)`` — servo pack volts.
+* ``world.battery_voltage() -> float`` and ``world.set_battery_voltage(v)`` — servo pack volts;
+  ``world.battery_drain_v_per_h`` (settable) — how fast the resting voltage falls.
+* ``world.dock`` (a :class:`~curio.docking.station.DockStation` or None; ``set_dock``) — the
+  charging dock at home when ``dock.enabled``: its outline blocks rays and the rover, and while
+  its contact touches (``world.docked``) the pack charges at ``dock.charge_rate_v_per_h`` and
+  ``world.charger_voltage()`` reads ``dock.charger_v`` (else 0; None without a dock).
 * ``world.truth_pose -> Pose2D`` (``base_link`` in ``map``), ``world.truth_twist -> (v, ω)``,
   ``world.teleport(pose)``.
 * ``world.add_box(x, y, w, h, yaw=0) -> int``, ``world.add_person(route, speed_mps=0.8,
@@ -55,6 +60,7 @@ from curio.core.config import Config
 from curio.core.errors import SetupError
 from curio.core.geometry import Pose2D, wrap_angle, yaw_to_quat
 from curio.core.messages import Imu, LaserScan, ServoCommand
+from curio.docking.station import DockShape, DockStation
 from curio.drivers.kinematics import (
     STEER_CORNERS,
     WHEEL_SIDES,
@@ -241,6 +247,8 @@ class World:
         self._imu_k = 0
         self._battery_base_v = BATTERY_FULL_V
         self._battery_t0 = 0.0
+        self.battery_drain_v_per_h = BATTERY_DRAIN_V_PER_H
+        self.dock: DockStation | None = None
         # Objects.
         self._next_id = 1
         self._boxes: dict[int, Box] = {}
@@ -266,12 +274,18 @@ class World:
         grid = load_map(yaml_path)
         spec_path = world_spec_path(yaml_path)
         spec = load_world_spec(spec_path) if spec_path.is_file() else None
-        start = cfg.sim.start if cfg.sim.start is not None else cfg.robot.home
-        world = cls(grid, cfg, Pose2D(*start), spec, robot)
+        robot = robot if robot is not None else RobotModel.from_config(cfg.robot)
+        start = Pose2D(*cfg.sim.start) if cfg.sim.start is not None else robot.home
+        world = cls(grid, cfg, start, spec, robot)
+        if cfg.dock.enabled:
+            d = cfg.dock
+            world.set_dock(DockStation(robot.home, DockShape.for_footprint(robot.footprint),
+                                       d.contact_xy_m, d.contact_yaw_rad, d.charger_v))
         if world.collides(world.truth_pose):
             log.warning("the start pose (%.2f, %.2f, %.2f) overlaps %s in %s: the rover can only "
                         "move out of it (set sim.start or robot.home to a free pose)",
-                        *start, ", ".join(world._hits(world.truth_pose)), yaml_path.name)
+                        *start.as_tuple(), ", ".join(world._hits(world.truth_pose)),
+                        yaml_path.name)
         return world
 
     def _new_id(self) -> int:
@@ -347,8 +361,28 @@ class World:
         """People by id (read-only by convention)."""
         return self._people
 
+    def set_dock(self, dock: DockStation | None) -> None:
+        """Place (or remove) the charging dock."""
+        self.dock = dock
+        self._shapes_dirty = True
+        self._contacts_stale = True
+
+    @property
+    def docked(self) -> bool:
+        """Whether the dock's charging contact touches the rover."""
+        return self.dock is not None and self.dock.touching(self._pose)
+
+    def charger_voltage(self) -> float | None:
+        """Volts at the dock's contacts (the charger's while they touch, else 0); None
+        without a dock."""
+        if self.dock is None:
+            return None
+        return self.dock.charger_v if self.docked else 0.0
+
     def _update_shapes(self) -> None:
         segs: list[tuple[float, float, float, float]] = []
+        if self.dock is not None:
+            segs.extend(self.dock.segments())
         for box in self._boxes.values():
             segs.extend(box.segments())
         for door in self._doors.values():
@@ -419,6 +453,12 @@ class World:
         for oid, person in self._people.items():
             if self._person_touches(person.x_m, person.y_m, person.radius_m, pose):
                 hits.append(f"person:{oid}")
+        dock = self.dock
+        if dock is not None and math.hypot(dock.centre[0] - pose.x, dock.centre[1] - pose.y) \
+                <= self._fp_radius + dock.radius_m:
+            poly = poly or [pose.transform_point(x, y) for x, y in self.footprint]
+            if any(polygons_overlap(poly, block) for block in dock.polygons()):
+                hits.append("dock")
         return hits
 
     def _person_touches(self, x: float, y: float, r: float, pose: Pose2D) -> bool:
@@ -435,6 +475,8 @@ class World:
         self._run_door_scripts()
         self._move_people(dt_s)
         self._step_rover(dt_s)
+        if self.dock is not None and self.docked:
+            self._charge(dt_s)
 
     def _run_door_scripts(self) -> None:
         for door in self._doors.values():
@@ -648,10 +690,19 @@ class World:
 
     def battery_voltage(self) -> float:
         """Servo pack voltage (V): slow discharge plus sag under wheel load."""
-        hours = (self.time_s - self._battery_t0) / 3600.0
         load = sum(abs(d) for d in self._duty) / 6000.0
-        return max(0.0, self._battery_base_v - BATTERY_DRAIN_V_PER_H * hours
-                   - BATTERY_LOAD_SAG_V * load)
+        return max(0.0, self._resting_voltage() - BATTERY_LOAD_SAG_V * load)
+
+    def _resting_voltage(self) -> float:
+        hours = (self.time_s - self._battery_t0) / 3600.0
+        return self._battery_base_v - self.battery_drain_v_per_h * hours
+
+    def _charge(self, dt_s: float) -> None:
+        """On the charger: the resting voltage rises (no drain) up to a full pack."""
+        rate = self.cfg.dock.charge_rate_v_per_h / 3600.0
+        self._battery_base_v = min(BATTERY_FULL_V, max(self._resting_voltage(),
+                                                       self._battery_base_v) + rate * dt_s)
+        self._battery_t0 = self.time_s
 
     def set_battery_voltage(self, volts: float) -> None:
         """Set the resting pack voltage now (it keeps discharging from there)."""

@@ -54,6 +54,7 @@ from curio.web.inputs import (
 )
 from curio.web.services import GATE, HUB, ROVER
 from curio.web.tokens import Identity
+from curio.web.unattended_api import UNATTENDED_ROUTES
 
 __all__ = ["ROUTES"]
 
@@ -410,4 +411,5 @@ ROUTES: list[web.RouteDef] = [
     web.post("/api/estop", estop),
     web.post("/api/command", command),
     web.post("/api/initial_pose", initial_pose),
+    *UNATTENDED_ROUTES,  # issue 11: battery, dock, pose, zones, help (curio/web/unattended_api.py)
 ]

@@ -19,16 +19,40 @@ from aiohttp import web
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
+from curio.docking.docker import Docker
+from curio.docking.home import HomeDock
 from curio.eventlog.store import EventLog
+from curio.help.desk import HelpDesk
 from curio.record.timeline import ReplayTimeline
 from curio.robot import RobotModel
+from curio.tours.placement import MapPlacement
 from curio.tours.wiring import Tours
 from curio.web.auth import Gate
 from curio.web.control import RoverControl
 from curio.web.hub import Hub
 from curio.web.tokens import TokenStore
+from curio.zones.service import ZoneService
 
 __all__ = ["GATE", "HUB", "ROVER", "SERVICES", "STATIC_VERSION", "WebServices"]
+
+
+@dataclass
+class UnattendedServices:
+    """The parts the unattended-operation endpoints use (``curio/web/unattended_api.py``).
+
+    Attributes:
+        home: the one home, which is also the dock.
+        docker: the docking behaviour (None without a dock).
+        zones: the zones of the active map (None when zones are off).
+        help: the help desk.
+        placement: the tours' map placement (where a new home may go).
+    """
+
+    home: HomeDock
+    docker: Docker | None
+    zones: ZoneService | None
+    help: HelpDesk
+    placement: MapPlacement
 
 
 @dataclass
@@ -47,6 +71,7 @@ class WebServices:
         eventlog: the SQLite event log, or None (``eventlog.enabled`` off).
         recordings_dir: where the flight recorder writes its MCAP files, or None.
         replay: the replay's timeline when ``curio replay --web`` serves the page, or None.
+        unattended: battery, dock, zones, help (``curio.web.unattended_api``), or None.
     """
 
     cfg: Config
@@ -60,6 +85,7 @@ class WebServices:
     eventlog: EventLog | None = None
     recordings_dir: Path | None = None
     replay: ReplayTimeline | None = None
+    unattended: UnattendedServices | None = None
 
 
 SERVICES = web.AppKey("services", WebServices)

@@ -65,9 +65,9 @@ PERMISSIONS: dict[str, frozenset[str]] = {
     "viewer": frozenset(),
     "kiosk": frozenset({"tour"}),
     "operator": frozenset({"tour", "estop", "command", "drive", "paths", "initial_pose",
-                           "tours", "data"}),
+                           "tours", "zones", "data"}),
     "admin": frozenset({"tour", "estop", "command", "drive", "paths", "initial_pose",
-                        "tours", "data", "release_any_estop"}),
+                        "tours", "zones", "data", "release_any_estop"}),
 }
 PERMISSION_WORDS = {
     "tour": "start and stop tours",
@@ -77,6 +77,7 @@ PERMISSION_WORDS = {
     "paths": "edit paths",
     "initial_pose": "set the rover's position",
     "tours": "edit tours and schedules",
+    "zones": "edit keep-out and speed zones",
     "data": "download the event log and recordings",
     "release_any_estop": "release another operator's e-stop",
 }

@@ -28,7 +28,7 @@ from curio.robot import RobotModel
 from curio.tours.wiring import Tours
 from curio.web.hub import Hub
 from curio.web.server import SHUTDOWN_TIMEOUT_S, create_app
-from curio.web.services import HUB, WebServices
+from curio.web.services import HUB, UnattendedServices, WebServices
 from curio.web.tokens import TokenStore
 
 __all__ = ["DashboardAddressError", "WebServer", "build_web", "open_tokens"]
@@ -114,7 +114,8 @@ def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotMod
               paths: PathManager, tokens: TokenStore,
               part_states: Callable[[], dict[str, str]] | None = None,
               tours: Tours | None = None, eventlog: EventLog | None = None,
-              recordings_dir: Path | None = None) -> WebServer:
+              recordings_dir: Path | None = None,
+              unattended: UnattendedServices | None = None) -> WebServer:
     """Construct the dashboard from ``cfg.web`` and register it as a part.
 
     Args:
@@ -123,10 +124,12 @@ def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotMod
         tours: the tours subsystem (tour authoring, schedules, the kiosk), or None.
         eventlog: the event log (the log view, the report, recordings' summaries), or None.
         recordings_dir: the flight recorder's directory (the recordings list), or None.
+        unattended: battery, dock, zones, help (``curio/web/unattended_api.py``), or None.
     """
     services = WebServices(cfg=cfg, clock=clock, bus=bus, tokens=tokens, robot=robot,
                            paths=paths, part_states=part_states, tours=tours,
-                           eventlog=eventlog, recordings_dir=recordings_dir)
+                           eventlog=eventlog, recordings_dir=recordings_dir,
+                           unattended=unattended)
     server = WebServer(services)
     parts.add(Part("web", run=server.run, close=server.close))
     return server

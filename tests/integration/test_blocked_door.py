@@ -1,4 +1,5 @@
-"""``blocked-door`` end to end: a door closes in front of the touring rover and reopens.
+"""``blocked-door`` end to end: a door closes in front of the touring rover and reopens;
+"Thanks!" comes within 3 s of the opening, never while the door is closed.
 
 A short tour (two stops, the second behind the library door, the only way in) keeps it fast;
 ``curio sim blocked-door`` runs the building's whole tour.
@@ -37,6 +38,10 @@ async def test_blocked_door(tmp_path: Path) -> None:
     resolved = next(e for e in events if e["kind"] == "help.resolved")
     assert closed <= requested["t"] < opened <= resolved["t"]
     assert resolved["detail"]["message"] == "Thanks!"
+    # Issue 11: "Thanks!" from fresh lidar evidence, within 3 s of the door opening, and
+    # never while it is closed (one resolution, after the opening: above).
+    assert resolved["t"] - opened <= 3.0, resolved["t"] - opened
+    assert kinds.count("help.resolved") == 1
     assert kinds.count("help.requested") == 1
     stops_seen = [e["detail"]["name"] for e in events if e["kind"] == "tour.stop"]
     assert stops_seen == ["Corridor", "Library"]

@@ -44,7 +44,9 @@ class LowBatteryTour(Scenario):
         ctx.world.set_battery_voltage(7.4)
         ctx.press("start_tour")
         await wait("tour.stop")
-        ctx.world.set_battery_voltage(6.4)  # sags on the leg to the second stop
+        # Sags on the leg to the second stop: low (< 6.6 V), not critical (< 6.3 V, issue 11's
+        # stop-and-ask-for-help level) even with the load sag while driving.
+        ctx.world.set_battery_voltage(6.55)
         await wait("battery.low")
         await wait("path.finished")  # the home path
         finished = of("path.finished")[-1]

@@ -181,7 +181,7 @@ class Harness:
 
 def make_harness(cfg: BtConfig | None = None, *, navigator: Any = "fake",
                  paths: PathManager | None = None, bus: Bus | None = None,
-                 autostart_path: int | None = None) -> Harness:
+                 autostart_path: int | None = None, docker: Any = None) -> Harness:
     cfg = cfg or BtConfig(speak=False)
     bus = bus or make_bus()
     clock = ManualClock()
@@ -192,6 +192,6 @@ def make_harness(cfg: BtConfig | None = None, *, navigator: Any = "fake",
     events_sub = bus.subscribe(EVENTS)
     progress_sub = bus.subscribe(PROGRESS)
     runner = build_tree_runner(cfg, bus, clock, nav, paths, speaker,
-                               autostart_path=autostart_path)
+                               autostart_path=autostart_path, docker=docker)
     return Harness(runner, nav, clock, bus, paths, status_sub, events_sub, progress_sub,
                    speaker)

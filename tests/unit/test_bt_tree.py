@@ -687,11 +687,15 @@ def test_final_tree_structure_and_priorities() -> None:
     by_id = {n["id"]: n for n in snap.nodes}
     root = snap.nodes[0]
     assert [by_id[c]["name"] for c in root["children"]] == [
-        "Operator2BB", "Blocked2BB", "EStop2BB", "Goal2BB", "Priorities"]
+        "Operator2BB", "Blocked2BB", "EStop2BB", "Battery2BB", "Goal2BB", "Localization2BB",
+        "Dock2BB", "Priorities"]
     prio = next(n for n in snap.nodes if n["name"] == "Priorities")
     assert prio["type"] == "Selector"
+    # Issue 11: the battery and lost-and-found branches sit under E-stop and Pause in every
+    # tree (with a dock, Dock, Undock and Docked join them: test_unattended_bt.py).
     assert [by_id[c]["name"] for c in prio["children"]] == [
-        "E-stop", "Pause", "Go Home", "Change Path?", "Check Path", "Follow Path", "Idle"]
+        "E-stop", "Pause", "Battery critical", "Lost", "Battery", "Go Home", "Change Path?",
+        "Check Path", "Follow Path", "Idle"]
     check = next(n for n in snap.nodes if n["name"] == "Check Path")
     assert [by_id[c]["name"] for c in check["children"]] == ["Blocked?", "Ask4Help"]
 

@@ -723,8 +723,11 @@ class ArduinoBase(BaseDriver):
                 self._acks.pop(next(iter(self._acks)))
         elif isinstance(msg, p.Battery):
             volts = msg.servo_vin_mv / 1000.0
+            charger = (msg.adc_mv / 1000.0 if self.cfg.adc_is_charger
+                       and msg.adc_mv != p.ADC_NOT_FITTED else None)
             self.bus.publish(BATTERY, BatteryState(stamp=now, voltage_v=volts,
-                                                   low=volts < self.cfg.low_battery_v))
+                                                   low=volts < self.cfg.low_battery_v,
+                                                   charger_v=charger))
         elif isinstance(msg, p.Info):
             self.info = msg
             self._saw_boot = True

@@ -326,7 +326,9 @@ class FirmwareModel:
                 p.ServoStatusEntry(sid, v, 0xFF, 1 if i < 6 else 0, 0xFF, 0)
                 for i, (sid, v) in enumerate(zip(ids, vin, strict=True)))
             self._emit(p.ServoStatus(now_ms, entries))
-            self._emit(p.Battery(_median(vin)))
+            charger = getattr(self.servos, "read_charger_mv", None)
+            self._emit(p.Battery(_median(vin), charger() if charger is not None
+                                 else p.ADC_NOT_FITTED))
         if now_ms >= self.next_state_ms:
             self._emit_state(now_ms)
         if self.config.flags & 0x02 and self.rc_channels_us is not None and \
@@ -377,6 +379,14 @@ class _WorldServos:
     def read_vin_mv(self) -> tuple[int, ...]:
         mv = round(self.world.battery_voltage() * 1000.0)
         return (max(0, min(0xFFFF, mv)),) * 10
+
+    def read_charger_mv(self) -> int:
+        """A0: the dock contacts' voltage through a divider (0xFFFF: no dock in the world)."""
+        read = getattr(self.world, "charger_voltage", None)
+        volts = read() if read is not None else None
+        if volts is None:
+            return p.ADC_NOT_FITTED
+        return max(0, min(0xFFFE, round(float(volts) * 1000.0)))
 
 
 class ArduinoEmulator:
