@@ -221,6 +221,10 @@ class EventLog:
         self._queue.put(_Row(float(wall_s), kind, source, text))
         self.stats.queued += 1
 
+    def pending(self) -> int:
+        """Records (and requests) queued for the writer thread, not yet taken."""
+        return self._queue.qsize()
+
     def flush(self, timeout_s: float = 10.0) -> bool:
         """Block until everything queued so far is committed; False on timeout or a stopped
         writer (for tests, reports and shutdown — not for the loop's hot path)."""
