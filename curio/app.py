@@ -9,8 +9,9 @@ objects by constructor injection, registers its running pieces on a
 ``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``) and
 ``build_web`` (``curio/web/wiring.py``); the flight recorder (``build_recorder``,
 ``curio/record/wiring.py``) comes first, so its bus tap sees every message, then the event log
-(``build_eventlog``, ``curio/eventlog/wiring.py``). The order of the calls below is the order of
-dependencies. Nothing below this module imports it, and nothing is a module-level singleton:
+(``build_eventlog``, ``curio/eventlog/wiring.py``) and the loop watch
+(:class:`~curio.core.loopwatch.LoopWatch`: a blocked event loop is a fault on ``/health``). The
+order of the calls below is the order of dependencies. Nothing below this module imports it, and nothing is a module-level singleton:
 two ``App`` objects can run side by side (tests do).
 
 Shutdown order: the rover is stopped first (a zero velocity goes to the base and the base's
@@ -30,6 +31,7 @@ from curio.bt.wiring import build_behaviour
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
+from curio.core.loopwatch import LoopWatch
 from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
 from curio.core.topics import CMD_VEL, make_bus
@@ -90,6 +92,8 @@ class App:
             may_drive=lambda presented: self.tokens.permits(presented, "drive"))
         logging_ = build_eventlog(cfg, self.bus, clock, reg)
         self.eventlog: EventLog | None = logging_.log if logging_ else None
+        self.loopwatch = LoopWatch(self.bus, clock)
+        reg.add(Part("loop", run=self.loopwatch.run))
         if inputs is None:
             sim = build_sim(cfg, self.bus, clock, reg, self.robot)
         elif not driver_mode(cfg).simulated:

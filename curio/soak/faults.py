@@ -215,7 +215,8 @@ def _inject_more(fault: PlannedFault, t: Targets, deadline: float) -> Injection:
         async def stall() -> None:
             await _stall(t, stall_s)
 
-        return Injection(("loop",), ("loop.stalled",), stall, deadline)
+        return Injection(("loop",), ("loop.stalled",), stall, deadline,
+                         recovery_parts=("loop", "lidar", "arduino", "imu"))
     if kind == "disk_full":
         if t.ballast is None:
             raise RuntimeError("disk_full needs a size-limited data filesystem")
