@@ -155,6 +155,9 @@ class ImuConfig(Section):
     reconnect_s: float = Field(1.0, gt=0.0, le=30.0)
     max_consecutive_errors: int = Field(10, ge=1, description="failed reads before re-init")
     error_rate_warn: float = Field(0.01, ge=0.0, le=1.0, description="health degraded above")
+    frozen_timeout_s: float = Field(
+        2.0, ge=0.0, le=60.0, description="bit-identical readings this long mean the chip's "
+        "output froze: re-initialise it (0 = never)")
     samples_per_wakeup: int = Field(
         4, ge=1, le=10, description="readings per I/O-thread trip (paced in the thread)"
     )
