@@ -9,10 +9,12 @@ objects by constructor injection, registers its running pieces on a
 ``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``) and
 ``build_web`` (``curio/web/wiring.py``); the flight recorder (``build_recorder``,
 ``curio/record/wiring.py``) comes first, so its bus tap sees every message, then the event log
-(``build_eventlog``, ``curio/eventlog/wiring.py``) and the loop watch
-(:class:`~curio.core.loopwatch.LoopWatch`: a blocked event loop is a fault on ``/health``). The
-order of the calls below is the order of dependencies. Nothing below this module imports it, and nothing is a module-level singleton:
-two ``App`` objects can run side by side (tests do).
+(``build_eventlog``, ``curio/eventlog/wiring.py``), the loop watch
+(:class:`~curio.core.loopwatch.LoopWatch`: a blocked event loop is a fault on ``/health``) and
+the run marker (:class:`~curio.core.runmarker.RunMarker`: a start after an unclean stop is
+reported). The order of the calls below is the order of dependencies. Nothing below this
+module imports it, and nothing is a module-level singleton: two ``App`` objects can run side by
+side (tests do).
 
 Shutdown order: the rover is stopped first (a zero velocity goes to the base and the base's
 ``halt()`` is awaited), then every task is cancelled and each part's ``close()`` runs.
@@ -34,6 +36,7 @@ from curio.core.config import Config
 from curio.core.loopwatch import LoopWatch
 from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
+from curio.core.runmarker import RunMarker
 from curio.core.topics import CMD_VEL, make_bus
 from curio.drivers.base import BaseDriver
 from curio.drivers.modes import driver_mode
@@ -94,6 +97,8 @@ class App:
         self.eventlog: EventLog | None = logging_.log if logging_ else None
         self.loopwatch = LoopWatch(self.bus, clock)
         reg.add(Part("loop", run=self.loopwatch.run))
+        self.runmarker = RunMarker(cfg.data_path("running.json"), self.bus, clock)
+        reg.add(Part("process", run=self.runmarker.run, close=self.runmarker.close))
         if inputs is None:
             sim = build_sim(cfg, self.bus, clock, reg, self.robot)
         elif not driver_mode(cfg).simulated:

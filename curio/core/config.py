@@ -257,6 +257,9 @@ class LocalizationConfig(Section):
     kld_z: float = Field(0.99, gt=0.0, lt=1.0)
     recovery_alpha_slow: float = Field(0.001, ge=0.0, le=1.0)
     recovery_alpha_fast: float = Field(0.1, ge=0.0, le=1.0)
+    resume_last_pose: bool = Field(
+        True, description="start where the last run left the rover (data_dir/last_pose.json) "
+        "instead of at robot.home / sim.start")
     initial_std_xy_m: float = Field(0.25, gt=0.0)
     initial_std_yaw_rad: float = Field(0.2, gt=0.0)
     odom_alpha1: float = Field(0.05, ge=0.0, description="rotation noise from rotation")

@@ -61,6 +61,7 @@ from curio.drivers.kinematics import (
     duty_to_servo_radps,
     steer_position_to_angle,
 )
+from curio.estimation.last_pose import LAST_POSE_FILE, load_last_pose
 from curio.estimation.maps import OccupancyGrid, load_map
 from curio.robot import RobotModel, wheel_geometry
 from curio.sim.objects import (
@@ -266,7 +267,7 @@ class World:
         grid = load_map(yaml_path)
         spec_path = world_spec_path(yaml_path)
         spec = load_world_spec(spec_path) if spec_path.is_file() else None
-        start = cfg.sim.start if cfg.sim.start is not None else cfg.robot.home
+        start = cfg.sim.start if cfg.sim.start is not None else _resumed_start(cfg)
         world = cls(grid, cfg, Pose2D(*start), spec, robot)
         if world.collides(world.truth_pose):
             log.warning("the start pose (%.2f, %.2f, %.2f) overlaps %s in %s: the rover can only "
@@ -664,6 +665,16 @@ class World:
         """Events since the last call: ``("collision", detail)``, ``("door", detail)``."""
         events, self._events = self._events, []
         return events
+
+
+def _resumed_start(cfg: Config) -> tuple[float, float, float]:
+    """Without ``sim.start``: where the last run left the rover (``last_pose.json``, so the
+    simulated rover and its own estimate agree after a restart), else ``robot.home``."""
+    if cfg.localization.resume_last_pose:
+        last = load_last_pose(cfg.data_path(LAST_POSE_FILE))
+        if last is not None:
+            return last.as_tuple()
+    return cfg.robot.home
 
 
 def _integrate(pose: Pose2D, vx: float, vy: float, w: float, dt_s: float) -> Pose2D:

@@ -17,7 +17,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["perform"]
 
-INVALID = [
+INVALID: list[dict[str, Any]] = [
     {"action": "fly"},
     {"action": "goto", "goal": {"x_m": 500.0, "y_m": 3.0}},
     {"action": "goto"},
@@ -140,9 +140,7 @@ async def _path_edit(c: SoakClient) -> None:
 
 async def perform(c: SoakClient, name: str) -> None:
     """Do action ``name`` (see the tables in :mod:`curio.soak.clients`)."""
-    simple = {"go_home": {}, "stop_tour": {}, "cancel": {}, "help_done": {},
-              "start_tour": {}}
-    if name in simple:
+    if name in ("go_home", "stop_tour", "cancel", "help_done", "start_tour"):
         await c.command(name)
     elif name == "select_path":
         await c.command("select_path", path_id=int(c.rng.choice([1, 2, 0])))

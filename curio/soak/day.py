@@ -138,9 +138,8 @@ class Building:
             return False
         if self.app.tours.scheduler.pending:
             return False
-        world = self.app.world
-        v, w = world.truth_twist
-        return abs(v) < MOVING_MPS and abs(w) < MOVING_MPS
+        v, w = self.app.world.truth_twist
+        return bool(abs(v) < MOVING_MPS and abs(w) < MOVING_MPS)
 
     def next_scheduled(self, now_wall_s: float) -> float | None:
         """The building time of the next scheduled start not yet seen by the scheduler."""

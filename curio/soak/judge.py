@@ -194,7 +194,7 @@ class FaultRunner:
         if need == "any":
             return True
         v, _w = self.app.world.truth_twist
-        moving = abs(v) > MOVING_MPS
+        moving = bool(abs(v) > MOVING_MPS)
         if need == "moving":
             return moving
         tour = self.app.bus.latest(TOUR)

@@ -317,7 +317,8 @@ class Orchestrator:
         req = self.kill_request if why == "killed" else None
         self.kill_request = None
         checks = check_files(self.data_dir, self.expected, self._map_yaml())
-        record = {"boot": self.boot, "why": why, "checks": [c.__dict__ for c in checks]}
+        record: dict[str, Any] = {"boot": self.boot, "why": why,
+                                  "checks": [c.__dict__ for c in checks]}
         self.file_checks.append(record)
         fault = None
         if req is not None:

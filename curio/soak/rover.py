@@ -84,6 +84,7 @@ class Rover:
     async def beat(self) -> None:
         """Report the simulated rover's state every ``BEAT_S``."""
         bus, world = self.app.bus, self.app.world
+        assert world is not None  # emulated mode: the simulator's world feeds the emulators
         async for now in self.clock.every(BEAT_S, immediate=True):
             truth = world.truth_pose
             v, w = world.truth_twist

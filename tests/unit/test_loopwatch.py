@@ -25,7 +25,7 @@ async def test_a_blocked_loop_is_an_event_and_degraded_health_until_it_clears() 
         await clock.sleep(0.05)
         clock.block(2.0)  # what a part that blocks the loop for 2 s looks like
 
-    asyncio.create_task(block())
+    blocker = asyncio.create_task(block())
     await clock.advance(1.0)
     stalled = [e for e in events.drain() if e.kind == "loop.stalled"]
     assert len(stalled) == 1 and stalled[0].detail["blocked_s"] == pytest.approx(1.95, abs=0.15)
@@ -33,7 +33,7 @@ async def test_a_blocked_loop_is_an_event_and_degraded_health_until_it_clears() 
     assert "degraded" in states
     await clock.advance(6.0)
     assert [h.state for h in health.drain()][-1] == "ok"
-    assert watch.stalls == 1
+    assert watch.stalls == 1 and blocker.done()
     task.cancel()
 
 
