@@ -12,9 +12,10 @@ objects by constructor injection, registers its running pieces on a
 (``build_eventlog``, ``curio/eventlog/wiring.py``), the loop watch
 (:class:`~curio.core.loopwatch.LoopWatch`: a blocked event loop is a fault on ``/health``) and
 the run marker (:class:`~curio.core.runmarker.RunMarker`: a start after an unclean stop is
-reported). The order of the calls below is the order of dependencies. Nothing below this
-module imports it, and nothing is a module-level singleton: two ``App`` objects can run side by
-side (tests do).
+reported) and the command journal (:class:`~curio.eventlog.commands.CommandJournal`: every
+command's answer, across restarts). The order of the calls below is the order of
+dependencies. Nothing below this module imports it, and nothing is a module-level singleton:
+two ``App`` objects can run side by side (tests do).
 
 Shutdown order: the rover is stopped first (a zero velocity goes to the base and the base's
 ``halt()`` is awaited), then every task is cancelled and each part's ``close()`` runs.
@@ -43,6 +44,7 @@ from curio.drivers.modes import driver_mode
 from curio.drivers.wiring import build_drivers
 from curio.estimation.ekf import EkfNode
 from curio.estimation.wiring import Localiser, MapServer, build_estimation
+from curio.eventlog.commands import CommandJournal
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
 from curio.nav.controller import LocalController
@@ -99,6 +101,8 @@ class App:
         reg.add(Part("loop", run=self.loopwatch.run))
         self.runmarker = RunMarker(cfg.data_path("running.json"), self.bus, clock)
         reg.add(Part("process", run=self.runmarker.run, close=self.runmarker.close))
+        self.journal = CommandJournal(self.bus, clock, self.eventlog)
+        reg.add(Part("commands", run=self.journal.run, close=self.journal.close))
         if inputs is None:
             sim = build_sim(cfg, self.bus, clock, reg, self.robot)
         elif not driver_mode(cfg).simulated:
@@ -136,7 +140,7 @@ class App:
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:
             self.web = build_web(cfg, self.bus, clock, reg, self.robot, self.paths, self.tokens,
-                                 part_states=self.part_states)
+                                 part_states=self.part_states, journal=self.journal)
             self.web_url = self.web.control_url
 
     @property

@@ -8,7 +8,8 @@ Thin module-level handlers over the services stored on the application
 Routes: ``/`` (the page), ``/static/...`` (hand-written JS and CSS, no CDN), ``/ws`` (the
 WebSocket; a token as the subprotocol ``curio.token.<token>`` (next to ``curio.v1``), a header
 or ``?token=`` names the operator; the messages are described in :mod:`curio.web.session`),
-``/api/...`` (REST, see :mod:`curio.web.api`).
+``/api/...`` (REST, see :mod:`curio.web.api`; ``/api/commands/{request_id}``:
+:mod:`curio.web.answers`).
 
 Every response carries security headers (:data:`SECURITY_HEADERS`: a Content-Security-Policy
 with ``frame-ancestors 'none'``, ``nosniff``, ``Referrer-Policy: no-referrer``); every request
@@ -38,6 +39,7 @@ from pathlib import Path
 from aiohttp import web
 
 from curio.core.topics import HEALTH
+from curio.web.answers import command_status
 from curio.web.api import ROUTES
 from curio.web.auth import WS_PROTOCOL, Gate, RedactTokens, check_origin, request_token
 from curio.web.control import RoverControl
@@ -82,7 +84,8 @@ Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 def create_app(services: WebServices) -> web.Application:
     """Build the dashboard application (the hub starts and stops with it)."""
     cfg = services.cfg.web
-    rover = RoverControl(services.cfg, services.clock, services.bus, services.paths)
+    rover = RoverControl(services.cfg, services.clock, services.bus, services.paths,
+                         services.journal)
     app = web.Application(middlewares=[json_errors], client_max_size=cfg.max_message_bytes)
     app[SERVICES] = services
     app[ROVER] = rover
@@ -96,6 +99,7 @@ def create_app(services: WebServices) -> web.Application:
     app.router.add_get("/", index)
     app.router.add_get("/ws", websocket)
     app.router.add_routes(ROUTES)
+    app.router.add_get("/api/commands/{request_id}", command_status)
     app.router.add_static("/static", STATIC_DIR, append_version=False)
     install_redaction(RedactTokens(services.tokens))
     return app

@@ -39,6 +39,9 @@ class WebServices:
         paths: the path manager, or None.
         robot: the robot model (footprint, home, laser pose, limits).
         part_states: the application's task states for the health panel, or None.
+        journal: the command journal (:class:`~curio.eventlog.commands.CommandJournal`):
+            duplicates across restarts and ``GET /api/commands/{request_id}``; None: this
+            run's duplicates only, and that endpoint answers ``unknown``.
     """
 
     cfg: Config
@@ -48,6 +51,7 @@ class WebServices:
     robot: RobotModel
     paths: Any = None
     part_states: Callable[[], dict[str, str]] | None = None
+    journal: Any = None
 
 
 SERVICES = web.AppKey("services", WebServices)

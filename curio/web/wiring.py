@@ -13,6 +13,7 @@ import asyncio
 import logging
 import socket
 from collections.abc import Callable
+from typing import Any
 
 from aiohttp import web
 
@@ -109,15 +110,17 @@ def open_tokens(cfg: Config, clock: Clock) -> TokenStore:
 
 def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
               paths: PathManager, tokens: TokenStore,
-              part_states: Callable[[], dict[str, str]] | None = None) -> WebServer:
+              part_states: Callable[[], dict[str, str]] | None = None,
+              journal: Any = None) -> WebServer:
     """Construct the dashboard from ``cfg.web`` and register it as a part.
 
     Args:
         tokens: the named tokens (:func:`open_tokens`).
         part_states: the application's task states, for the health panel (optional).
+        journal: the command journal (:class:`~curio.eventlog.commands.CommandJournal`).
     """
     services = WebServices(cfg=cfg, clock=clock, bus=bus, tokens=tokens, robot=robot,
-                           paths=paths, part_states=part_states)
+                           paths=paths, part_states=part_states, journal=journal)
     server = WebServer(services)
     parts.add(Part("web", run=server.run, close=server.close))
     return server
