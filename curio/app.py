@@ -34,6 +34,7 @@ from curio.bt.wiring import build_behaviour
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
+from curio.core.datanotes import DataNotes
 from curio.core.loopwatch import LoopWatch
 from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
@@ -136,6 +137,12 @@ class App:
         behaviour = build_behaviour(cfg, self.bus, clock, reg, nav, paths, self.tours.store)
         self.paths: PathManager = behaviour.paths
         self.tree: TreeRunner = behaviour.tree
+        notes = DataNotes(self.bus, clock)
+        for restored in (self.tours.store.restored, self.tours.schedules.restored,
+                         paths.restored):
+            notes.restored(restored)
+        notes.reset(paths.load_warning)
+        reg.add(Part("data", run=notes.run))
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:
