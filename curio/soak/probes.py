@@ -148,7 +148,8 @@ class RateWatch:
         self.steps += 1
         if self.last_s is not None:
             gap = t_s - self.last_s
-            excused = any(a - 1e-6 <= self.last_s and t_s <= b + 1.0 for a, b in self.excused)
+            excused = any(self.last_s <= b + 1e-6 and t_s >= a - 1e-6
+                          for a, b in self.excused)  # the gap overlaps an injected stall
             if not excused:
                 self.max_gap_s = max(self.max_gap_s, gap)
                 if gap > 2.0 / self.rate_hz + 1e-6:

@@ -159,13 +159,15 @@ class Rover:
             self.building.lapse(self.clock, wall, nexts, jumped)
 
     async def listen(self) -> None:
-        """Read the orchestrator's lines on standard input (``stop``)."""
+        """Read the orchestrator's lines on standard input (``stop``; end of file: the
+        orchestrator is gone, stop too)."""
         loop = asyncio.get_running_loop()
         reader = asyncio.StreamReader()
         await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
         while True:
             line = await reader.readline()
-            if not line:
+            if not line:  # the orchestrator is gone: stop cleanly rather than run orphaned
+                self.stop_requested = True
                 return
             with contextlib.suppress(ValueError):
                 if json.loads(line).get("t") == "stop":
