@@ -9,7 +9,11 @@ objects by constructor injection, registers its running pieces on a
 ``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``) and
 ``build_web`` (``curio/web/wiring.py``); the flight recorder (``build_recorder``,
 ``curio/record/wiring.py``) comes first, so its bus tap sees every message, then the event log
-(``build_eventlog``, ``curio/eventlog/wiring.py``). The order of the calls below is the order of
+(``build_eventlog``, ``curio/eventlog/wiring.py``), the loop watch
+(:class:`~curio.core.loopwatch.LoopWatch`: a blocked event loop is a fault on ``/health``) and
+the run marker (:class:`~curio.core.runmarker.RunMarker`: a start after an unclean stop is
+reported) and the command journal (:class:`~curio.eventlog.commands.CommandJournal`: every
+command's answer, across restarts). The order of the calls below is the order of
 dependencies. Nothing below this module imports it, and nothing is a module-level singleton:
 two ``App`` objects can run side by side (tests do).
 
@@ -32,8 +36,11 @@ from curio.bt.wiring import build_behaviour
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import Config
+from curio.core.datanotes import DataNotes
+from curio.core.loopwatch import LoopWatch
 from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
+from curio.core.runmarker import RunMarker
 from curio.core.topics import CMD_VEL, make_bus
 from curio.docking.docker import Docker
 from curio.docking.home import HomeDock, seed_home
@@ -44,6 +51,7 @@ from curio.drivers.wiring import build_drivers
 from curio.estimation.ekf import EkfNode
 from curio.estimation.maps import OccupancyGrid
 from curio.estimation.wiring import Localiser, MapServer, build_estimation, map_path
+from curio.eventlog.commands import CommandJournal
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
 from curio.help.desk import HelpDesk
@@ -114,6 +122,12 @@ class App:
         self.eventlog: EventLog | None = logging_.log if logging_ else None
         self.power: PowerMonitor = build_power(cfg, self.bus, clock, reg)
         self.help: HelpDesk = build_help(cfg, self.bus, clock, reg)
+        self.loopwatch = LoopWatch(self.bus, clock)
+        reg.add(Part("loop", run=self.loopwatch.run))
+        self.runmarker = RunMarker(cfg.data_path("running.json"), self.bus, clock)
+        reg.add(Part("process", run=self.runmarker.run, close=self.runmarker.close))
+        self.journal = CommandJournal(self.bus, clock, self.eventlog)
+        reg.add(Part("commands", run=self.journal.run, close=self.journal.close))
         if inputs is None:
             sim = build_sim(cfg, self.bus, clock, reg, self.robot)
         elif not driver_mode(cfg).simulated:
@@ -165,6 +179,12 @@ class App:
                                     docker=self.docker, probe=probe)
         self.paths: PathManager = behaviour.paths
         self.tree: TreeRunner = behaviour.tree
+        notes = DataNotes(self.bus, clock)
+        for restored in (self.tours.store.restored, self.tours.schedules.restored,
+                         paths.restored):
+            notes.restored(restored)
+        notes.reset(paths.load_warning)
+        reg.add(Part("data", run=notes.run))
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:
@@ -174,7 +194,8 @@ class App:
                                  recordings_dir=recordings_directory(cfg),
                                  unattended=UnattendedServices(
                                      self.home, self.docker, self.zones, self.help,
-                                     self.tours.placement))
+                                     self.tours.placement),
+                                 journal=self.journal)
             self.web_url = self.web.control_url
 
     @property

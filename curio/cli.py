@@ -2,7 +2,7 @@
 
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
 ``curio emulate DEVICE``, ``curio map ...``, ``curio report --day YYYY-MM-DD``,
-``curio replay FILE``, ``curio export ...``, ``curio token ...`` and
+``curio replay FILE``, ``curio export ...``, ``curio token ...``, ``curio soak`` and
 ``curio bench NAME``. Exit codes: 0 success,
 1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
 can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
@@ -117,6 +117,13 @@ def _build_parser() -> argparse.ArgumentParser:
 
     report_arguments(report)
     _add_config_args(report)
+
+    soak = sub.add_parser("soak", help="days without a person: the whole rover with operators, "
+                                       "a fault campaign and kill -9; what was lost")
+    from curio.commands.soak import add_arguments as soak_arguments
+
+    soak_arguments(soak)
+    _add_config_args(soak)
 
     bench = sub.add_parser("bench", help="run a benchmark and print its table")
     bench.add_argument("name", help="one of: " + ", ".join(available_benchmarks()))
@@ -343,6 +350,10 @@ def main(argv: list[str] | None = None) -> int:
             from curio.commands.report import run as report_run
 
             return report_run(_load(args), args)
+        if args.command == "soak":
+            from curio.commands.soak import run as soak_run
+
+            return soak_run(args)
         return _delegate(args.command, args.rest)
     except ConfigError as exc:
         print(f"curio: {exc}", file=sys.stderr)

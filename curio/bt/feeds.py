@@ -5,7 +5,8 @@ always return SUCCESS in one tick: unlike the original's ToBlackboard (RUNNING u
 arrives, §1.0, §9.2–9.3), no feed can stall another, a missing publisher leaves a safe default
 ("not blocked", "no e-stop", "battery unknown"), and operator commands arrive through a
 reliable queue, each one answered by ``bt.command_accepted`` or ``bt.command_rejected`` with a
-sentence for the operator.
+sentence for the operator — every action, the e-stop, its release and a single goal included,
+so a command's ``request_id`` always gets exactly one answer.
 """
 
 from __future__ import annotations
@@ -111,8 +112,10 @@ class Operator2BB(CurioBehaviour):
             self.set("pause_request", _req(cmd, action=wanted))
         elif action == "estop":
             self.set("estop_operator", cmd.stamp)
+            ctx.accept(_req(cmd), action, "E-stop engaged: the rover stopped.")
         elif action == "release_estop":
             self.set("estop_operator", None)
+            ctx.accept(_req(cmd), action, "E-stop released.")
         elif action == "go_home":
             if estop:
                 ctx.reject(_req(cmd), action, "The e-stop is engaged: release it first, then "
@@ -139,6 +142,9 @@ class Operator2BB(CurioBehaviour):
             elif ctx.follower.active and ctx.follower.route is not None:
                 ctx.accept(_req(cmd), action, f"Leaving {ctx.follower.route.name} for the "
                                               "goal you set.")
+            else:  # the navigator takes the goal itself (nav.goal_* follow)
+                where = f" ({cmd.goal.x:.2f}, {cmd.goal.y:.2f})" if cmd.goal else ""
+                ctx.accept(_req(cmd), action, f"Going to the goal you set{where}.")
         else:  # pragma: no cover - OperatorAction is closed
             ctx.reject(_req(cmd), action, f"Unknown command '{action}'.")
 

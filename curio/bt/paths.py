@@ -4,9 +4,11 @@ Replaces the original's ``follow_path.py`` data half (original-system.md §3.1, 
 *Home* and cannot be deleted; paths 1 and 2 (and any more) come from ``cfg.bt.paths`` the first
 time. Paths of any length are built by clicking points on the dashboard map (each with an
 optional heading), renamed and deleted. Every change is written atomically to
-``cfg.data_path(cfg.bt.paths_file)`` before the call returns, so nothing is lost on a restart or
-a power loss. A file that cannot be read is moved aside (``<name>.corrupt-N``), reported in
-:attr:`PathManager.load_warning`, and the configured defaults are used.
+``cfg.data_path(cfg.bt.paths_file)`` before the call returns, and again to ``<name>.bak`` (two
+copies), so nothing is lost on a restart or a power loss. A file that cannot be read is moved
+aside (``<name>.corrupt-N``) and replaced by its backup (:attr:`PathManager.restored` says so);
+when the backup cannot be used either, that is reported in :attr:`PathManager.load_warning`
+and the configured defaults are used.
 
 Ids are never reused: a deleted path's id stays retired (``next_id`` is persisted), so a stale
 command for a deleted path is rejected instead of driving a different path.
@@ -25,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from curio.core.config import PathConfig
-from curio.core.fileio import atomic_write_json
+from curio.core.fileio import atomic_write_bytes, atomic_write_json
 
 __all__ = [
     "HOME_PATH_ID",
@@ -182,6 +184,7 @@ class PathManager:
         self._next_id = 0
         self._listeners: list[Callable[[str, int], None]] = []
         self.load_warning: str | None = None
+        self.restored: str | None = None
         self._load()
 
     # --- persistence ------------------------------------------------------------------------
@@ -200,6 +203,8 @@ class PathManager:
             data = json.loads(self._file.read_text(encoding="utf-8"))
             paths, next_id = self._parse(data)
         except (OSError, ValueError, TypeError, KeyError) as exc:
+            if self._restore_backup(exc):
+                return
             aside = self._move_aside()
             self.load_warning = (
                 f"The saved paths in {self._file} could not be read ({exc}); the file was kept "
@@ -231,6 +236,31 @@ class PathManager:
             next_id = max(paths) + 1
         return paths, next_id
 
+    @property
+    def backup(self) -> Path | None:
+        """The second copy of the last save (``<name>.bak``)."""
+        return None if self._file is None else self._file.with_name(self._file.name + ".bak")
+
+    def _restore_backup(self, problem: Exception) -> bool:
+        """The file cannot be used: use its backup if that one can (the damaged file is kept
+        as ``<name>.corrupt-N``); True when it could."""
+        backup = self.backup
+        if backup is None:
+            return False
+        try:
+            paths, next_id = self._parse(json.loads(backup.read_text(encoding="utf-8")))
+        except (OSError, ValueError, TypeError, KeyError):
+            return False
+        assert self._file is not None
+        aside = self._move_aside()
+        atomic_write_bytes(self._file, backup.read_bytes())
+        self._paths, self._next_id = paths, next_id
+        self.restored = (f"the paths file {self._file.name} could not be used ({problem}); its "
+                         f"backup {backup.name} was put in its place"
+                         + (f" and the damaged file kept as {aside.name}" if aside else ""))
+        log.warning("%s", self.restored)
+        return True
+
     def _move_aside(self) -> Path | None:
         assert self._file is not None
         for n in range(1, 1000):
@@ -246,11 +276,12 @@ class PathManager:
     def _save(self) -> None:
         if self._file is None:
             return
-        atomic_write_json(self._file, {
-            "version": FILE_VERSION,
-            "next_id": self._next_id,
-            "paths": [self._paths[pid].to_json() for pid in sorted(self._paths)],
-        })
+        body = {"version": FILE_VERSION, "next_id": self._next_id,
+                "paths": [self._paths[pid].to_json() for pid in sorted(self._paths)]}
+        atomic_write_json(self._file, body)
+        backup = self.backup
+        assert backup is not None
+        atomic_write_json(backup, body)  # a second copy: a damaged file is replaced by it
 
     def _changed(self, what: str, path_id: int) -> None:
         self._save()

@@ -236,6 +236,12 @@ class Bus:
         """Counters per topic name."""
         return {name: ch.stats for name, ch in self._channels.items()}
 
+    def backlog(self) -> dict[str, int]:
+        """The longest subscriber queue of each topic, in messages (a stream's ring is
+        bounded; a reliable topic's queue grows while its subscriber does not drain it)."""
+        return {name: max((len(s) for s in ch.subscribers), default=0)
+                for name, ch in self._channels.items()}
+
     def total_dropped(self) -> int:
         """Messages dropped by conflation on all topics."""
         return sum(ch.stats.dropped for ch in self._channels.values())

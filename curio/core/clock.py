@@ -298,6 +298,14 @@ class SimClock(_ClockMixin):
             raise ValueError(f"the wall clock only jumps forward, got {dt_s}")
         self._epoch_wall_s += dt_s
 
+    def block(self, dt_s: float) -> None:
+        """Move ``now()`` forward by ``dt_s`` seconds at once, running nothing: what an event
+        loop blocked for ``dt_s`` looks like to the application (every timer due meanwhile
+        fires late, ``every`` loops count an overrun). For fault injection (``curio soak``)."""
+        if not dt_s >= 0.0:
+            raise ValueError(f"time only moves forward, got {dt_s}")
+        self._now += dt_s
+
     def pending_timers(self) -> int:
         """Number of live sleepers (cancelled ones are pruned lazily)."""
         return sum(1 for _, _, f in self._timers if not f.done())

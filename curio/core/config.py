@@ -159,6 +159,9 @@ class ImuConfig(Section):
     reconnect_s: float = Field(1.0, gt=0.0, le=30.0)
     max_consecutive_errors: int = Field(10, ge=1, description="failed reads before re-init")
     error_rate_warn: float = Field(0.01, ge=0.0, le=1.0, description="health degraded above")
+    frozen_timeout_s: float = Field(
+        2.0, ge=0.0, le=60.0, description="bit-identical readings this long mean the chip's "
+        "output froze: re-initialise it (0 = never)")
     samples_per_wakeup: int = Field(
         4, ge=1, le=10, description="readings per I/O-thread trip (paced in the thread)"
     )
@@ -258,6 +261,9 @@ class LocalizationConfig(Section):
     kld_z: float = Field(0.99, gt=0.0, lt=1.0)
     recovery_alpha_slow: float = Field(0.001, ge=0.0, le=1.0)
     recovery_alpha_fast: float = Field(0.1, ge=0.0, le=1.0)
+    resume_last_pose: bool = Field(
+        True, description="start where the last run left the rover (data_dir/last_pose.json) "
+        "instead of at robot.home / sim.start")
     initial_std_xy_m: float = Field(0.25, gt=0.0)
     initial_std_yaw_rad: float = Field(0.2, gt=0.0)
     odom_alpha1: float = Field(0.05, ge=0.0, description="rotation noise from rotation")

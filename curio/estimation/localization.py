@@ -43,13 +43,14 @@ from curio.core.clock import Clock
 from curio.core.config import LocalizationConfig
 from curio.core.geometry import Pose2D, wrap_angle, wrap_angles
 from curio.core.messages import (
+    DriverHealth,
     LaserScan,
     LocalizationStatus,
     Odometry,
     PoseWithCovariance,
 )
 from curio.core.pose_history import PoseHistory
-from curio.core.topics import INITIAL_POSE, LOCALIZATION, ODOM, SCAN
+from curio.core.topics import HEALTH, INITIAL_POSE, LOCALIZATION, ODOM, SCAN
 from curio.estimation.correction import MapOdomPublisher
 from curio.estimation.maps import OccupancyGrid
 
@@ -785,6 +786,24 @@ class Localizer:
         return math.sqrt(self.covariance[2, 2])
 
 
+HEALTH_PERIOD_S = 1.0
+
+
+def localization_health(stamp: float, state: str, std_xy_m: float) -> DriverHealth:
+    """``/health`` name ``localization``: ``ok``; ``degraded`` while uncertain (searching);
+    ``error`` when lost (the navigator holds the rover still) — with what to do."""
+    if state == "lost":
+        return DriverHealth(stamp, "localization", "error",
+                            "lost: the rover does not know where it is and holds still while "
+                            "it searches; if it does not find itself, set its position on the "
+                            "map", {"std_xy_m": round(std_xy_m, 3)})
+    if state == "uncertain":
+        return DriverHealth(stamp, "localization", "degraded",
+                            f"uncertain (spread {std_xy_m:.2f} m): the scans do not match the "
+                            "map well; searching", {"std_xy_m": round(std_xy_m, 3)})
+    return DriverHealth(stamp, "localization", "ok", "", {"std_xy_m": round(std_xy_m, 3)})
+
+
 class LocalizerNode(MapOdomPublisher):
     """Bus adapter: ``SCAN`` + ``ODOM`` (+ ``INITIAL_POSE``) → ``POSE``, ``MAP_TO_ODOM``,
     ``LOCALIZATION``.
@@ -805,6 +824,8 @@ class LocalizerNode(MapOdomPublisher):
         self._pending: list[Callable[[], None]] = []  # requests made meanwhile, in order
         self._odom = PoseHistory(400, interpolation="se2")  # odometry poses in ``odom``
         self.update_times_s: list[float] = []
+        self._health_state = ""
+        self._health_due_s = -math.inf
 
     def global_localization(self) -> None:
         """Forget the pose and search the whole map (API for the dashboard and CLI)."""
@@ -887,10 +908,15 @@ class LocalizerNode(MapOdomPublisher):
             self.publish_status(self.clock.now())
 
     def publish_status(self, stamp: float) -> None:
-        """``LOCALIZATION``: the filter's state and spread."""
+        """``LOCALIZATION``: the filter's state and spread; ``/health`` (name
+        ``localization``) when the state changes and every ``HEALTH_PERIOD_S``."""
         loc = self.localizer
         self.bus.publish(LOCALIZATION, LocalizationStatus(
             stamp, loc.state, len(loc.particles), loc.std_xy_m, loc.std_yaw_rad))
+        if loc.state != self._health_state or stamp >= self._health_due_s:
+            self._health_state = loc.state
+            self._health_due_s = stamp + HEALTH_PERIOD_S
+            self.bus.publish(HEALTH, localization_health(stamp, loc.state, loc.std_xy_m))
 
     async def run(self) -> None:
         """Consume odometry, scans and initial poses until cancelled."""

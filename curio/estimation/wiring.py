@@ -9,6 +9,9 @@ Topics (see ``curio/core/topics.py``):
   odometry rate with the odometry stamp so consumers get smooth, time-consistent poses.
 * ``MAP_TO_ODOM`` (latched) and ``LOCALIZATION`` (latched): the correction and its quality.
 
+The rover starts where the last run left it (:mod:`curio.estimation.last_pose`,
+``localization.resume_last_pose``): the localised pose is kept in ``data_dir/last_pose.json``.
+
 With ``localization.mode = "map"`` the rover maps a new building instead
 (:mod:`curio.estimation.mapping`): ``MAP`` is republished as it grows and the map is saved to
 ``data_dir/localization.mapping_out`` at shutdown; the result's ``localizer`` is then the
@@ -37,6 +40,7 @@ from curio.core.topics import LOCALIZATION, MAP, ODOM, WHEEL_ODOM
 from curio.drivers.modes import driver_mode
 from curio.estimation.correction import MapOdomPublisher
 from curio.estimation.ekf import EkfNode, OdomEkf
+from curio.estimation.last_pose import LAST_POSE_FILE, LastPoseKeeper, load_last_pose
 from curio.estimation.localization import Localizer, LocalizerNode
 from curio.estimation.mapping import MapperParams, MappingNode
 from curio.estimation.maps import OccupancyGrid, load_map, save_map
@@ -89,8 +93,13 @@ def map_path(cfg: Config) -> str:
 
 
 def start_pose(cfg: Config, robot: RobotModel) -> Pose2D:
-    """The initial pose of ``base_link`` in ``map``: ``sim.start`` (simulator) or the robot's
-    home."""
+    """The initial pose of ``base_link`` in ``map``: where the last run left the rover
+    (``data_dir/last_pose.json``, with ``localization.resume_last_pose``), else ``sim.start``
+    (simulator) or the robot's home."""
+    if cfg.localization.resume_last_pose:
+        last = load_last_pose(cfg.data_path(LAST_POSE_FILE))
+        if last is not None:
+            return last
     if driver_mode(cfg).world and cfg.sim.start is not None:
         return Pose2D(*cfg.sim.start)
     return robot.home
@@ -192,6 +201,9 @@ def build_estimation(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
                         seed=cfg.sim.seed * 7919 + 4)
         localizer = LocalizerNode(bus, clock, loc, start)
         parts.add(Part("localization", run=localizer.run))
+    if cfg.localization.resume_last_pose:
+        keeper = LastPoseKeeper(cfg.data_path(LAST_POSE_FILE), bus, clock)
+        parts.add(Part("last_pose", run=keeper.run, close=keeper.close))
     relay_odom = not cfg.ekf.enabled
     compose_pose = not cfg.localization.enabled
     if relay_odom or compose_pose:

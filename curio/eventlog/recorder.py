@@ -8,7 +8,8 @@ A part polling its subscriptions every ``POLL_S`` of clock time:
 * ``/operator`` — every operator command as ``operator.<action>`` with its source;
 * ``/estop`` — ``estop.engaged`` / ``estop.released`` when the state changes;
 * ``/health`` — ``fault`` when a part goes to ``error`` or ``degraded``, ``fault.cleared``
-  when it is ``ok`` again;
+  when it is ``ok`` again (the event log's own trouble too: its records are written once
+  writes work again);
 * ``/odom`` — distance driven and time moving, summed and logged as ``motion`` records
   (``distance_m``, ``moving_s`` over ``period_s``) every ``eventlog.motion_summary_s`` while
   they change, and at shutdown.
@@ -123,8 +124,6 @@ class EventRecorder:
         self._append(cmd.stamp, f"operator.{cmd.action}", detail, cmd.source)
 
     def _health_change(self, health: DriverHealth) -> None:
-        if health.name == "eventlog":
-            return
         before = self._states.get(health.name)
         self._states[health.name] = health.state
         if health.state == before:
@@ -158,11 +157,13 @@ class EventRecorder:
 
     def _publish_health(self) -> None:
         stats = self.log.stats
-        state = "degraded" if stats.errors else "ok"
-        message = f"writes failing: {stats.last_error}" if stats.errors else ""
+        state = "degraded" if stats.failing else "ok"
+        message = (f"writes failing ({stats.last_error}): {stats.retrying} records kept and "
+                   "retried every few seconds; free some disk space" if stats.failing else "")
         self.bus.publish(HEALTH, DriverHealth(
             self.clock.now(), "eventlog", state, message,
-            {"written": float(stats.written), "queued": float(stats.queued - stats.written),
+            {"written": float(stats.written), "queued": float(self.log.pending()),
+             "retrying": float(stats.retrying), "lost": float(stats.lost),
              "errors": float(stats.errors), "pruned": float(stats.pruned)}))
 
     def close(self) -> None:

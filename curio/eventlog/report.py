@@ -37,6 +37,7 @@ class DailyReport:
     tours_started: int = 0
     tours_completed: int = 0
     tours_stopped: int = 0
+    tours_interrupted: int = 0
     tours_scheduled: int = 0
     tours_scheduled_started: int = 0
     tours_skipped: int = 0
@@ -65,8 +66,9 @@ def _clock(rec: LogRecord, tz: ZoneInfo) -> str:
 
 
 def _tour_row(rec: LogRecord, end: LogRecord | None, tz: ZoneInfo) -> dict[str, Any]:
-    outcome = "running" if end is None else ("completed" if end.kind == "tour.finished"
-                                             else "stopped")
+    outcome = "running" if end is None else {"tour.finished": "completed",
+                                             "tour.interrupted": "interrupted"}.get(
+                                                 end.kind, "stopped")
     detail = end.detail if end is not None else {}
     return {"time": _clock(rec, tz), "tour": rec.detail.get("tour", ""),
             "source": str(rec.detail.get("source", "")).split(":")[0], "outcome": outcome,
@@ -87,9 +89,11 @@ def daily_report(log: EventLog, day: dt.date, tz: ZoneInfo) -> DailyReport:
                 report.tours.append(_tour_row(open_tour, None, tz))
             open_tour = rec
             report.tours_started += 1
-        elif kind in ("tour.finished", "tour.stopped"):
+        elif kind in ("tour.finished", "tour.stopped", "tour.interrupted"):
             if kind == "tour.finished":
                 report.tours_completed += 1
+            elif kind == "tour.interrupted":
+                report.tours_interrupted += 1
             else:
                 report.tours_stopped += 1
             if open_tour is not None:
@@ -142,7 +146,9 @@ def format_report(r: DailyReport) -> str:
     lines = [
         f"Curio daily report for {r.day} ({r.timezone})",
         f"  tours run: {r.tours_started} (completed {r.tours_completed}, stopped "
-        f"{r.tours_stopped})",
+        f"{r.tours_stopped}"
+        + (f", interrupted by a restart {r.tours_interrupted}" if r.tours_interrupted else "")
+        + ")",
         f"  scheduled: {r.tours_scheduled} (started {r.tours_scheduled_started}, skipped "
         f"{r.tours_skipped})",
         f"  stops visited: {r.stops_visited}",

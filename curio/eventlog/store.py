@@ -8,7 +8,9 @@ Records are ``(id, wall_s, kind, source, detail)``: UNIX time in seconds, a dott
   one transaction. The database is in WAL mode with ``synchronous=NORMAL``: a committed
   transaction survives the process being killed (``kill -9``); a power cut may lose the last
   ones, never corrupt the file. What is still queued when the process is killed (milliseconds
-  of records) is lost.
+  of records) is lost. A write that fails (the disk is full) keeps its records in memory (up
+  to ``max_retry_rows``) and tries again every ``RETRY_S``, so a disk that fills up for a while
+  loses nothing; ``stats.failing`` says so meanwhile.
 * **Bounded:** after every ``prune_every`` records the writer deletes records older than
   ``max_age_days`` before the newest one, and the oldest beyond ``max_rows``. Age is measured
   from the newest record, so no clock is read here.
@@ -26,6 +28,7 @@ import logging
 import queue
 import sqlite3
 import threading
+from collections import deque
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -135,7 +138,12 @@ class _Row:
 
 @dataclass
 class WriterStats:
-    """What the writer thread has done."""
+    """What the writer thread has done.
+
+    Attributes:
+        failing: the last write failed; ``retrying`` records wait to be written again.
+        lost: records dropped because more than ``max_retry_rows`` waited.
+    """
 
     written: int = 0
     batches: int = 0
@@ -143,10 +151,14 @@ class WriterStats:
     errors: int = 0
     last_error: str = ""
     queued: int = 0
+    failing: bool = False
+    retrying: int = 0
+    lost: int = 0
     extra: dict[str, float] = field(default_factory=dict)
 
 
 _STOP = object()
+RETRY_S = 2.0  # while writes fail, they are tried again this often (wall seconds)
 
 
 class EventLog:
@@ -159,6 +171,8 @@ class EventLog:
         batch_rows: most records per transaction.
         prune_every: records written between two prunes.
         readonly: only read (``curio report``): no writer, the file must exist.
+        max_retry_rows: records kept in memory while writes fail (a full disk), written when
+            they work again; older ones beyond are dropped and counted (``stats.lost``).
 
     Raises:
         EventLogError: the file is not an SQLite database or cannot be opened.
@@ -166,7 +180,8 @@ class EventLog:
 
     def __init__(self, path: Path | str, *, max_age_days: float = 400.0,
                  max_rows: int = 500_000, batch_rows: int = 500,
-                 prune_every: int = 5000, readonly: bool = False) -> None:
+                 prune_every: int = 5000, readonly: bool = False,
+                 max_retry_rows: int = 20_000) -> None:
         self.path = Path(path)
         self.max_age_s = max_age_days * 86400.0
         self.max_rows = max_rows
@@ -175,6 +190,8 @@ class EventLog:
         self.stats = WriterStats()
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._since_prune = 0
+        self.max_retry_rows = max_retry_rows
+        self._retry: deque[_Row] = deque()
         self._thread = threading.Thread(target=self._writer, name="eventlog-writer",
                                         daemon=True)
         if readonly:
@@ -221,6 +238,10 @@ class EventLog:
         self._queue.put(_Row(float(wall_s), kind, source, text))
         self.stats.queued += 1
 
+    def pending(self) -> int:
+        """Records (and requests) queued for the writer thread, not yet taken."""
+        return self._queue.qsize()
+
     def flush(self, timeout_s: float = 10.0) -> bool:
         """Block until everything queued so far is committed; False on timeout or a stopped
         writer (for tests, reports and shutdown — not for the loop's hot path)."""
@@ -236,43 +257,76 @@ class EventLog:
             self._queue.put(_STOP)
             self._thread.join(timeout_s)
 
+    def _take(self) -> list[Any]:
+        """The next batch: blocks for the first item, or for ``RETRY_S`` while records wait
+        to be written again (then an empty batch, so they are retried)."""
+        try:
+            first = self._queue.get(timeout=RETRY_S) if self._retry else self._queue.get()
+        except queue.Empty:
+            return []
+        batch = [first]
+        while len(batch) < self.batch_rows:
+            try:
+                batch.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        return batch
+
     def _writer(self) -> None:
         conn = self._connect()
         try:
             while True:
-                batch = [self._queue.get()]
-                while len(batch) < self.batch_rows:
-                    try:
-                        batch.append(self._queue.get_nowait())
-                    except queue.Empty:
-                        break
+                batch = self._take()
                 rows = [b for b in batch if isinstance(b, _Row)]
-                if rows:
+                if rows or self._retry:
                     self._write(conn, rows)
                 for item in batch:
-                    if isinstance(item, threading.Event):
-                        item.set()
+                    if isinstance(item, threading.Event) and not self._retry:
+                        item.set()  # committed (while writes fail, flush() times out)
                 if any(item is _STOP for item in batch):
                     return
         finally:
+            self.stats.lost += len(self._retry)
             conn.close()
 
     def _write(self, conn: sqlite3.Connection, rows: list[_Row]) -> None:
+        """Commit the records waiting for a retry, then ``rows``, in one transaction; when it
+        fails (disk full, I/O error) keep them all for the next try, up to
+        ``max_retry_rows`` (the oldest beyond are dropped and counted as lost)."""
+        todo = [*self._retry, *rows]
         try:
             with conn:
                 conn.executemany(
                     "INSERT INTO events (wall_s, kind, source, detail) VALUES (?, ?, ?, ?)",
-                    [(r.wall_s, r.kind, r.source, r.detail) for r in rows])
-            self.stats.written += len(rows)
-            self.stats.batches += 1
-            self._since_prune += len(rows)
-            if self._since_prune >= self.prune_every:
-                self._since_prune = 0
-                self.stats.pruned += self._prune(conn)
-        except sqlite3.Error as exc:  # disk full, I/O error: count, tell, keep going
+                    [(r.wall_s, r.kind, r.source, r.detail) for r in todo])
+        except sqlite3.Error as exc:
             self.stats.errors += 1
             self.stats.last_error = str(exc)
-            log.error("event log write failed (%d records lost): %s", len(rows), exc)
+            if not self.stats.failing:
+                log.error("event log write failed (records kept and retried every %.0f s): "
+                          "%s", RETRY_S, exc)
+            self.stats.failing = True
+            self._retry.extend(rows)
+            while len(self._retry) > self.max_retry_rows:
+                self._retry.popleft()
+                self.stats.lost += 1
+            self.stats.retrying = len(self._retry)
+            return
+        if self.stats.failing:
+            log.info("event log writes work again (%d records written late, %d lost)",
+                     len(self._retry), self.stats.lost)
+        self._retry.clear()
+        self.stats.failing = False
+        self.stats.retrying = 0
+        self.stats.written += len(todo)
+        self.stats.batches += 1
+        self._since_prune += len(todo)
+        if self._since_prune >= self.prune_every:
+            self._since_prune = 0
+            try:
+                self.stats.pruned += self._prune(conn)
+            except sqlite3.Error as exc:
+                log.warning("event log pruning failed (retried later): %s", exc)
 
     def _prune(self, conn: sqlite3.Connection) -> int:
         with conn:

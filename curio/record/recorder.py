@@ -25,7 +25,9 @@ publish order (the low 32 bits).
 
 Health: ``/health`` name ``recorder`` every second with ``messages``, ``dropped``, ``skipped``,
 ``queued``, ``queue_high_water``, ``bytes_written``, ``files``, ``write_errors``,
-``encode_errors`` and ``writer_cpu_s``.
+``encode_errors``, ``lost_while_failing`` (messages not recorded while a sink failed) and
+``writer_cpu_s``. ``degraded`` while a sink rests after a failed write (the disk is full) and
+for ``HEALTH_MEMORY_S`` after the last failure or drop; ``ok`` again afterwards.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ PRE_ENCODED = ""  # Entry.topic of payloads encoded up front (the fixed frames, 
 LOG_TOPIC = "/log"
 TAKE_PERIOD_S = 0.05
 RETRY_S = 5.0
+HEALTH_MEMORY_S = 10.0  # health stays degraded this long after the last failure (clock s)
 
 
 class Sink(Protocol):
@@ -131,6 +134,12 @@ class Recorder:
         self._thread: threading.Thread | None = None
         self._stopping = False
         self._broken_until: dict[int, float] = {}
+        self.retry_s = RETRY_S
+        self.lost_while_failing = 0
+        self._trouble_seen: tuple[int, int, int] = (0, 0, 0)
+        self._trouble_at: float | None = None
+        self._last_write_error: tuple[str, int] | None = None
+        self._trouble_kind = "write"
         self._handler = _LogHandler(self, log_level) if log_level is not None else None
         if statics:
             self._put(PRE_ENCODED, statics, 0)
@@ -204,12 +213,27 @@ class Recorder:
         }
         for sink in self.sinks:
             counters.update({k: float(v) for k, v in sink.describe().items()})
+        counters["lost_while_failing"] = float(self.lost_while_failing)
         if self.error is not None:
             return DriverHealth(stamp, "recorder", "error", self.error, counters)
-        if self.write_errors or self.queue.dropped_total:
-            msg = ("messages were dropped: the disk is too slow or the queue too small "
-                   "(record.queue_messages, record.queue_mb)" if self.queue.dropped_total
-                   else "writing failed; check the disk (space, permissions)")
+        dropped = self.queue.dropped_total
+        trouble = (self.write_errors, dropped, self.lost_while_failing)
+        if trouble != self._trouble_seen:
+            drops_only = trouble[0] == self._trouble_seen[0] and trouble[2] == \
+                self._trouble_seen[2]
+            self._trouble_kind = "drop" if drops_only else "write"
+            self._trouble_seen, self._trouble_at = trouble, stamp
+        resting = any(until > wall_perf_counter() for until in self._broken_until.values())
+        recent = self._trouble_at is not None and stamp - self._trouble_at < HEALTH_MEMORY_S
+        if resting or recent:
+            if resting or self._trouble_kind == "write":
+                last = self._last_write_error[0] if self._last_write_error else "?"
+                msg = (f"writing failed ({last}); retrying every {self.retry_s:g} s; "
+                       f"{self.lost_while_failing} messages not recorded so far: check the disk "
+                       "(space, permissions)")
+            else:
+                msg = ("messages were dropped: the disk is too slow or the queue too small "
+                       "(record.queue_messages, record.queue_mb)")
             return DriverHealth(stamp, "recorder", "degraded", msg, counters)
         return DriverHealth(stamp, "recorder", "ok", "", counters)
 
@@ -264,20 +288,25 @@ class Recorder:
         log_ns = to_ns(entry.t_s + self.codec.time_offset_s)
         pub_ns = to_ns(entry.t_s)
         for spec, data in encoded:
-            self._each_sink(lambda s, sp=spec, d=data: s.write(sp, log_ns, pub_ns, entry.seq, d))
+            self._each_sink(lambda s, sp=spec, d=data: s.write(sp, log_ns, pub_ns, entry.seq, d),
+                            counted=True)
 
-    def _each_sink(self, action: Any) -> None:
-        """Apply ``action`` to every working sink; a sink that fails rests ``RETRY_S``."""
+    def _each_sink(self, action: Any, counted: bool = False) -> None:
+        """Apply ``action`` to every working sink; a sink that fails rests ``retry_s`` (wall
+        seconds); a message it misses meanwhile is counted (``counted``) as not recorded."""
         now = wall_perf_counter()
         for i, sink in enumerate(self.sinks):
             if self._broken_until.get(i, 0.0) > now:
+                self.lost_while_failing += counted
                 continue
             try:
                 action(sink)
             except OSError as exc:
                 self.write_errors += 1
-                self._broken_until[i] = now + RETRY_S
-                log.error("recording failed (%s); retrying in %.0f s", exc, RETRY_S)
+                self.lost_while_failing += counted
+                self._last_write_error = (str(exc), self.write_errors)
+                self._broken_until[i] = now + self.retry_s
+                log.error("recording failed (%s); retrying in %.0f s", exc, self.retry_s)
                 abandon = getattr(sink, "abandon", None)
                 if abandon is not None:
                     abandon()

@@ -67,6 +67,7 @@ from curio.drivers.kinematics import (
     duty_to_servo_radps,
     steer_position_to_angle,
 )
+from curio.estimation.last_pose import LAST_POSE_FILE, load_last_pose
 from curio.estimation.maps import OccupancyGrid, load_map
 from curio.robot import RobotModel, wheel_geometry
 from curio.sim.objects import (
@@ -275,7 +276,8 @@ class World:
         spec_path = world_spec_path(yaml_path)
         spec = load_world_spec(spec_path) if spec_path.is_file() else None
         robot = robot if robot is not None else RobotModel.from_config(cfg.robot)
-        start = Pose2D(*cfg.sim.start) if cfg.sim.start is not None else robot.home
+        start = (Pose2D(*cfg.sim.start) if cfg.sim.start is not None
+                 else _resumed_start(cfg, robot.home))
         world = cls(grid, cfg, start, spec, robot)
         if cfg.dock.enabled:
             d = cfg.dock
@@ -715,6 +717,16 @@ class World:
         """Events since the last call: ``("collision", detail)``, ``("door", detail)``."""
         events, self._events = self._events, []
         return events
+
+
+def _resumed_start(cfg: Config, home: Pose2D) -> Pose2D:
+    """Without ``sim.start``: where the last run left the rover (``last_pose.json``, so the
+    simulated rover and its own estimate agree after a restart), else ``home`` (the dock)."""
+    if cfg.localization.resume_last_pose:
+        last = load_last_pose(cfg.data_path(LAST_POSE_FILE))
+        if last is not None:
+            return last
+    return home
 
 
 def _integrate(pose: Pose2D, vx: float, vy: float, w: float, dt_s: float) -> Pose2D:

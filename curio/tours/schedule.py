@@ -176,27 +176,41 @@ class ScheduleStore:
     # --- persistence ------------------------------------------------------------------------
 
     def _load(self) -> None:
-        data = self._file.load() if self._file is not None else None
-        if data is None:
+        loaded = self._file.load_recovering(self._parse_file) if self._file is not None \
+            else None
+        if loaded is None:
             self._save()
             return
+        self._schedules, self._closed, self._next_id = loaded
+
+    def _parse_file(self, data: dict[str, Any]) -> tuple[
+            dict[int, Schedule], dict[str, ClosedDay], int]:
+        """The schedules, closed days and next id of a loaded file (raises its error)."""
         assert self._file is not None
+        schedules: dict[int, Schedule] = {}
+        closed: dict[str, ClosedDay] = {}
         try:
             for item in data.get("schedules", []):
                 sched = self._parse(item)
-                if sched.id in self._schedules:
+                if sched.id in schedules:
                     raise TourError(f"schedule id {sched.id} repeats")
-                self._schedules[sched.id] = sched
+                schedules[sched.id] = sched
             for item in data.get("closed", []):
                 day = parse_day(item.get("date") if isinstance(item, dict) else item)
                 note = item.get("note", "") if isinstance(item, dict) else ""
-                self._closed[day.isoformat()] = ClosedDay(day.isoformat(), str(note))
+                closed[day.isoformat()] = ClosedDay(day.isoformat(), str(note))
         except (TourError, AttributeError, TypeError) as exc:
             raise self._file.error(str(exc)) from None
         next_id = data.get("next_id", 1)
         if isinstance(next_id, bool) or not isinstance(next_id, int):
             raise self._file.error(f"next_id must be a whole number, got {next_id!r}")
-        self._next_id = max([next_id, *[i + 1 for i in self._schedules]])
+        return schedules, closed, max([next_id, *[i + 1 for i in schedules]])
+
+    @property
+    def restored(self) -> str | None:
+        """What was done at load when the file could not be used (its backup was put in
+        its place), or None."""
+        return self._file.restored if self._file is not None else None
 
     @staticmethod
     def _parse(item: Any) -> Schedule:

@@ -103,13 +103,17 @@ class TourStore:
     # --- persistence ------------------------------------------------------------------------
 
     def _load(self, seed: Sequence[TourStopConfig]) -> None:
-        data = self._file.load() if self._file is not None else None
-        if data is None:
+        loaded = self._file.load_recovering(self._parse) if self._file is not None else None
+        if loaded is None:
             if seed:
                 self._tours[1] = Tour(1, "Tour", stops_from_config(seed))
                 self._next_id = 2
             self._save()
             return
+        self._tours, self._next_id = loaded
+
+    def _parse(self, data: dict[str, Any]) -> tuple[dict[int, Tour], int]:
+        """The tours and the next id of a loaded file (raises the file's error)."""
         assert self._file is not None
         try:
             tours = [tour_from_json(t) for t in data.get("tours", [])]
@@ -121,8 +125,13 @@ class TourStore:
         next_id = data.get("next_id", 1)
         if isinstance(next_id, bool) or not isinstance(next_id, int):
             raise self._file.error(f"next_id must be a whole number, got {next_id!r}")
-        self._tours = {t.id: t for t in tours}
-        self._next_id = max([next_id, *[i + 1 for i in ids]])
+        return {t.id: t for t in tours}, max([next_id, *[i + 1 for i in ids]])
+
+    @property
+    def restored(self) -> str | None:
+        """What was done at load when the file could not be used (its backup was put in
+        its place), or None."""
+        return self._file.restored if self._file is not None else None
 
     def _save(self) -> None:
         if self._file is not None:

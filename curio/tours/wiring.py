@@ -20,6 +20,7 @@ from curio.core.parts import Part, Parts
 from curio.estimation.maps import OccupancyGrid
 from curio.robot import RobotModel
 
+from .journal import TourJournal
 from .model import TourError
 from .placement import MapPlacement
 from .schedule import ScheduleStore
@@ -70,7 +71,8 @@ class Tours:
 
 def build_tours(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
                 grid: Callable[[], OccupancyGrid], paths: PathLookup) -> Tours:
-    """Construct the stores, the service and the scheduler; register the scheduler.
+    """Construct the stores, the service and the scheduler; register the scheduler and the
+    tour journal (:mod:`curio.tours.journal`: an interrupted tour is reported at start).
 
     Raises:
         DataFileError: ``tours.json`` or ``schedules.json`` cannot be used (left untouched).
@@ -117,4 +119,6 @@ def build_tours(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
         scheduler.close()
 
     parts.add(Part("tours.scheduler", run=scheduler.run, close=close))
+    journal = TourJournal(cfg.data_path(tcfg.file).with_name("tours.running.json"), bus, clock)
+    parts.add(Part("tours.journal", run=journal.run, close=journal.close))
     return Tours(store, schedules, service, scheduler, placement, tz)

@@ -7,7 +7,8 @@ before by :class:`curio.web.auth.Gate`; what each role may do is checked here on
 REST API and the WebSocket cannot disagree.
 
 * Commands go out on :data:`~curio.core.topics.OPERATOR` with ``source = "web:<name>"``.
-  Each carries a ``request_id``; a duplicate id is acknowledged without being published again.
+  Each carries a ``request_id``; a duplicate id is acknowledged without being published again,
+  also when it was received before a restart (the command journal).
   A goal off the map is refused with the map's bounds.
 * The e-stop (:meth:`RoverControl.estop`) is never rate-limited and needs no parsing. An e-stop
   set by a named operator may be released by that operator or an admin only.
@@ -120,6 +121,8 @@ class RoverControl:
         clock: the injected clock (stamps, the deadman, the lease).
         bus: the application bus.
         paths: the path manager that command path numbers are checked against, or None.
+        journal: the command journal (``seen(request_id)``): a request id received before,
+            in this run or an earlier one, is not published again; None: this run only.
 
     Attributes:
         commands_published: operator commands published (duplicates not counted).
@@ -128,11 +131,13 @@ class RoverControl:
         on_lease: called after the lease changed (the hub tells every page).
     """
 
-    def __init__(self, cfg: Config, clock: Clock, bus: Bus, paths: Any = None) -> None:
+    def __init__(self, cfg: Config, clock: Clock, bus: Bus, paths: Any = None,
+                 journal: Any = None) -> None:
         self.cfg = cfg
         self.clock = clock
         self.bus = bus
         self.paths = paths
+        self.journal = journal
         self._recent_requests: OrderedDict[str, float] = OrderedDict()
         self._lease: _Lease | None = None
         self.commands_published = 0
@@ -187,7 +192,8 @@ class RoverControl:
     def publish_command(self, cmd: OperatorCommand, who: Identity | None = None) -> bool:
         """Publish ``cmd`` on OPERATOR unless its request id was seen; return True if published."""
         if cmd.request_id:
-            if cmd.request_id in self._recent_requests:
+            if cmd.request_id in self._recent_requests or (
+                    self.journal is not None and self.journal.seen(cmd.request_id)):
                 return False
             self._recent_requests[cmd.request_id] = cmd.stamp
             while len(self._recent_requests) > RECENT_REQUESTS:

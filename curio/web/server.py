@@ -10,7 +10,8 @@ WebSocket; a token as the subprotocol ``curio.token.<token>`` (next to ``curio.v
 or ``?token=`` names the operator; the messages are described in :mod:`curio.web.session`),
 ``/api/...`` (REST, see :mod:`curio.web.api`, :mod:`curio.web.tours_api`,
 :mod:`curio.web.log_api`, :mod:`curio.web.records_api`), ``/kiosk``, ``/events``, ``/report``,
-``/recordings`` (:mod:`curio.web.pages`).
+``/recordings`` (:mod:`curio.web.pages`); ``/api/commands/{request_id}``
+(:mod:`curio.web.answers`).
 
 Every response carries security headers (:data:`SECURITY_HEADERS`: a Content-Security-Policy
 with ``frame-ancestors 'none'``, ``nosniff``, ``Referrer-Policy: no-referrer``); every request
@@ -41,6 +42,7 @@ from aiohttp import web
 
 from curio.core.topics import HEALTH
 from curio.web import log_api, pages, records_api, tours_api
+from curio.web.answers import command_status
 from curio.web.api import ROUTES
 from curio.web.auth import WS_PROTOCOL, Gate, RedactTokens, check_origin, request_token
 from curio.web.control import RoverControl
@@ -85,7 +87,8 @@ Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 def create_app(services: WebServices) -> web.Application:
     """Build the dashboard application (the hub starts and stops with it)."""
     cfg = services.cfg.web
-    rover = RoverControl(services.cfg, services.clock, services.bus, services.paths)
+    rover = RoverControl(services.cfg, services.clock, services.bus, services.paths,
+                         services.journal)
     app = web.Application(middlewares=[json_errors], client_max_size=cfg.max_message_bytes)
     app[SERVICES] = services
     app[ROVER] = rover
@@ -101,6 +104,7 @@ def create_app(services: WebServices) -> web.Application:
     app.router.add_routes(ROUTES)
     for routes in (tours_api.ROUTES, log_api.ROUTES, records_api.ROUTES, pages.ROUTES):
         app.router.add_routes(routes)
+    app.router.add_get("/api/commands/{request_id}", command_status)
     app.router.add_static("/static", STATIC_DIR, append_version=False)
     install_redaction(RedactTokens(services.tokens))
     return app

@@ -21,6 +21,7 @@ from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.docking.docker import Docker
 from curio.docking.home import HomeDock
+from curio.eventlog.commands import CommandJournal
 from curio.eventlog.store import EventLog
 from curio.help.desk import HelpDesk
 from curio.record.timeline import ReplayTimeline
@@ -72,6 +73,9 @@ class WebServices:
         recordings_dir: where the flight recorder writes its MCAP files, or None.
         replay: the replay's timeline when ``curio replay --web`` serves the page, or None.
         unattended: battery, dock, zones, help (``curio.web.unattended_api``), or None.
+        journal: the command journal (:class:`~curio.eventlog.commands.CommandJournal`):
+            duplicates across restarts and ``GET /api/commands/{request_id}``; None: this
+            run's duplicates only, and that endpoint answers ``unknown``.
     """
 
     cfg: Config
@@ -86,6 +90,7 @@ class WebServices:
     recordings_dir: Path | None = None
     replay: ReplayTimeline | None = None
     unattended: UnattendedServices | None = None
+    journal: CommandJournal | None = None
 
 
 SERVICES = web.AppKey("services", WebServices)

@@ -23,6 +23,7 @@ from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.errors import SetupError
 from curio.core.parts import Part, Parts
+from curio.eventlog.commands import CommandJournal
 from curio.eventlog.store import EventLog
 from curio.robot import RobotModel
 from curio.tours.wiring import Tours
@@ -115,7 +116,8 @@ def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotMod
               part_states: Callable[[], dict[str, str]] | None = None,
               tours: Tours | None = None, eventlog: EventLog | None = None,
               recordings_dir: Path | None = None,
-              unattended: UnattendedServices | None = None) -> WebServer:
+              unattended: UnattendedServices | None = None,
+              journal: CommandJournal | None = None) -> WebServer:
     """Construct the dashboard from ``cfg.web`` and register it as a part.
 
     Args:
@@ -125,11 +127,12 @@ def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotMod
         eventlog: the event log (the log view, the report, recordings' summaries), or None.
         recordings_dir: the flight recorder's directory (the recordings list), or None.
         unattended: battery, dock, zones, help (``curio/web/unattended_api.py``), or None.
+        journal: the command journal (:class:`~curio.eventlog.commands.CommandJournal`).
     """
     services = WebServices(cfg=cfg, clock=clock, bus=bus, tokens=tokens, robot=robot,
                            paths=paths, part_states=part_states, tours=tours,
                            eventlog=eventlog, recordings_dir=recordings_dir,
-                           unattended=unattended)
+                           unattended=unattended, journal=journal)
     server = WebServer(services)
     parts.add(Part("web", run=server.run, close=server.close))
     return server

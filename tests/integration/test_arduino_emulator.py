@@ -16,7 +16,16 @@ from curio.core.bus import Bus
 from curio.core.clock import RealClock
 from curio.core.config import ArduinoConfig, RobotConfig
 from curio.core.messages import EStop, Twist
-from curio.core.topics import BATTERY, CMD_VEL, ESTOP, HEALTH, SERVO_CMD, WHEELS, make_bus
+from curio.core.topics import (
+    BATTERY,
+    CMD_VEL,
+    ESTOP,
+    EVENTS,
+    HEALTH,
+    SERVO_CMD,
+    WHEELS,
+    make_bus,
+)
 from curio.drivers.arduino import ArduinoBase, ArduinoEmulator
 from curio.drivers.arduino import protocol as p
 from curio.robot import RobotModel
@@ -170,12 +179,20 @@ async def test_corrupted_commands_trip_firmware_watchdog_then_recover() -> None:
 async def test_board_reset_reconfigures_and_rearms() -> None:
     cfg = FAST.model_copy(update={"link_timeout_s": 0.8})
     async with make_rig(cfg) as rig:
+        health = rig.bus.subscribe(HEALTH, maxsize=1000)
+        events = rig.bus.subscribe(EVENTS)
         rig.emu.reset()
         assert rig.stopped() and rig.emu.state == p.McuState.BOOT  # wheels stop at once
         await rig.until(lambda: rig.emu.boots == 2, 2.0)
         await rig.until(rig.driving, 2.0)
         assert not rig.emu.firmware.faults & p.Fault.DEFAULT_CONFIG  # config re-sent
         assert rig.base.health().counters["mcu_resets"] >= 1
+        # Found by curio soak: the reset (and the silent boot window) never showed in
+        # /health, so the event log had no trace of it.
+        states = [h for h in health.drain() if h.name == "arduino"]
+        assert any(h.state == "degraded" for h in states), [h.message for h in states]
+        assert states[-1].state == "ok"
+        assert "driver.arduino_reset" in [e.kind for e in events.drain()]
 
 
 async def test_no_bytes_streamed_into_the_bootloader() -> None:

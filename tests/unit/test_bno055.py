@@ -293,3 +293,25 @@ async def test_threaded_io_on_real_clock(tmp_path: Path) -> None:
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
     assert ok, drv.message
+
+
+async def test_a_frozen_output_is_detected_and_the_chip_reinitialised(tmp_path: Path) -> None:
+    # Found by curio soak: a BNO055 whose registers stopped changing (it still answers on the
+    # bus) went on publishing the same stale reading for ever, with /health ok.
+    rig = Rig(tmp_path, mode="ndof")
+    rig.bus.bind_loop(asyncio.get_running_loop())
+    task = asyncio.create_task(rig.driver.run())
+    try:
+        await rig.clock.advance(2.0)
+        rig.fake.faults.frozen = True
+        await rig.clock.advance(6.0)
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+    assert rig.driver.counters["frozen"] == 1
+    assert any(h.state == "error" and "froze" in h.message for h in rig.healths())
+    kinds = rig.kinds()
+    assert "driver.imu_lost" in kinds and "driver.imu_recovered" in kinds
+    msgs = rig.imu.drain()
+    assert msgs[-1].stamp > 7.9  # readings again, and they change
+    assert msgs[-1].orientation_xyzw != msgs[-20].orientation_xyzw

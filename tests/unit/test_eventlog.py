@@ -159,3 +159,72 @@ async def test_the_recorder_logs_commands_events_estops_faults_and_motion(
     assert len(motion) == 2  # one every 10 s of clock time, the rest at close
     assert sum(m["distance_m"] for m in motion) == pytest.approx(1.0)
     assert sum(m["moving_s"] for m in motion) == pytest.approx(10.0)
+
+
+class _TinyDisk(EventLog):
+    """An event log whose database may not grow past ``pages`` pages: SQLite's own
+    ``SQLITE_FULL`` ("database or disk is full"), as on a full disk."""
+
+    pages = 10**6
+
+    def _write(self, conn: sqlite3.Connection, rows: list) -> None:  # type: ignore[type-arg]
+        conn.execute(f"PRAGMA max_page_count={self.pages}")
+        super()._write(conn, rows)
+
+
+def test_records_written_while_the_disk_is_full_are_kept_and_written_later(
+        tmp_path: Path) -> None:
+    # Found by curio soak (disk_full): a full disk lost every record written meanwhile, and
+    # the log's health stayed 'degraded' for ever after one failed write.
+    log = _TinyDisk(tmp_path / "events.sqlite3")
+    for i in range(20):
+        log.append("before", {"i": i, "pad": "x" * 400}, wall_s=T0 + i)
+    assert log.flush()
+    log.pages = 1
+    for i in range(30):
+        log.append("during", {"i": i, "pad": "x" * 400}, wall_s=T0 + 100 + i)
+    assert not log.flush(timeout_s=3.0)  # not committed: the disk is full
+    assert log.stats.failing and log.stats.retrying == 30 and log.stats.lost == 0
+    log.pages = 10**6  # space again
+    assert log.flush(timeout_s=10.0)
+    assert not log.stats.failing and log.stats.retrying == 0
+    assert log.count(LogQuery(kinds=("during",))) == 30 and log.count() == 50
+    log.close()
+
+
+def test_beyond_the_retry_bound_the_oldest_are_dropped_and_counted(tmp_path: Path) -> None:
+    log = _TinyDisk(tmp_path / "events.sqlite3", max_retry_rows=10)
+    log.pages = 1
+    for i in range(25):
+        log.append("during", {"i": i, "pad": "x" * 2000}, wall_s=T0 + i)
+    log.flush(timeout_s=3.0)
+    log.pages = 10**6
+    assert log.flush(timeout_s=10.0)
+    assert log.stats.lost == 15
+    assert [r.detail["i"] for r in log.query()] == list(range(15, 25))
+    log.close()
+
+
+async def test_the_logs_health_recovers_when_writes_work_again(tmp_path: Path) -> None:
+    clock = SimClock(epoch_wall_s=T0)
+    bus = make_bus()
+    health = bus.subscribe(HEALTH, maxsize=100)
+    log = _TinyDisk(tmp_path / "events.sqlite3")
+    rec = EventRecorder(log, bus, clock, EventLogConfig())
+    log.pages = 1
+    bus.publish(EVENTS, Event(0.0, "tour.started", {"pad": "x" * 5000}))
+    rec.poll()
+    log.flush(timeout_s=3.0)
+    await clock.advance(6.0)
+    rec.poll()
+    states = [h.state for h in health.drain() if h.name == "eventlog"]
+    assert states[-1] == "degraded"
+    log.pages = 10**6
+    assert log.flush(timeout_s=10.0)
+    await clock.advance(6.0)
+    rec.poll()
+    assert [h.state for h in health.drain() if h.name == "eventlog"][-1] == "ok"
+    rec.close()
+    log.close()
+    kinds = [r.kind for r in EventLog(tmp_path / "events.sqlite3", readonly=True).query()]
+    assert "tour.started" in kinds and "fault" in kinds and "fault.cleared" in kinds

@@ -143,8 +143,25 @@ def test_persistence_across_restart(tmp_path: Path) -> None:
     assert again.get(3).waypoints == [Waypoint(1.0, 2.0, 0.5), Waypoint(4.0, 5.0, None)]
     assert again.create("After restart").id == 4  # next_id survived: 2 and 3 not reused
     assert again.load_warning is None
-    # No temporary files are left behind by the atomic writes.
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["paths.json"]
+    # No temporary files are left behind by the atomic writes; the backup is a second copy.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["paths.json", "paths.json.bak"]
+    assert (tmp_path / "paths.json.bak").read_text() == file.read_text()
+
+
+def test_a_damaged_file_is_replaced_by_its_backup_without_loss(tmp_path: Path) -> None:
+    # Found by curio soak (corrupt_file): a damaged paths file lost every path the operators
+    # had made (the defaults were used).
+    file = tmp_path / "paths.json"
+    pm = PathManager(defaults(), file)
+    pm.create("Gallery", [Waypoint(1.0, 2.0, 0.5)])
+    good = file.read_text()
+    file.write_text(good[: len(good) // 2])
+    again = PathManager(defaults(), file)
+    assert again.load_warning is None and again.restored is not None
+    assert "paths.json.corrupt-1" in again.restored
+    assert [p.name for p in again.list_paths()] == ["Home", "Path 1", "Path 2", "Gallery"]
+    assert file.read_text() == good
+    assert (tmp_path / "paths.json.corrupt-1").read_text() == good[: len(good) // 2]
 
 
 @pytest.mark.parametrize("content", ["{not json", json.dumps({"version": 99, "paths": []}),

@@ -137,3 +137,29 @@ async def test_log_records_of_curio_loggers_go_to_log() -> None:
     assert [(x["message"], x["level"], x["name"]) for x in logs] == [
         ("the lidar stalled 3 times", 3, "curio.test")]
     assert rec._handler not in logging.getLogger("curio").handlers
+
+
+async def test_health_is_ok_again_once_writes_work_and_misses_are_counted() -> None:
+    # Found by curio soak (disk_full): after one failed write the recorder said 'degraded'
+    # for ever, and messages skipped while the sink rested were lost without a count.
+    bus, clock, sink = make_bus(), SimClock(), ListSink()
+    rec = make(bus, clock, sink)
+    rec.retry_s = 0.3
+    rec.start_writer()
+    sink.fail = True
+    for i in range(5):
+        bus.publish(WHEELS, WheelEncoders(0.0, (i, 0, 0, 0, 0, 0)))
+    while rec.write_errors == 0:
+        threading.Event().wait(0.01)
+    failing = rec.health(1.0)
+    assert failing.state == "degraded" and "No space left" in failing.message
+    sink.fail = False
+    threading.Event().wait(0.4)  # the sink's rest is over
+    bus.publish(WHEELS, WheelEncoders(0.0, (9, 0, 0, 0, 0, 0)))
+    while not any(r[0] == "/wheels" for r in sink.rows):
+        threading.Event().wait(0.01)
+    assert rec.health(5.0).state == "degraded"  # within HEALTH_MEMORY_S of the failure
+    assert rec.health(12.0).state == "ok"
+    assert rec.lost_while_failing + len(sink.rows) >= 6
+    assert rec.health(12.0).counters["lost_while_failing"] == rec.lost_while_failing >= 1
+    await rec.close()

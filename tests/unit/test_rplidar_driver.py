@@ -158,14 +158,20 @@ async def test_protection_stop_is_reset(rig: Rig) -> None:
     await rig.wait_state("ok")
 
 
-async def test_garbage_is_skipped(rig: Rig) -> None:
+async def test_garbage_is_skipped_and_shown_until_the_stream_is_clean(rig: Rig) -> None:
+    # Found by curio soak: garbage in the stream was only counted, never shown in /health
+    # (nor, so, in the event log): a flaky cable went unnoticed.
+    rig.driver.corrupt_window_s = 0.5
     await rig.next_scan()
     rig.emu.faults.garbage_bytes_per_rev = 7
     for _ in range(3):
         scan = await rig.next_scan()
         assert int(np.isfinite(scan.ranges_m).sum()) >= 330
     assert rig.driver.counters["resync_bytes"] > 0
-    assert rig.driver.state == "ok"
+    assert rig.driver.state == "degraded" and "corrupt bytes" in rig.driver.message
+    rig.emu.faults.garbage_bytes_per_rev = 0
+    await rig.wait_state("ok")
+    assert rig.driver.message.startswith("scanning")
 
 
 async def test_wrong_device_message(tmp_path: Any) -> None:

@@ -150,19 +150,35 @@ def test_message_language_and_voice_are_checked() -> None:
         make_message("x" * 1001)
 
 
-def test_a_corrupt_file_is_refused_with_the_file_and_the_problem_and_kept(
-        tmp_path: Path) -> None:
+def test_a_damaged_file_is_replaced_by_its_backup_and_kept(tmp_path: Path) -> None:
+    # Found by curio soak (corrupt_file): a damaged tours file kept the rover from starting,
+    # and the backup was the version before the last save (one edit behind).
     s = store(tmp_path)
-    s.rename(1, "Good")  # the second save keeps the first as .bak
+    s.rename(1, "Good")
     path = tmp_path / "tours.json"
     good = path.read_text()
-    assert json.loads((tmp_path / "tours.json.bak").read_text())["tours"][0]["name"] == "Tour"
+    assert (tmp_path / "tours.json.bak").read_text() == good  # a second copy of the last save
     path.write_text(good[:-20])  # truncated by a crash of some editor
+    again = TourStore(path, SEED)
+    assert [t.name for t in again.list_tours()] == ["Good"]
+    assert again.restored is not None and "not valid JSON" in again.restored
+    assert "tours.json.corrupt-1" in again.restored
+    assert path.read_text() == good
+    assert (tmp_path / "tours.json.corrupt-1").read_text() == good[:-20]
+
+
+def test_a_damaged_file_without_a_usable_backup_is_refused_and_kept(tmp_path: Path) -> None:
+    s = store(tmp_path)
+    s.rename(1, "Good")
+    path = tmp_path / "tours.json"
+    good = path.read_text()
+    path.write_text(good[:-20])
+    (tmp_path / "tours.json.bak").write_text("{")
     with pytest.raises(DataFileError) as info:
         TourStore(path, SEED)
     msg = str(info.value)
     assert str(path) in msg and "not valid JSON (line" in msg
-    assert "previous good version is" in msg and "tours.json.bak" in msg
+    assert "tours.json.bak" in msg and "cannot be used either" in msg
     assert isinstance(info.value, SetupError)
     assert path.read_text() == good[:-20]  # left exactly as it was
 
@@ -197,4 +213,4 @@ def test_a_version_1_file_is_migrated(tmp_path: Path) -> None:
     assert tour.stops[1].yaw_rad is None and tour.stops[1].dwell_s == 10.0
     s.rename(1, "Renamed")
     assert json.loads(path.read_text())["version"] == 2
-    assert json.loads((tmp_path / "tours.json.bak").read_text())["version"] == 1
+    assert json.loads((tmp_path / "tours.json.v1.bak").read_text())["version"] == 1

@@ -187,6 +187,7 @@ class ArduinoBase(BaseDriver):
         self._twist_rx_s = -1e9
         self._estop = False
         self._halted = False
+        self._quiet_s: float | None = None
         self._opened_before = False
         self._raw_reply: p.ServoRawReply | None = None
         self.rx_error_window_s = 5.0  # how long corrupt input keeps the health "degraded"
@@ -343,6 +344,9 @@ class ArduinoBase(BaseDriver):
             return "starting", "sending SET_CONFIG and ARM"
         if self._halted:
             return "off", "halted: wheels stopped and disarmed"
+        if self._quiet_s is not None:
+            return "degraded", (f"the Mega has been silent for {self._quiet_s:.2f} s (resetting?):"
+                                " holding all traffic until it speaks again")
         if self.mcu_state == p.McuState.ESTOP:
             return "degraded", "e-stop latched on the Mega; release the e-stop to re-arm"
         if self.mcu_state == p.McuState.TIMEOUT:
@@ -474,8 +478,10 @@ class ArduinoBase(BaseDriver):
             # original's runaway wheels): hold all traffic until the board speaks again (or
             # the link is declared down).
             self.counters["tx_holds"] += 1
+            self._quiet_s = now - last
             self.publish_health()
             return True
+        self._quiet_s = None
         return False
 
     async def _open(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
@@ -791,3 +797,7 @@ class ArduinoBase(BaseDriver):
                         "re-arming")
             self._need_config = True
             self._configured = False
+            # Re-arming takes one command cycle: say it now, or /health never shows the reset.
+            self.reporter.event("driver.arduino_reset", reset_cause=int(msg.reset_cause),
+                                state=state.name)
+            self.publish_health(force=True)

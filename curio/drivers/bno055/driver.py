@@ -24,7 +24,9 @@ the rover needs no recalibration.
 Errors: ``OSError`` on the bus and corrupted readings are counted. Corruption or I/O errors
 above ``error_rate_warn`` make ``/health`` ``degraded`` with the fix for the Raspberry Pi's
 clock-stretching bug (``dtparam=i2c_arm_baudrate=10000`` or the ``i2c-gpio`` overlay);
-``max_consecutive_errors`` failures in a row end the session (``error``), and it restarts.
+``max_consecutive_errors`` failures in a row end the session (``error``), and it restarts; so
+does an output that froze (the same reading for ``frozen_timeout_s``: the chip answers, its
+registers no longer change).
 """
 
 from __future__ import annotations
@@ -146,6 +148,7 @@ class Bno055Driver(ReportsHealth):
             "reinits": 0,
             "calibration_saves": 0,
             "calibration_restored": 0,
+            "frozen": 0,
         }
         self.reporter = HealthReporter(self.name, clock, bus, log, self.counters,
                                        extra=self._calibration_counters, publish_unchanged=True)
@@ -153,6 +156,8 @@ class Bno055Driver(ReportsHealth):
         self._unit_sel = r.CURIO_UNIT_SEL
         self._saved_this_session = False
         self._prev: r.Sample | None = None
+        self._last_sample: tuple[Any, ...] | None = None
+        self._same_since: float | None = None
         self._recent: deque[tuple[float, bool]] = deque()
         self._mode = r.Mode.NDOF if cfg.mode == "ndof" else r.Mode.IMU
 
@@ -451,12 +456,32 @@ class Bno055Driver(ReportsHealth):
                         )
                     continue
                 consecutive = 0
+                self._check_frozen(sample, stamp)
                 self._publish(sample, stamp)
             now = self.clock.now()
             if now >= next_check:
                 next_check = now + 1.0
                 await self._periodic_checks()
                 due = max(due, self.clock.now())
+
+    def _check_frozen(self, sample: r.Sample, stamp: float) -> None:
+        """A live chip's readings always differ in their last bits (sensor noise): the same
+        reading for ``frozen_timeout_s`` means its output froze (it still answers on the bus),
+        which only a re-initialisation cures."""
+        limit = self.cfg.frozen_timeout_s
+        if limit <= 0.0:
+            return
+        data = (sample.quat_wxyz, sample.gyro_radps, sample.linear_accel_mps2,
+                sample.heading_rad)
+        if data != self._last_sample:
+            self._last_sample, self._same_since = data, stamp
+            return
+        if self._same_since is not None and stamp - self._same_since >= limit:
+            self.counters["frozen"] += 1
+            self._last_sample, self._same_since = None, None
+            raise ImuFault(
+                f"the BNO055 at {self._where()} has sent the same reading for {limit:g} s: its "
+                "output froze; re-initialising it (if this repeats, power-cycle it)")
 
     async def _periodic_checks(self) -> None:
         try:

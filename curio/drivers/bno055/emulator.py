@@ -66,9 +66,15 @@ class ImuWorld(Protocol):
 
 @dataclass
 class Bno055Faults:
-    """Fault knobs of the fake bus (rates are per transaction, 0..1)."""
+    """Fault knobs of the fake bus (rates are per transaction, 0..1).
+
+    ``frozen``: the chip's output registers stop changing (it still answers on the bus), as
+    a BNO055 does after some I2C upsets, until it is re-initialised (a switch to CONFIG mode
+    or a reset clears it).
+    """
 
     missing: bool = False
+    frozen: bool = False
     chip_id: int = r.CHIP_ID_VALUE
     io_error_rate: float = 0.0
     bit7_rate: float = 0.0
@@ -139,6 +145,7 @@ class Bno055Emulator:
 
     # --- chip state ---------------------------------------------------------------------------
     def _power_on(self, ready_at: float) -> None:
+        self.faults.frozen = False
         self._ready_at = ready_at
         self._page = 0
         p0 = bytearray(128)
@@ -195,7 +202,8 @@ class Bno055Emulator:
 
     def _refresh_data(self) -> None:
         now = self.now()
-        if self._mode not in r.FUSION_MODES or now - self._last_sample_t < 0.01:
+        if self._mode not in r.FUSION_MODES or now - self._last_sample_t < 0.01 \
+                or self.faults.frozen:
             return
         self._last_sample_t = now
         imu = self.source(now) if self.source is not None else Imu(now)
@@ -235,6 +243,7 @@ class Bno055Emulator:
         p0 = self._pages[0]
         p0[r.Reg.OPR_MODE] = new
         if self._mode == r.Mode.CONFIG:
+            self.faults.frozen = False  # re-initialising the chip clears a frozen output
             p0[r.Reg.SYS_STATUS] = 0
             p0[0x08:0x34] = bytes(0x34 - 0x08)  # data registers read 0 in CONFIG
             self._ready_at = max(self._ready_at, now + 0.019)

@@ -18,6 +18,10 @@ The session ends on an unplugged device (the port reports EIO), on a stall (no r
 publishing scans — the safety stage stops the rover when the latest scan is older than its
 timeout — and starts a new session every ``reconnect_s`` until the lidar is back
 (``driver.lidar_recovered``).
+
+Corrupt bytes that the decoder skips do not end a session, but keep ``/health`` ``degraded``
+(with the count and what to check) until ``CORRUPT_WINDOW_S`` pass without any, so a flaky
+cable shows on the dashboard and in the event log.
 """
 
 from __future__ import annotations
@@ -46,6 +50,10 @@ __all__ = ["LidarFault", "RplidarDriver"]
 log = logging.getLogger("curio.drivers.rplidar")
 
 MotorHook = Callable[[bool], None]
+
+
+# Corrupt bytes in the stream keep /health degraded this long after the last one, seconds.
+CORRUPT_WINDOW_S = 10.0
 
 
 class LidarFault(DeviceFault):
@@ -117,6 +125,11 @@ class RplidarDriver(ReportsHealth):
         self._assembler = p.ScanAssembler(min_nodes=cfg.min_nodes_per_scan)
         self._rev_start: float | None = None
         self._last_scan_at = -math.inf
+        self._scanning: tuple[str, str] = ("ok", "scanning")
+        self.corrupt_window_s = CORRUPT_WINDOW_S
+        self._resync_seen = 0
+        self._corrupt_recent = 0
+        self._corrupt_last_s: float | None = None
 
     # --- the long-lived part ------------------------------------------------------------------
     async def run(self) -> None:
@@ -161,11 +174,12 @@ class RplidarDriver(ReportsHealth):
                 )
         self._set_motor(True)
         await self._start_scan()
-        self.reporter.set_state(
+        self._scanning = (
             "degraded" if health.status == p.HealthLevel.WARNING else "ok",
             f"scanning: {self.info.describe()}"
             + (f"; health warning 0x{health.error_code:04X}" if health.status else ""),
         )
+        self.reporter.set_state(*self._scanning)
         # Watch the stream until it fails.
         started = self.clock.now()
         poll = min(0.25, self.cfg.stall_timeout_s / 4)
@@ -188,9 +202,29 @@ class RplidarDriver(ReportsHealth):
                 with contextlib.suppress(Exception):
                     self._transport.resume_reading()
 
+    def _check_stream(self, now: float) -> None:
+        """Corrupt bytes in the stream (the decoder had to resynchronise): ``degraded`` until
+        ``CORRUPT_WINDOW_S`` pass without any, then back to the session's state."""
+        seen = self._decoder.resync_bytes
+        if seen > self._resync_seen:
+            self._corrupt_recent += seen - self._resync_seen
+            self._resync_seen = seen
+            self._corrupt_last_s = now
+            self.reporter.set_state(
+                "degraded", f"corrupt bytes in the lidar's stream ({self._corrupt_recent} "
+                "dropped while resynchronising in the last seconds; scans go on): check the "
+                "USB cable and that drivers.lidar.baud matches the lidar")
+        elif self._corrupt_last_s is not None and \
+                now - self._corrupt_last_s > self.corrupt_window_s:
+            self._corrupt_last_s = None
+            self._corrupt_recent = 0
+            self.reporter.set_state(*self._scanning)
+
     async def _watch(self, started: float, poll: float) -> None:
+        self._resync_seen = self._decoder.resync_bytes
         while True:
             await self.clock.sleep(poll)
+            self._check_stream(self.clock.now())
             if self._lost:
                 self.counters["unplugs"] += 1
                 raise LidarFault(

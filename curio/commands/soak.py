@@ -1,0 +1,111 @@
+"""``curio soak``: days without a person (see :mod:`curio.soak`).
+
+``curio soak [--hours H] [--clients N] [--faults N] [--seed N] [--report PATH]
+[--workdir DIR] [--disk auto|tmpfs|none] [--keep] [--config PATH] [--set KEY=VALUE]...``
+
+Runs the whole rover in emulated mode on simulated time for ``--hours`` of the building's
+clock (default 24) with ``--clients`` scripted dashboard clients (default 10) and a campaign of
+``--faults`` faults (default 200) drawn from ``--seed``; prints a progress bar while it runs
+(on a terminal; a line every 5 % otherwise), then the summary table, and writes the JSON report
+to ``--report``. Exit code 0 when every check passed, 1 when one failed, 2 on bad arguments.
+The rover's files and logs are kept in ``--workdir`` (default ``<data_dir>/soak``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from curio.core.config import load_config
+from curio.core.fileio import atomic_write_json
+
+__all__ = ["add_arguments", "run"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """``curio soak``'s arguments."""
+    parser.add_argument("--hours", type=float, default=24.0,
+                        help="simulated hours of the building's clock (default 24)")
+    parser.add_argument("--clients", type=int, default=10,
+                        help="scripted dashboard clients (default 10; at least 3)")
+    parser.add_argument("--faults", type=int, default=200, help="faults in the campaign")
+    parser.add_argument("--seed", type=int, default=1, help="random seed >= 0")
+    parser.add_argument("--report", type=Path, help="write the JSON report here")
+    parser.add_argument("--workdir", type=Path,
+                        help="where the rover's files and logs go (default <data_dir>/soak)")
+    parser.add_argument("--disk", choices=("auto", "tmpfs", "none"), default="auto",
+                        help="the data filesystem: a size-limited tmpfs for the disk-full "
+                             "faults (auto: when root can mount one)")
+    parser.add_argument("--keep", action="store_true",
+                        help="copy the rover's data directory out of the tmpfs at the end")
+
+
+class Progress:
+    """A progress bar on a terminal, a line every 5 % otherwise (standard error)."""
+
+    def __init__(self, hours: float, tty: bool) -> None:
+        self.hours = hours
+        self.tty = tty
+        self.last_step = -1
+
+    def __call__(self, p: dict[str, Any]) -> None:
+        """Show one update from the orchestrator."""
+        frac = float(p["fraction"])
+        wall = float(p["wall_s"])
+        rate = frac * self.hours * 3600.0 / wall if wall > 0 else 0.0
+        eta = (1.0 - frac) * wall / frac / 60.0 if frac > 0.001 else math.nan
+        text = (f"{frac * 100:5.1f}% {frac * self.hours:5.2f} h · faults {p['faults']}/"
+                f"{p['planned']} · restarts {p['boot']} · collisions {p['collisions']} · "
+                f"commands {p['commands']} · {rate:4.1f}x · ETA {eta:4.0f} min")
+        if self.tty:
+            bar = "#" * int(frac * 30)
+            sys.stderr.write(f"\r[{bar:<30}] {text}")
+            sys.stderr.flush()
+            return
+        step = int(frac * 20)
+        if step != self.last_step:
+            self.last_step = step
+            print(f"soak: {text}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        """End the bar's line."""
+        if self.tty:
+            sys.stderr.write("\n")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``curio soak`` with parsed ``args``; return the exit code."""
+    from curio.cli import UsageError
+    from curio.soak.orchestrator import Orchestrator, SoakOptions
+    from curio.soak.report import format_table
+
+    if not (0.0 < args.hours <= 24.0 * 14):
+        raise UsageError(f"--hours takes simulated hours in (0, 336], got {args.hours}")
+    if args.clients < 3:
+        raise UsageError(f"--clients takes at least 3 (a viewer, an operator, a kiosk), got "
+                         f"{args.clients}")
+    if args.faults < 0:
+        raise UsageError(f"--faults takes a whole number >= 0, got {args.faults}")
+    if args.seed < 0:
+        raise UsageError(f"--seed takes a whole number >= 0, got {args.seed}")
+    cfg = load_config(args.config, args.overrides)
+    workdir = args.workdir or cfg.resolve(cfg.data_dir) / "soak"
+    progress = Progress(args.hours, sys.stderr.isatty())
+    opts = SoakOptions(hours=args.hours, clients=args.clients, faults=args.faults,
+                       seed=args.seed, config=args.config, overrides=list(args.overrides),
+                       workdir=Path(workdir), disk=args.disk, keep=args.keep,
+                       progress=progress)
+    try:
+        report = asyncio.run(Orchestrator(opts).run())
+    finally:
+        progress.close()
+    if args.report is not None:
+        atomic_write_json(args.report, report)
+    print(format_table(report))
+    if args.report is not None:
+        print(f"  report: {args.report}")
+    return 0 if report["success"] else 1

@@ -1,0 +1,297 @@
+"""The soak's dashboard clients: viewers, operators and a kiosk over real WebSockets.
+
+Each :class:`SoakClient` connects to the rover's dashboard with its named token (none for a
+viewer), lowers its stream rate (``{"op": "rate"}``), then, at random intervals, sends one of a
+weighted set of messages: valid commands (pause and resume, go home, paths, tours, goals,
+help done, the e-stop and its release, a short teleop burst), invalid ones (an unknown action,
+a goal off the map, a path that does not exist, a viewer's command, malformed JSON), and path
+edits over REST on a scratch path of its own. It drops its connection at random and reconnects,
+and reconnects whenever the rover restarts.
+
+Every command carries a ``request_id`` of its own and is entered in the
+:class:`~curio.soak.ledger.Ledger`; answers are taken from the socket (live and in the history
+a reconnecting page receives) and, after a reconnection, asked for over REST
+(``GET /api/commands/{request_id}``) for the commands still without one.
+
+Path edits are tracked too (:class:`PathEdits`): what the rover acknowledged must be in its
+paths file after a ``kill -9``.
+
+Timing is the orchestrator's wall clock (the clients are outside the rover, like people).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import aiohttp
+import numpy as np
+
+from curio.core.clock import RealClock, wall_perf_counter
+from curio.soak.ledger import ANSWER_KINDS, Ledger
+
+__all__ = ["ClientSpec", "PathEdits", "SoakClient", "client_specs"]
+
+log = logging.getLogger("curio.soak.clients")
+
+WALL = RealClock()  # the clients live on wall time, like the people they stand for
+
+GOOD_POINTS = [(2.0, -2.5), (12.5, 1.5), (1.0, 11.8), (19.5, 12.0), (6.0, 0.0), (0.5, 0.5)]
+STREAM_HZ = 0.5
+MEAN_GAP_S = {"viewer": 40.0, "operator": 12.0, "kiosk": 30.0}
+MEAN_CONNECTED_S = 90.0
+
+# (weight, name) of what an operator does; see SoakClient._act_*.
+OPERATOR_ACTIONS = [
+    (12, "pause_resume"), (4, "estop_release"), (5, "go_home"), (5, "select_path"),
+    (8, "start_tour"), (2, "stop_tour"), (2, "cancel"), (5, "goto"), (4, "help_done"),
+    (4, "teleop"), (5, "path_edit"), (14, "invalid"), (2, "malformed"), (4, "ping"),
+]
+VIEWER_ACTIONS = [(4, "viewer_command"), (6, "ping"), (1, "malformed")]
+KIOSK_ACTIONS = [(4, "start_tour"), (1, "stop_tour"), (3, "kiosk_forbidden"), (2, "ping")]
+
+
+@dataclass(frozen=True)
+class ClientSpec:
+    """One client: its number, role, token name and token (None for a viewer)."""
+
+    index: int
+    role: str
+    name: str
+    token: str | None
+
+    @property
+    def label(self) -> str:
+        """``<role>:<name>#<index>``."""
+        return f"{self.role}:{self.name}#{self.index}"
+
+
+def client_specs(n: int, tokens: dict[str, str]) -> list[ClientSpec]:
+    """``n`` clients: every third a viewer, one kiosk, the rest operators with their tokens
+    (``tokens``: name → token, from the orchestrator's token store)."""
+    out = []
+    for i in range(n):
+        if i % 3 == 0:
+            out.append(ClientSpec(i, "viewer", f"viewer{i}", None))
+        elif i == 2:
+            out.append(ClientSpec(i, "kiosk", "kiosk", tokens["kiosk"]))
+        else:
+            name = f"op{i}"
+            out.append(ClientSpec(i, "operator", name, tokens[name]))
+    return out
+
+
+@dataclass
+class PathEdits:
+    """A client's scratch path: the waypoints the rover acknowledged, and the edit in flight
+    (which a ``kill -9`` may or may not have persisted)."""
+
+    name: str
+    path_id: int | None = None
+    acked: list[tuple[float, float]] = field(default_factory=list)
+    in_flight: list[tuple[float, float]] | None = None
+    edits: int = 0
+    failures: int = 0
+
+
+class SoakClient:
+    """One scripted dashboard client (see the module docstring).
+
+    Args:
+        spec: who it is.
+        ledger: where commands and answers go.
+        rng: its random source (from the soak's seed).
+        address: returns the dashboard's ``(host, port)``, or None while the rover is down.
+    """
+
+    def __init__(self, spec: ClientSpec, ledger: Ledger, rng: np.random.Generator,
+                 address: Callable[[], tuple[str, int] | None]) -> None:
+        self.spec = spec
+        self.ledger = ledger
+        self.rng = rng
+        self.address = address
+        self.seq = 0
+        self.connects = 0
+        self.refused_connects = 0
+        self.drops = 0
+        self.messages_in = 0
+        self.protocol_errors: list[str] = []
+        self.path = PathEdits(f"soak {spec.name}") if spec.role == "operator" else None
+        self._ws: aiohttp.ClientWebSocketResponse | None = None
+        self._http: aiohttp.ClientSession | None = None
+        self._malformed_waiting = 0
+        self.stopping = False
+
+    # --- plumbing -------------------------------------------------------------------------------
+
+    def _headers(self) -> dict[str, str]:
+        return {"X-Curio-Token": self.spec.token} if self.spec.token else {}
+
+    def _url(self, path: str, ws: bool = False) -> str | None:
+        addr = self.address()
+        if addr is None:
+            return None
+        return f"{'ws' if ws else 'http'}://{addr[0]}:{addr[1]}{path}"
+
+    def _rid(self) -> str:
+        self.seq += 1
+        return f"c{self.spec.index}-{self.seq}"
+
+    async def _send(self, body: dict[str, Any]) -> None:
+        ws = self._ws
+        if ws is None or ws.closed:
+            raise ConnectionResetError("not connected")
+        await ws.send_str(json.dumps(body))
+
+    async def command(self, action: str, expect: str = "answer", **fields: Any) -> str:
+        """Send ``{"op": "command", "action", ...}`` with a new request id; return it."""
+        rid = self._rid()
+        self.ledger.sent(rid, self.spec.label, action, expect, wall_perf_counter())
+        await self._send({"op": "command", "id": rid, "request_id": rid, "action": action,
+                          **fields})
+        return rid
+
+    # --- the life of a client ---------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Connect, act, drop, reconnect ... until :attr:`stopping`."""
+        async with aiohttp.ClientSession() as http:
+            self._http = http
+            while not self.stopping:
+                url = self._url("/ws", ws=True)
+                if url is None:
+                    await WALL.sleep(0.2)
+                    continue
+                try:
+                    ws = await http.ws_connect(url, headers=self._headers(),
+                                               protocols=("curio.v1",), heartbeat=None,
+                                               timeout=aiohttp.ClientWSTimeout(ws_close=1.0))
+                except (TimeoutError, aiohttp.ClientError, OSError):
+                    self.refused_connects += 1
+                    await WALL.sleep(float(self.rng.uniform(0.2, 1.0)))
+                    continue
+                self.connects += 1
+                await self._session(ws)
+                if not self.stopping:
+                    await WALL.sleep(float(self.rng.uniform(0.1, 2.0)))
+
+    async def _session(self, ws: aiohttp.ClientWebSocketResponse) -> None:
+        self._ws = ws
+        reader = asyncio.ensure_future(self._read(ws))
+        actor = asyncio.ensure_future(self._act())
+        try:
+            with contextlib.suppress(ConnectionResetError, aiohttp.ClientError):
+                await self._send({"op": "rate", "hz": STREAM_HZ})
+            await self._reconcile()
+            _done, _ = await asyncio.wait({reader, actor}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            actor.cancel()
+            with contextlib.suppress(BaseException):
+                await actor
+            if not ws.closed:
+                with contextlib.suppress(Exception):
+                    await ws.close()
+            reader.cancel()
+            with contextlib.suppress(BaseException):
+                await reader
+            self._ws = None
+            for rec in self.ledger.pending(self.spec.label):
+                rec.disconnected = True
+
+    async def _read(self, ws: aiohttp.ClientWebSocketResponse) -> None:
+        async for msg in ws:
+            if msg.type == aiohttp.WSMsgType.TEXT:
+                self.messages_in += 1
+                try:
+                    self._on_message(json.loads(msg.data))
+                except (ValueError, KeyError, TypeError) as exc:
+                    self.protocol_errors.append(f"{type(exc).__name__}: {exc}")
+            elif msg.type == aiohttp.WSMsgType.BINARY:
+                self.messages_in += 1
+            elif msg.type in (aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
+                break
+
+    def _on_message(self, msg: dict[str, Any]) -> None:
+        t = msg.get("t")
+        if t == "ack":
+            rid = msg.get("request_id") or msg.get("id")
+            if isinstance(rid, str):
+                self.ledger.acked(rid, bool(msg.get("duplicate")))
+        elif t == "error":
+            rid = msg.get("id")
+            if isinstance(rid, str) and rid in self.ledger.commands:
+                self.ledger.answer(rid, "refused", str(msg.get("message", "")), 0.0, "refusal")
+            elif rid is None and self._malformed_waiting and msg.get("code") != "rate_limited":
+                self._malformed_waiting -= 1
+                self.ledger.malformed_refused += 1
+        elif t == "event":
+            self._on_event(msg["event"], "ws")
+        elif t == "state":
+            for record in msg.get("events", []):
+                self._on_event(record, "history")
+
+    def _on_event(self, record: dict[str, Any], via: str) -> None:
+        if record.get("kind") in ANSWER_KINDS:
+            detail = record.get("detail") or {}
+            rid = detail.get("request_id")
+            if isinstance(rid, str) and rid.startswith(f"c{self.spec.index}-"):
+                self.ledger.answer(rid, record["kind"], str(detail.get("message", "")),
+                                   float(record.get("stamp", 0.0)), via)
+
+    async def _reconcile(self) -> None:
+        """Ask the rover about every command of this client still without an answer."""
+        for rec in self.ledger.pending(self.spec.label):
+            if not rec.disconnected:
+                continue
+            got = await self.lookup(rec.rid)
+            if got is None:
+                continue
+            state = str(got.get("state", ""))
+            rec.lookups.append(state)
+            answer = got.get("answer")
+            if isinstance(answer, dict) and answer.get("kind") in ANSWER_KINDS:
+                self.ledger.answer(rec.rid, str(answer["kind"]), str(answer.get("message", "")),
+                                   float(answer.get("stamp", 0.0)), "lookup")
+
+    async def lookup(self, rid: str) -> dict[str, Any] | None:
+        """``GET /api/commands/{rid}`` (None when the rover cannot be asked)."""
+        url = self._url(f"/api/commands/{rid}")
+        if url is None or self._http is None:
+            return None
+        try:
+            async with self._http.get(url, headers=self._headers(),
+                                      timeout=aiohttp.ClientTimeout(total=5.0)) as resp:
+                if resp.status != 200:
+                    return {"state": f"http {resp.status}"}
+                data = await resp.json()
+                return data if isinstance(data, dict) else None
+        except (TimeoutError, aiohttp.ClientError, OSError, ValueError):
+            return None
+
+    # --- acting -----------------------------------------------------------------------------------
+
+    def _choose(self) -> str:
+        table = {"viewer": VIEWER_ACTIONS, "kiosk": KIOSK_ACTIONS}.get(self.spec.role,
+                                                                         OPERATOR_ACTIONS)
+        weights = np.array([w for w, _ in table], dtype=float)
+        return table[int(self.rng.choice(len(table), p=weights / weights.sum()))][1]
+
+    async def _act(self) -> None:
+        from curio.soak.actions import perform
+
+        mean = MEAN_GAP_S.get(self.spec.role, 20.0)
+        leave_at = wall_perf_counter() + float(self.rng.exponential(MEAN_CONNECTED_S))
+        while not self.stopping:
+            await WALL.sleep(float(self.rng.exponential(mean)))
+            if wall_perf_counter() >= leave_at:
+                self.drops += 1
+                return
+            try:
+                await perform(self, self._choose())
+            except (ConnectionResetError, aiohttp.ClientError, OSError):
+                return

@@ -1,0 +1,154 @@
+"""What the orchestrator learns from the rover's report lines (:mod:`curio.soak.link`), across
+every run of the rover: the latest beat, the faults and their verdicts, collisions, tours,
+resource samples and cycle-time histograms, and what each restart looked like.
+
+:class:`Observations` takes each parsed line (:meth:`Observations.take`); the report
+(:mod:`curio.soak.report`) reads its fields.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+from curio.soak.ledger import Ledger
+from curio.soak.probes import Histogram
+
+__all__ = ["MOTION_PERMITS", "Observations", "RestartWatch"]
+
+# Events after which the rover may move: an operator's or the schedule's say-so.
+MOTION_PERMITS = ("bt.command_accepted", "tour.started", "tour.scheduled_start",
+                  "operator.teleop")
+STILL_M = 0.05
+
+
+@dataclass
+class RestartWatch:
+    """One restart: what the killed rover was doing and what the new one did first."""
+
+    boot: int
+    fault_id: int
+    kind: str
+    killed_sim_s: float
+    killed_wall_s: float
+    truth: list[float]
+    tour_at_kill: Any
+    estop_at_kill: bool
+    started_wall: float = 0.0
+    start_truth: list[float] | None = None
+    moved_m: float = 0.0
+    permitted: str | None = None
+    interrupted_reported: bool = False
+    estop_after: bool | None = None
+    unclean_reported: bool = False
+    files: list[dict[str, Any]] = field(default_factory=list)
+    corruption: dict[str, Any] | None = None
+    data_after: list[dict[str, Any]] = field(default_factory=list)
+    start_pose_error_m: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain JSON for the report."""
+        return {k: v for k, v in self.__dict__.items()}
+
+
+class Observations:
+    """Everything the rover reported (see the module docstring)."""
+
+    def __init__(self, ledger: Ledger) -> None:
+        self.ledger = ledger
+        self.beat: dict[str, Any] | None = None
+        self.first_beat: dict[str, Any] | None = None
+        self.hellos: list[dict[str, Any]] = []
+        self.faults: dict[int, dict[str, Any]] = {}
+        self.injected: dict[int, dict[str, Any]] = {}
+        self.collisions: list[dict[str, Any]] = []
+        self.kinds: Counter[str] = Counter()
+        self.res: list[dict[str, Any]] = []
+        self.nav_cpu, self.nav_wall = Histogram(), Histogram()
+        self.safety_cpu, self.safety_wall = Histogram(), Histogram()
+        self.safety_rates: list[dict[str, Any]] = []
+        self.restarts: list[RestartWatch] = []
+        self.watch: RestartWatch | None = None
+        self.ends: list[dict[str, Any]] = []
+        self.notable: list[dict[str, Any]] = []
+        self.lines = 0
+
+    def take(self, msg: dict[str, Any]) -> None:
+        """One line from the rover."""
+        self.lines += 1
+        t = msg.get("t")
+        if t == "beat":
+            self._beat(msg)
+        elif t == "ev":
+            self._event(msg)
+        elif t == "fault":
+            if msg.get("phase") == "injected":
+                self.injected[int(msg["id"])] = msg
+            else:
+                self.faults[int(msg["id"])] = msg
+        elif t == "res":
+            self._res(msg)
+        elif t == "hello":
+            self.hellos.append(msg)
+        elif t in ("done", "stopped", "end"):
+            self.ends.append(msg)
+
+    def _beat(self, msg: dict[str, Any]) -> None:
+        self.beat = msg
+        if self.first_beat is None:
+            self.first_beat = msg
+        w = self.watch
+        if w is None or w.boot != msg.get("boot"):
+            return
+        truth = msg.get("truth") or [0.0, 0.0, 0.0]
+        if w.start_truth is None:
+            w.start_truth = truth
+            w.estop_after = msg.get("estop")
+            pose = msg.get("pose")
+            if pose is not None:
+                w.start_pose_error_m = round(math.hypot(pose[0] - truth[0],
+                                                        pose[1] - truth[1]), 3)
+        if w.permitted is None:
+            w.moved_m = max(w.moved_m, math.hypot(truth[0] - w.start_truth[0],
+                                                  truth[1] - w.start_truth[1]))
+
+    def _event(self, msg: dict[str, Any]) -> None:
+        kind = str(msg.get("kind", ""))
+        detail = msg.get("detail") or {}
+        boot = int(msg.get("boot", 0))
+        self.kinds[kind] += 1
+        self.ledger.rover_event(boot, kind, detail, float(msg.get("sim_s", 0.0)))
+        if kind == "collision":
+            self.collisions.append({"boot": boot, "sim_s": msg.get("sim_s"), **detail})
+        if kind.startswith(("system.", "data.", "tour.interrupted", "loop.")):
+            self.notable.append({"boot": boot, "kind": kind, "sim_s": msg.get("sim_s"),
+                                 "detail": detail})
+        w = self.watch
+        if w is None or w.boot != boot:
+            return
+        if kind == "tour.interrupted":
+            w.interrupted_reported = True
+        if kind == "system.unclean_restart":
+            w.unclean_reported = True
+        if w.permitted is None and kind in MOTION_PERMITS:
+            w.permitted = kind
+
+    def _res(self, msg: dict[str, Any]) -> None:
+        for name, cpu, wall in (("nav", self.nav_cpu, self.nav_wall),
+                                ("safety", self.safety_cpu, self.safety_wall)):
+            block = msg.get(name) or {}
+            cpu.merge(Histogram.from_json(block.get("cpu", {})))
+            wall.merge(Histogram.from_json(block.get("wall", {})))
+        rate = msg.get("safety_rate")
+        if rate:
+            self.safety_rates.append({"boot": msg.get("boot"), "sim_s": msg.get("sim_s"),
+                                      **rate})
+        keep = {k: v for k, v in msg.items() if k not in ("nav", "safety", "t")}
+        self.res.append(keep)
+
+    def restart_begins(self, watch: RestartWatch) -> None:
+        """A restart: judge what the next rover does first."""
+        self.restarts.append(watch)
+        self.watch = watch

@@ -1,0 +1,133 @@
+"""The soak's checks: what must hold for ``curio soak`` to pass (see the issue and
+:mod:`curio.soak.report` for the budgets). Each check is ``{name, ok, detail}``."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from curio.soak import report as r
+
+if TYPE_CHECKING:  # pragma: no cover
+    from curio.soak.orchestrator import Orchestrator
+
+__all__ = ["checks_of"]
+
+
+def _check(name: str, ok: bool, detail: str) -> dict[str, Any]:
+    return {"name": name, "ok": bool(ok), "detail": detail}
+
+
+def _fault_checks(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
+    results = rep["faults"]["list"]
+    judged = {int(x["id"]) for x in results}
+    missing = [f.id for f in o.plan if f.id not in judged]
+    not_health = [f"{x['id']}:{x['kind']}" for x in results if x.get("detected_health_s") is None]
+    not_log = [f"{x['id']}:{x['kind']}" for x in results if x.get("detected_log_s") is None]
+    bad = [f"{x['id']}:{x['kind']}:{x.get('outcome')}" for x in results
+           if x.get("outcome") not in ("recovered", "stopped_safely")]
+    return [
+        _check("every planned fault was injected and judged", not missing,
+               f"{len(results)} judged of {len(o.plan)}" + (f"; missing {missing[:20]}"
+                                                            if missing else "")),
+        _check("every fault showed in /health", not not_health,
+               f"not seen: {not_health[:20]}" if not_health else f"{len(results)} seen"),
+        _check("every fault reached the event log", not not_log,
+               f"not logged: {not_log[:20]}" if not_log else f"{len(results)} logged"),
+        _check("every fault recovered, or the rover stopped safely and asked for help",
+               not bad, f"not: {bad[:20]}" if bad else
+               f"{rep['metrics']['faults_recovered']} recovered, "
+               f"{rep['metrics']['faults_stopped_safely']} stopped safely"),
+    ]
+
+
+def _command_checks(rep: dict[str, Any]) -> list[dict[str, Any]]:
+    counts = rep["commands"]["counts"]
+    sent = int(counts.get("sent", 0))
+    return [
+        _check("every operator command answered (none lost)", counts.get("lost", 0) == 0,
+               f"{counts.get('answered', 0)} of {sent} answered, {counts.get('lost', 0)} lost, "
+               f"{counts.get('not_delivered', 0)} not delivered (the client knew)"),
+        _check("no command answered twice", counts.get("double_answered", 0) == 0,
+               f"{counts.get('double_answered', 0)} answered twice"),
+        _check("no command replayed", counts.get("replayed", 0) == 0,
+               f"{counts.get('replayed', 0)} published more than once"),
+        _check("invalid commands refused with a reason", counts.get("invalid_accepted", 0) == 0,
+               f"{counts.get('expect_refusal', 0)} invalid sent, "
+               f"{counts.get('invalid_accepted', 0)} not refused"),
+    ]
+
+
+def _restart_checks(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
+    files_bad = [f"run {rec['boot']} ({rec['why']}): {c['name']}: {c['detail']}"
+                 for rec in rep["files"] for c in rec["checks"] if not c["ok"]]
+    moved = [f"run {w.boot}: {w.moved_m:.2f} m" for w in o.obs.restarts
+             if w.moved_m > 0.05]
+    unreported = [f"run {w.boot}" for w in o.obs.restarts
+                  if w.tour_at_kill is not None and not w.interrupted_reported]
+    forgot = [f"run {w.boot}" for w in o.obs.restarts if w.estop_at_kill and not w.estop_after]
+    restored = [f"run {w.boot}: {d['name']}: {d['detail']}" for w in o.obs.restarts
+                for d in w.data_after if not d["ok"]]
+    n = len(o.obs.restarts)
+    return [
+        _check("no persisted file corrupt or lost after a kill -9", not files_bad,
+               "; ".join(files_bad[:10]) or f"{len(rep['files'])} checks"),
+        _check("a corrupt data file was restored without loss", not restored,
+               "; ".join(restored[:10]) or
+               f"{sum(1 for w in o.obs.restarts if w.corruption)} corrupted"),
+        _check("the rover did not move after a restart until told to", not moved,
+               "; ".join(moved) or f"{n} restarts"),
+        _check("an interrupted tour was reported after the restart", not unreported,
+               "; ".join(unreported) or
+               f"{sum(1 for w in o.obs.restarts if w.tour_at_kill is not None)} interrupted"),
+        _check("an engaged e-stop stayed engaged across a restart", not forgot,
+               "; ".join(forgot) or f"{sum(1 for w in o.obs.restarts if w.estop_at_kill)} "
+               "restarts with the e-stop engaged"),
+        _check("no crash or hang", not o.failures, "; ".join(o.failures) or "none"),
+    ]
+
+
+def _resource_checks(rep: dict[str, Any]) -> list[dict[str, Any]]:
+    res, tim = rep["resources"], rep["timing"]
+    growth = res["rss_growth_mb_per_h"]
+    fd_runs, th_runs = res["fd_runs"], res["thread_runs"]
+    fd_spread = max((v["max"] - v["min"] for v in fd_runs.values()), default=0)
+    th_spread = max((v["max"] - v["min"] for v in th_runs.values()), default=0)
+    queues = max(res["bus_backlog_max"], res["web_reliable_max"], res["recorder_queue_max"])
+    rate = tim["safety_rate_min_hz"]
+    gap = tim["safety_max_gap_s"]
+    return [
+        _check(f"memory flat after warm-up (≤ {r.RSS_BUDGET_MB_PER_H:g} MB per simulated hour)",
+               growth is not None and growth <= r.RSS_BUDGET_MB_PER_H,
+               f"{growth} MB/h over {len(res['rss_runs'])} run(s)"),
+        _check("file descriptors and threads constant after warm-up",
+               fd_spread <= r.FD_SLACK and th_spread <= r.THREAD_SLACK,
+               f"fds spread {fd_spread:g} (slope {res['fd_growth_per_h']}/h), threads spread "
+               f"{th_spread:g} (slope {res['thread_growth_per_h']}/h)"),
+        _check(f"no growing queue (all under {r.QUEUE_LIMIT})", queues < r.QUEUE_LIMIT,
+               f"bus {res['bus_backlog_max']} ({res['bus_backlog_worst_topic']}), web "
+               f"{res['web_reliable_max']}, recorder {res['recorder_queue_max']}, event log "
+               f"{res['eventlog_queue_max']}"),
+        _check(f"control loop p99 within budget ({r.NAV_P99_BUDGET_S * 1e3:g} ms CPU)",
+               tim["nav_cycles"] > 0 and tim["nav_cpu_p99_ms"] <= r.NAV_P99_BUDGET_S * 1e3,
+               f"p99 {tim['nav_cpu_p99_ms']} ms CPU ({tim['nav_wall_p99_ms']} ms wall), "
+               f"max {tim['nav_cpu_max_ms']} ms, {tim['nav_cycles']} cycles"),
+        _check("safety stage's rate within budget",
+               rate is not None and gap is not None
+               and tim["safety_cpu_p99_ms"] <= r.SAFETY_P99_BUDGET_S * 1e3
+               and rate >= r.RATE_FLOOR * 20.0 and tim["safety_gaps_over"] == 0,
+               f"min {rate} Hz per window, longest gap {gap} s, {tim['safety_gaps_over']} gaps "
+               f"over two periods (stalls excepted), step p99 {tim['safety_cpu_p99_ms']} ms"),
+    ]
+
+
+def checks_of(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every check of the report (see the module docstring)."""
+    collisions = rep["metrics"]["collisions"]
+    out = [_check("no collision", collisions == 0,
+                  f"{collisions} collisions" + (f": {rep['collision_list'][:3]}"
+                                                if collisions else ""))]
+    out += _fault_checks(o, rep)
+    out += _command_checks(rep)
+    out += _restart_checks(o, rep)
+    out += _resource_checks(rep)
+    return out

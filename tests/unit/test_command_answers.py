@@ -1,0 +1,53 @@
+"""Every operator command gets exactly one answer with its request id (found by ``curio
+soak``: the e-stop, its release and a single goal sent while no route ran were never
+answered, so a page could not tell they had been carried out)."""
+
+from __future__ import annotations
+
+import pytest
+
+from curio.core.geometry import Pose2D
+
+from .bt_fakes import make_harness
+
+ANSWERS = ("bt.command_accepted", "bt.command_rejected")
+
+
+def answers_for(h, rid: str) -> list[str]:  # type: ignore[no-untyped-def]
+    return [e.kind for e in h.events if e.kind in ANSWERS and e.detail["request_id"] == rid]
+
+
+@pytest.mark.parametrize("action,fields", [
+    ("estop", {}), ("release_estop", {}), ("goto", {"goal": Pose2D(2.0, 1.0, 0.0)}),
+    ("pause", {}), ("resume", {}), ("go_home", {}), ("cancel", {}), ("help_done", {}),
+    ("select_path", {"path_id": 1}), ("toggle_pause", {}),
+])
+def test_each_action_is_answered_once(action: str, fields: dict[str, object]) -> None:
+    h = make_harness()
+    h.tick()
+    h.press(action, request_id="r1", **fields)
+    h.tick(4)
+    assert len(answers_for(h, "r1")) == 1, h.kinds("bt.")
+
+
+def test_goto_while_idle_is_accepted_and_while_paused_rejected() -> None:
+    h = make_harness()
+    h.tick()
+    h.press("goto", request_id="idle", goal=Pose2D(2.0, 1.0, 0.0))
+    h.press("pause", request_id="p")
+    h.tick(2)
+    h.press("goto", request_id="paused", goal=Pose2D(2.0, 1.0, 0.0))
+    h.tick(2)
+    assert answers_for(h, "idle") == ["bt.command_accepted"]
+    assert answers_for(h, "paused") == ["bt.command_rejected"]
+
+
+def test_estop_and_release_answers_say_what_happened() -> None:
+    h = make_harness()
+    h.tick()
+    h.press("estop", request_id="s")
+    h.tick()
+    h.press("release_estop", request_id="r")
+    h.tick()
+    accepted = {e.detail["request_id"]: e.detail["message"] for e in h.of("bt.command_accepted")}
+    assert "stopped" in accepted["s"] and "released" in accepted["r"]
