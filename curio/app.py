@@ -6,6 +6,7 @@ objects by constructor injection, registers its running pieces on a
 (``curio/sim/wiring.py``), ``build_drivers`` (``curio/drivers/wiring.py``),
 ``build_estimation`` (``curio/estimation/wiring.py``), ``build_safety``
 (``curio/safety/wiring.py``), ``build_navigation`` (``curio/nav/wiring.py``),
+``build_people`` (``curio/people/wiring.py``),
 ``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``) and
 ``build_web`` (``curio/web/wiring.py``), with ``build_eventlog`` (``curio/eventlog/wiring.py``)
 first so the event log sees every message. The order of the calls below is the order of
@@ -44,6 +45,7 @@ from curio.nav.navigator import NavigatorNode
 from curio.nav.obstacles import BlockedDetector, ObstacleNode
 from curio.nav.planner import GlobalPlanner
 from curio.nav.wiring import build_navigation
+from curio.people.wiring import People, attach_guide, build_people
 from curio.robot import RobotModel
 from curio.safety.stage import SafetyStage
 from curio.safety.wiring import build_safety
@@ -95,12 +97,15 @@ class App:
         self.navigator: NavigatorNode = nav.navigator
         self.obstacles: ObstacleNode = nav.obstacles
         self.blocked: BlockedDetector = nav.obstacles.detector
+        self.people: People | None = build_people(cfg, self.bus, clock, reg, self.robot, nav,
+                                                  est.map_server.grid)
         paths = PathManager(cfg.bt.paths, cfg.data_path(cfg.bt.paths_file))
         self.tours: Tours = build_tours(cfg, self.bus, clock, reg, self.robot,
                                         lambda: est.map_server.grid, paths)
         behaviour = build_behaviour(cfg, self.bus, clock, reg, nav, paths, self.tours.store)
         self.paths: PathManager = behaviour.paths
         self.tree: TreeRunner = behaviour.tree
+        attach_guide(self.people, behaviour.tree.ctx.follower)
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:
