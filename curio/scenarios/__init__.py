@@ -19,6 +19,7 @@ SCENARIOS: dict[str, str] = {
     "blocked-door": "curio.scenarios.blocked_door:BlockedDoorScenario",
     "guided-tour": "curio.scenarios.guided_tour:GuidedTourScenario",
     "tour-day": "curio.scenarios.tour_day:TourDayScenario",
+    "crowd": "curio.scenarios.crowd:CrowdScenario",
 }
 
 

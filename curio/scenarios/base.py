@@ -57,6 +57,7 @@ class ScenarioArgs:
     speed: float | None = None
     duration_s: float | None = None
     web: bool = False
+    visitors: int | None = None  # simulated visitors (sim.crowd.visitors)
 
 
 @dataclass
@@ -202,6 +203,8 @@ def _apply_common_args(cfg: Config, args: ScenarioArgs) -> Config:
         sim.start = args.start
     if args.seed is not None:
         sim.seed = args.seed
+    if args.visitors is not None:
+        sim.crowd = sim.crowd.model_copy(update={"visitors": args.visitors})
     updates["sim"] = sim
     if not args.web:
         web = cfg.web.model_copy()
