@@ -18,7 +18,8 @@ Design (after rosboard's per-client throttling, made safe for a robot):
   :class:`~curio.web.control.RoverControl`; when a client goes, the hub tells it, so a client
   that was driving stops the rover.
 
-Frames: see :mod:`curio.web.encode`. Times come from the injected clock.
+Frames: see :mod:`curio.web.encode` (and :mod:`curio.web.people` for the people frames). Times
+come from the injected clock.
 """
 
 from __future__ import annotations
@@ -73,6 +74,8 @@ from curio.core.topics import (
     MAP,
     OBSTACLES,
     ODOM,
+    PEOPLE,
+    PEOPLE_TRUTH,
     PLAN,
     POSE,
     PROGRESS,
@@ -93,6 +96,7 @@ from curio.web.encode import (
     grid_png,
     path_to_json,
 )
+from curio.web.people import people_frame, truth_frame
 from curio.web.session import ClientSession
 
 __all__ = ["GRID_TOPICS", "Hub"]
@@ -192,6 +196,8 @@ class Hub:
         self._sub(BATTERY, self._on_battery)
         self._sub(BLOCKED, self._on_blocked)
         self._sub(CMD_VEL, self._on_cmd_vel)
+        self._sub(PEOPLE, lambda m: self._stream("people", lambda: people_frame(m)))
+        self._sub(PEOPLE_TRUTH, lambda m: self._stream("people_truth", lambda: truth_frame(m)))
         for name, topic in GRID_TOPICS.items():
             self._sub(topic, self._grid_handler(name))
 
