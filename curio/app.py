@@ -6,6 +6,7 @@ objects by constructor injection, registers its running pieces on a
 (``curio/sim/wiring.py``), ``build_drivers`` (``curio/drivers/wiring.py``),
 ``build_estimation`` (``curio/estimation/wiring.py``), ``build_safety``
 (``curio/safety/wiring.py``), ``build_navigation`` (``curio/nav/wiring.py``),
+``build_people`` (``curio/people/wiring.py``),
 ``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``) and
 ``build_web`` (``curio/web/wiring.py``); the flight recorder (``build_recorder``,
 ``curio/record/wiring.py``) comes first, so its bus tap sees every message, then the event log
@@ -63,6 +64,7 @@ from curio.nav.navigator import NavigatorNode
 from curio.nav.obstacles import BlockedDetector, ObstacleNode
 from curio.nav.planner import GlobalPlanner
 from curio.nav.wiring import build_navigation
+from curio.people.wiring import People, attach_guide, build_people
 from curio.power.monitor import PowerMonitor
 from curio.power.wiring import build_power
 from curio.record.recorder import Recorder
@@ -171,6 +173,8 @@ class App:
             self.docker = Docker(cfg, self.bus, clock, self.robot, nav.navigator, self.home,
                                  self.safety)
             reg.add(Part("docking", run=self.docker.run))
+        self.people: People | None = build_people(cfg, self.bus, clock, reg, self.robot, nav,
+                                                  est.map_server.grid)
         self.tours: Tours = build_tours(cfg, self.bus, clock, reg, self.robot,
                                         lambda: est.map_server.grid, paths)
         probe = ClearanceProbe(nav.planner, nav.costmap, self.bus, clock,
@@ -185,6 +189,7 @@ class App:
             notes.restored(restored)
         notes.reset(paths.load_warning)
         reg.add(Part("data", run=notes.run))
+        attach_guide(self.people, behaviour.tree.ctx.follower)
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:

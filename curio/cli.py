@@ -84,6 +84,9 @@ def _build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--start", help="start pose X,Y,YAW in map (m, m, rad)")
     sim.add_argument("--goal", help="goal X,Y[,YAW] in map (m, m, rad)")
     sim.add_argument("--seed", type=int, help="random seed >= 0 (default: sim.seed)")
+    sim.add_argument("--visitors", type=int,
+                     help="simulated visitors walking the world, 0..100 (default: "
+                          "sim.crowd.visitors; the crowd scenario: 10)")
     sim.add_argument("--speed", default=None,
                      help="N x real time, or max (default: max; 1 with --web)")
     sim.add_argument("--duration", type=float, help="time limit, simulated seconds")
@@ -172,6 +175,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         goal = (goal_values[0], goal_values[1], goal_values[2] if len(goal_values) == 3 else None)
     if args.seed is not None and args.seed < 0:
         raise UsageError(f"--seed takes a whole number >= 0, got {args.seed}")
+    if args.visitors is not None and not 0 <= args.visitors <= 100:
+        raise UsageError(f"--visitors takes a whole number 0..100, got {args.visitors}")
     if args.duration is not None and not args.duration > 0:
         raise UsageError(f"--duration takes simulated seconds > 0, got {args.duration}")
     if args.map_yaml is not None and not Path(args.map_yaml).is_file():
@@ -182,7 +187,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     cfg = _load(args)
     sargs = ScenarioArgs(
         map_yaml=args.map_yaml, start=start, goal=goal, seed=args.seed, speed=speed,
-        duration_s=args.duration, web=args.web, record=args.record,
+        duration_s=args.duration, web=args.web, record=args.record, visitors=args.visitors,
     )
 
     async def announce(app: Any) -> None:

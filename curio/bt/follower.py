@@ -18,7 +18,9 @@ Outputs: STATUS (``Moving to (x,y)``, ``Arrived at (x,y)``, ``Going home``...), 
 state per waypoint), EVENTS ``waypoint.reached``, ``waypoint.failed``, ``path.started``,
 ``path.finished``, ``tour.stop``. A route may carry tour stops (name, dwell time, message):
 on arrival the follower dwells there and announces the stop before moving on, and a looping
-route starts again after its last stop.
+route starts again after its last stop. With :attr:`PathFollower.manners` (the guide's manners
+among people, ``curio/people/guide.py``) the follower tells them where it drives, asks them
+at a tour stop, and leaves a stop only when they say the way out is clear.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
@@ -38,7 +40,8 @@ from curio.nav.api import GoalHandle, GoalState
 
 from .paths import HOME_PATH_ID, NamedPath, format_xy
 
-__all__ = ["BLOCKING_CODES", "PathFollower", "Phase", "Route", "StatusSink", "Stop"]
+__all__ = ["BLOCKING_CODES", "PathFollower", "Phase", "Route", "StatusSink", "Stop",
+           "StopManners"]
 
 log = logging.getLogger("curio.bt.follower")
 
@@ -90,6 +93,22 @@ class Route:
 
     def __len__(self) -> int:
         return len(self.stops)
+
+
+class StopManners(Protocol):
+    """How the guide behaves at tour stops (``curio/people/guide.py``)."""
+
+    def driving_to(self, tour_stop: bool) -> None:
+        """The follower drives to its next waypoint (a tour stop or not)."""
+
+    def arrived(self) -> None:
+        """The rover has reached a tour stop."""
+
+    def dwelling(self) -> None:
+        """Once per tick while dwelling at a stop."""
+
+    def may_leave(self, next_xy: tuple[float, float] | None) -> bool:
+        """Whether the rover may leave the stop for ``next_xy`` (map, m) now."""
 
 
 class StatusSink:
@@ -173,6 +192,7 @@ class PathFollower:
         self.goals_sent = 0
         self.last_error = ""
         self.last_error_code = ""
+        self.manners: StopManners | None = None  # set by curio/people/wiring.py
 
     # --- queries ----------------------------------------------------------------------------
 
@@ -321,7 +341,11 @@ class PathFollower:
             self.handle = None
             self._fail("navigation is not running")
             return
+        if self.manners is not None:
+            self.manners.driving_to(stop.is_tour_stop)
         yaw = stop.yaw_rad
+        if yaw is None and self.manners is not None and stop.is_tour_stop:
+            yaw = math.nan  # the guide turns to face its group there instead
         if yaw is None:
             yaw = self._heading_towards(stop)
         pose = Pose2D(stop.x_m, stop.y_m, yaw)
@@ -365,9 +389,22 @@ class PathFollower:
                 self.handle = None
                 self._publish_progress()
                 self.sink.event("path.interrupted", path_id=self.route_id, index=self.index)
-        elif self.phase == "dwelling" and self.clock.now() >= self._dwell.until_s:
-            self._advance()
+        elif self.phase == "dwelling":
+            if self.manners is not None:
+                self.manners.dwelling()
+            if self.clock.now() >= self._dwell.until_s and self._may_leave():
+                self._advance()
         return self.phase
+
+    def _may_leave(self) -> bool:
+        """Whether the manners let the rover leave the stop for the next waypoint."""
+        if self.manners is None or self.route is None:
+            return True
+        nxt = self.index + 1
+        if nxt >= len(self.route):
+            nxt = 0 if self.route.loop else -1
+        target = self.route.stops[nxt] if nxt >= 0 else None
+        return self.manners.may_leave(None if target is None else (target.x_m, target.y_m))
 
     def _reached(self) -> None:
         assert self.route is not None
@@ -383,6 +420,8 @@ class PathFollower:
             self._dwell = _Dwell(until_s=self.clock.now() + stop.dwell_s)
             self.sink.event("tour.stop", name=stop.name, index=self.index, message=stop.message,
                             dwell_s=stop.dwell_s, x_m=stop.x_m, y_m=stop.y_m)
+            if self.manners is not None:
+                self.manners.arrived()
             self._publish_status()
             if stop.message and self.speak is not None:
                 self.speak(stop.message)
@@ -405,6 +444,8 @@ class PathFollower:
             return
         self.index = 0  # the original's reset rule: end of path
         self.phase = "finished"
+        if self.manners is not None:
+            self.manners.driving_to(False)
         self._publish_progress()
 
     def _fail(self, message: str, code: str = "nav_error") -> None:

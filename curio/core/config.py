@@ -197,6 +197,61 @@ class SimNoiseConfig(Section):
     accel_sigma_mps2: float = Field(0.05, ge=0.0, le=10.0)
 
 
+class CrowdConfig(Section):
+    """Simulated visitors: a social-force crowd (Helbing & Molnár) walking the simulated world.
+
+    The behaviour mix is normalised (its fractions need not add up to 1): *wanderers* walk
+    alone between points of interest and pause briefly, *groups* of ``group_size_min`` ..
+    ``group_size_max`` walk together and stand at exhibits for ``dwell_min_s`` ..
+    ``dwell_max_s``, *crossers* walk fast between far points (corridors, doorways) without
+    stopping, *followers* follow the rover during a guided tour (wanderers otherwise).
+    """
+
+    visitors: int = Field(0, ge=0, le=100, description="how many visitors walk in the world")
+    speed_mean_mps: float = Field(1.0, gt=0.0, le=2.5, description="mean desired walking speed")
+    speed_sigma_mps: float = Field(0.25, ge=0.0, le=1.0)
+    speed_min_mps: float = Field(0.5, gt=0.0, le=2.5)
+    speed_max_mps: float = Field(1.5, gt=0.0, le=2.5)
+    mix_wanderer: float = Field(0.35, ge=0.0, le=1.0, description="share of lone wanderers")
+    mix_group: float = Field(0.35, ge=0.0, le=1.0, description="share of visitors in groups")
+    mix_crosser: float = Field(0.2, ge=0.0, le=1.0, description="share of fast crossers")
+    mix_follower: float = Field(0.1, ge=0.0, le=1.0, description="share following the tour")
+    group_size_min: int = Field(2, ge=2, le=8)
+    group_size_max: int = Field(4, ge=2, le=8)
+    dwell_min_s: float = Field(10.0, ge=0.0, description="groups stand at an exhibit at least")
+    dwell_max_s: float = Field(40.0, ge=0.0, description="... and at most this long")
+    distracted_fraction: float = Field(
+        0.15, ge=0.0, le=1.0, description="visitors who notice the rover only when its centre "
+        "is within distracted_notice_m (looking at a phone, an exhibit)")
+    distracted_notice_m: float = Field(1.5, ge=0.0, le=10.0)
+    reaction_time_s: float = Field(
+        0.5, ge=0.0, le=3.0, description="mean delay before a visitor reacts to the rover's "
+        "motion (each visitor draws its own)")
+    excuse_me_compliance: float = Field(
+        0.8, ge=0.0, le=1.0, description="chance that a visitor in front of the rover steps "
+        "aside when it says 'Excuse me'")
+    body_radius_m: float = Field(0.2, gt=0.05, le=0.5, description="collision radius")
+    lidar_model: Literal["legs", "body"] = Field(
+        "legs", description="what the simulated lidar sees of a visitor: two legs (a low "
+        "lidar, like Curio's) or one body circle")
+    rate_hz: float = Field(20.0, ge=5.0, le=100.0, description="crowd update rate")
+    pois: list[Point2] = Field(
+        default_factory=list, description="points of interest [[x, y], ...] in map, metres; "
+        "empty: the tour stops plus points spread over the map")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> CrowdConfig:
+        if self.speed_min_mps > self.speed_max_mps:
+            raise ValueError("sim.crowd.speed_min_mps must be <= speed_max_mps")
+        if self.group_size_min > self.group_size_max:
+            raise ValueError("sim.crowd.group_size_min must be <= group_size_max")
+        if self.dwell_min_s > self.dwell_max_s:
+            raise ValueError("sim.crowd.dwell_min_s must be <= dwell_max_s")
+        if self.mix_wanderer + self.mix_group + self.mix_crosser + self.mix_follower <= 0.0:
+            raise ValueError("sim.crowd: at least one mix_* share must be > 0")
+        return self
+
+
 class SimConfig(Section):
     """The built-in simulator."""
 
@@ -217,6 +272,7 @@ class SimConfig(Section):
         None, gt=0.0, description="sim clock speed for `curio run`: None = real time"
     )
     noise: SimNoiseConfig = Field(default_factory=SimNoiseConfig)
+    crowd: CrowdConfig = Field(default_factory=CrowdConfig)
 
 
 class EkfConfig(Section):
@@ -467,6 +523,84 @@ class BlockedConfig(Section):
     split_distance_m: float = Field(0.04, gt=0.0, description="split-and-merge tolerance")
     max_circle_radius_m: float = Field(0.3, gt=0.0, description="shorter groups are circles")
     radius_enlargement_m: float = Field(0.05, ge=0.0)
+
+
+class PeopleConfig(Section):
+    """People among whom the rover drives: tracking from the lidar, the people-aware stage of
+    the local controller, the polite guide (docs/people.md).
+
+    ``aware = false`` is the baseline: the tracker still runs (its tracks are published and
+    measured) but people are plain obstacle marks in the costmap and the controller does not
+    predict them (the behaviour before issue 14).
+    """
+
+    tracking: bool = Field(True, description="track people from the lidar (/people)")
+    aware: bool = Field(
+        True, description="predict tracked people in the controller, keep moving people out "
+        "of the costmap, be a polite guide; false: the baseline (people are costmap marks)")
+    # -- tracking ---------------------------------------------------------------------------
+    max_range_m: float = Field(8.0, gt=0.5, le=40.0, description="track people this near")
+    static_margin_m: float = Field(
+        0.15, ge=0.0, le=1.0, description="returns this near a mapped obstacle are the map")
+    segment_gap_m: float = Field(
+        0.12, gt=0.0, le=1.0, description="neighbouring returns closer than this (plus 1 % of "
+        "the range) form one segment")
+    leg_pair_m: float = Field(0.45, ge=0.0, le=1.0, description="two leg-sized segments this "
+                              "close are one person")
+    leg_width_m: float = Field(0.25, gt=0.0, le=1.0, description="segments up to this wide may "
+                               "be legs (wider ones are bodies)")
+    max_width_m: float = Field(0.8, gt=0.0, le=3.0, description="wider clusters are not people")
+    gate_m: float = Field(0.9, gt=0.0, le=5.0, description="association gate (distance)")
+    confirm_hits: int = Field(3, ge=1, le=20, description="detections before a track is "
+                              "confirmed (published)")
+    tentative_coast_s: float = Field(0.35, gt=0.0, le=5.0, description="an unconfirmed track "
+                                     "without detections is dropped after this")
+    coast_s: float = Field(1.2, gt=0.0, le=10.0, description="a confirmed track without "
+                           "detections is dropped after this")
+    measurement_sigma_m: float = Field(0.06, gt=0.0, le=1.0)
+    accel_sigma_mps2: float = Field(2.0, gt=0.0, le=20.0, description="process noise of the "
+                                    "constant-velocity model")
+    moving_speed_mps: float = Field(0.25, gt=0.0, le=2.0, description="a track is moving "
+                                    "above this speed")
+    # -- costmap ----------------------------------------------------------------------------
+    standing_mark_s: float = Field(
+        5.0, ge=0.0, description="a person who walked and now stands still this long is "
+        "marked in the costmap like an obstacle (the planner routes around a standing group)")
+    clear_radius_m: float = Field(0.35, ge=0.0, le=1.5, description="marks this near a "
+                                  "walking person's positions are cleared (no ghost marks)")
+    # -- controller stage ---------------------------------------------------------------------
+    person_radius_m: float = Field(0.25, gt=0.0, le=1.0, description="body radius assumed "
+                                   "around a track")
+    passing_distance_m: float = Field(0.5, ge=0.0, le=3.0, description="comfortable distance "
+                                      "when passing a person (footprint to body)")
+    head_on_distance_m: float = Field(0.8, ge=0.0, le=5.0, description="comfortable distance "
+                                      "in front of a person walking towards the rover")
+    min_distance_m: float = Field(0.3, ge=0.0, le=2.0, description="the rover never drives "
+                                  "closer than this to a person (unless stopping would be "
+                                  "closer still)")
+    horizon_s: float = Field(4.0, gt=0.0, le=10.0, description="people are predicted this far")
+    interaction_radius_m: float = Field(6.0, gt=0.0, le=20.0, description="people farther "
+                                        "than this are ignored by the stage")
+    near_distance_m: float = Field(1.0, ge=0.0, le=5.0)
+    near_speed_mps: float = Field(0.2, gt=0.0, le=1.0, description="speed limit within "
+                                  "near_distance_m of a person")
+    excuse_me_after_s: float = Field(5.0, gt=0.0, description="yielding this long: say "
+                                     "'Excuse me' and try again, assertively")
+    excuse_me_interval_s: float = Field(10.0, gt=0.0)
+    excuse_me_text: str = "Excuse me, may I pass?"
+    assertive_s: float = Field(6.0, ge=0.0, description="after 'Excuse me' the comfortable "
+                               "distances shrink to min_distance_m for this long")
+    yield_max_s: float = Field(60.0, gt=0.0, description="after yielding this long the "
+                               "navigator's progress checks run again (recovery, help)")
+    # -- the guide ----------------------------------------------------------------------------
+    face_group: bool = Field(True, description="at a tour stop, turn to face the group")
+    group_radius_m: float = Field(3.0, gt=0.0, le=10.0, description="people this near a stop "
+                                  "are the group")
+    leave_clearance_m: float = Field(0.5, ge=0.0, le=5.0, description="before leaving a stop, "
+                                     "wait until nobody is this near the way out")
+    leave_wait_max_s: float = Field(8.0, ge=0.0, description="then say 'Excuse me' and go")
+    stop_short_m: float = Field(1.2, ge=0.0, le=5.0, description="a tour stop with people "
+                                "standing on it counts as reached this far from it")
 
 
 class NavConfig(Section):
@@ -869,6 +1003,7 @@ class Config(Section):
     dock: DockConfig = Field(default_factory=DockConfig)
     help: HelpConfig = Field(default_factory=HelpConfig)
     zones: ZonesConfig = Field(default_factory=ZonesConfig)
+    people: PeopleConfig = Field(default_factory=PeopleConfig)
 
     # Where relative paths are resolved; not a config key.
     base_dir: Path = Field(default_factory=lambda: REPO_ROOT, exclude=True)

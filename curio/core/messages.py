@@ -488,3 +488,76 @@ class TourState:
     next_stop_name: str = ""
     stops_total: int = 0
     eta_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class PersonTrack:
+    """One person tracked from the lidar, in ``map`` (metres, m/s).
+
+    Attributes:
+        track_id: never reused within a run.
+        x_m, y_m: estimated position of the person's centre.
+        vx_mps, vy_mps: estimated velocity.
+        pos_std_m: standard deviation of the position estimate (the larger axis).
+        age_s: time since the track was born.
+        moving: faster than ``people.moving_speed_mps`` now.
+        walked: the person has been seen walking (not a pillar that looks like a person).
+        standing_s: how long a track that walked has stood still (0 while moving).
+        missed_s: time since the last detection (the track coasts on its prediction).
+    """
+
+    track_id: int
+    x_m: float
+    y_m: float
+    vx_mps: float
+    vy_mps: float
+    pos_std_m: float = 0.0
+    age_s: float = 0.0
+    moving: bool = False
+    walked: bool = False
+    standing_s: float = 0.0
+    missed_s: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class PeopleTracks:
+    """The confirmed people tracks of one scan (``stamp`` is the scan's)."""
+
+    stamp: float
+    tracks: tuple[PersonTrack, ...] = ()
+    frame_id: str = "map"
+
+
+@dataclass(frozen=True, slots=True)
+class SimPerson:
+    """A simulated visitor's ground truth in ``map`` (metres, m/s).
+
+    Attributes:
+        person_id: the visitor's id in the simulated world.
+        x_m, y_m, vx_mps, vy_mps: position and velocity of the body's centre.
+        radius_m: the body's collision radius.
+        behaviour: ``wanderer``, ``group``, ``crosser`` or ``follower``.
+        group_id: the group a ``group`` visitor walks with (-1: none).
+        state: ``walking``, ``standing`` or ``stepping_aside``.
+        visible_beams: returns of the latest lidar scan that ended on this visitor.
+    """
+
+    person_id: int
+    x_m: float
+    y_m: float
+    vx_mps: float
+    vy_mps: float
+    radius_m: float
+    behaviour: str = "wanderer"
+    group_id: int = -1
+    state: str = "walking"
+    visible_beams: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class SimPeople:
+    """Every simulated visitor at one instant (simulator only)."""
+
+    stamp: float
+    people: tuple[SimPerson, ...] = ()
+    frame_id: str = "map"

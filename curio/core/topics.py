@@ -26,10 +26,12 @@ from curio.core.messages import (
     Odometry,
     OperatorCommand,
     Path,
+    PeopleTracks,
     PoseWithCovariance,
     PowerState,
     Progress,
     ServoCommand,
+    SimPeople,
     StatusText,
     TourState,
     Transform,
@@ -45,6 +47,8 @@ IMU = Topic("/imu", Imu, doc="BNO055 driver / simulator: imu_link, REP-103")
 BATTERY = Topic("/battery", BatteryState, doc="base driver / simulator: servo supply voltage")
 SERVO_CMD = Topic("/servo_cmd", ServoCommand, doc="base driver: the duties and positions sent")
 GROUND_TRUTH = Topic("/ground_truth", Odometry, doc="simulator only: true pose in map")
+PEOPLE_TRUTH = Topic("/people/ground_truth", SimPeople,
+                     doc="simulator only: every simulated visitor, at the lidar rate")
 
 # --- estimation (curio/nav) -------------------------------------------------------------------
 WHEEL_ODOM = Topic("/wheel_odom", Odometry, doc="odometry (drivers/odometry.py): odom frame")
@@ -68,6 +72,8 @@ OBSTACLES = Topic("/obstacles", Obstacles, doc="obstacle extractor: segments and
 BLOCKED = Topic("/blocked", BlockedState, latched=True, doc="blocked-path detector")
 GOAL = Topic("/goal", NavGoal, kind="reliable",
              doc="scenario scripts / tools: goals given to the navigator (not the tree's own)")
+PEOPLE = Topic("/people", PeopleTracks, latched=True,
+               doc="people tracker (curio/people): confirmed tracks in map, one per scan")
 CMD_VEL_NAV = Topic("/cmd_vel_nav", Twist, doc="local controller / recovery: wanted velocity")
 CMD_VEL_TELEOP = Topic("/cmd_vel_teleop", Twist, doc="teleop (web, CLI): wanted velocity")
 CMD_VEL = Topic("/cmd_vel", Twist, doc="safety stage only: the velocity the base executes")
@@ -108,6 +114,7 @@ ALL_TOPICS: list[Topic[Any]] = [
     BATTERY,
     SERVO_CMD,
     GROUND_TRUTH,
+    PEOPLE_TRUTH,
     WHEEL_ODOM,
     ODOM,
     POSE,
@@ -122,6 +129,7 @@ ALL_TOPICS: list[Topic[Any]] = [
     OBSTACLES,
     BLOCKED,
     GOAL,
+    PEOPLE,
     CMD_VEL_NAV,
     CMD_VEL_TELEOP,
     CMD_VEL,

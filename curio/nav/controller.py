@@ -26,6 +26,9 @@ body twist (forward m/s, yaw rate rad/s in ``base_link``) at ``nav.controller.ra
   ``blocked``.
 * **Goal checker** (``xy_goal_tolerance_m``, latched, then ``yaw_goal_tolerance_rad``) and a
   **progress checker** (``progress_min_distance_m`` within ``progress_timeout_s``).
+* **People** (optional, :attr:`LocalController.people`): a last stage that reviews the arc
+  the stages above chose against the predicted motion of tracked people and may slow it,
+  bend it, or stop and yield (``curio/people/stage.py``); without it nothing changes.
 
 :meth:`LocalController.compute` is pure computation (no bus, no awaits) so it is unit-tested and
 benchmarked directly; the navigator calls it.
@@ -37,6 +40,7 @@ import enum
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -57,7 +61,9 @@ __all__ = [
     "ControlOutput",
     "ControlStatus",
     "LocalController",
+    "MotionReview",
     "ProgressChecker",
+    "Review",
     "lookahead_m",
     "pursuit_curvature",
     "regulated_speed",
@@ -81,6 +87,7 @@ class ControlStatus(enum.Enum):
     GOAL_REACHED = "goal_reached"
     BLOCKED = "blocked"
     NO_PROGRESS = "no_progress"
+    YIELDING = "yielding"  # waiting for people to pass (the people stage)
 
 
 @dataclass
@@ -104,6 +111,45 @@ class ControlOutput:
     distance_to_goal_m: float = math.inf
     distance_remaining_m: float = math.inf
     detail: str = ""
+
+
+@dataclass(frozen=True)
+class Review:
+    """What a reviewing stage makes of the chosen motion.
+
+    Attributes:
+        linear_mps: forward speed to command (``base_link``), after its acceleration limits.
+        kappa: curvature to drive, 1/m.
+        status, detail: what the controller reports.
+        hold_progress: the rover waits for people: the progress checks do not count it.
+        arrived: treat the goal's position as reached here (people stand on it).
+    """
+
+    linear_mps: float
+    kappa: float
+    status: ControlStatus
+    detail: str = ""
+    hold_progress: bool = False
+    arrived: bool = False
+
+
+class MotionReview(Protocol):
+    """A last stage that may change the arc the controller chose (the people stage)."""
+
+    def review(self, controller: LocalController, pose: Pose2D, now_s: float,
+               linear_mps: float, target_mps: float, kappa: float, aim: tuple[float, float],
+               kmax: float, dist_goal_m: float) -> Review | None:
+        """Keep (None) or replace the motion chosen at ``pose`` (``map``) towards the
+        lookahead point ``aim`` (``map``): ``linear_mps`` this cycle (m/s), speeding towards
+        ``target_mps``, on curvature ``kappa`` (1/m, at most ``kmax``)."""
+
+    def steering(self, now_s: float) -> bool:
+        """Whether the stage is steering round people now (the controller then does not start
+        turning in place back to its path: the stage's arcs take it back)."""
+
+    def review_turn(self, pose: Pose2D, now_s: float) -> Review | None:
+        """None: turning in place at ``pose`` (``map``) keeps clear of everyone; else why
+        not (the rover brakes and waits)."""
 
 
 class ProgressChecker:
@@ -258,6 +304,7 @@ class LocalController:
         self.progress = ProgressChecker(cfg.progress_min_distance_m, cfg.progress_timeout_s)
         # Speed zones (curio/zones): the speed limit for the rover at a pose in map, m/s.
         self.speed_limit: Callable[[Pose2D], float] | None = None
+        self.people: MotionReview | None = None  # the people stage (curio/people/wiring.py)
         self.reset()
 
     # --- state ------------------------------------------------------------------------------
@@ -301,6 +348,11 @@ class LocalController:
         else:
             self._cum = np.zeros(len(arr))
         self._index = 0
+
+    @property
+    def commanded_mps(self) -> float:
+        """The forward speed commanded in the last cycle (m/s, ``base_link``)."""
+        return self._v
 
     @property
     def plan_index(self) -> int:
@@ -464,6 +516,9 @@ class LocalController:
         aim = self._aim(cyc)
         rotating = rotate_hysteresis(self._rotating, aim.heading_err, aim.rotate_enter_rad,
                                      self.cfg.rotate_exit_rad)
+        if rotating and not self._rotating and self.people is not None and \
+                self.people.steering(now_s):
+            rotating = False
         if self._rotating and not rotating:
             self._settle_until = now_s + self.cfg.steer_settle_s
         self._rotating = rotating
@@ -496,6 +551,9 @@ class LocalController:
             self._v = self._w = 0.0
             return ControlOutput(0.0, 0.0, ControlStatus.GOAL_REACHED,
                                  distance_to_goal_m=cyc.dist_goal, distance_remaining_m=0.0)
+        held = self._people_hold_turn(replace(cyc, remaining=0.0))
+        if held is not None:
+            return held
         v, w = self._turn(yaw_err)
         return self._finish(replace(cyc, remaining=0.0), v, w, ControlStatus.ROTATING,
                             "final heading")
@@ -514,6 +572,9 @@ class LocalController:
         back out to make room (or report blocked)."""
         if abs(self._v) < 1e-3 and self._rotation_blocked(cyc.pose, aim.heading_err):
             return self._start_reverse(cyc, aim.point) or self._blocked(cyc)
+        held = self._people_hold_turn(cyc)
+        if held is not None:
+            return held
         v, w = self._turn(aim.heading_err)
         return self._finish(cyc, v, w, ControlStatus.ROTATING, "turning towards the path")
 
@@ -556,13 +617,40 @@ class LocalController:
                         return out
                 return self._blocked(cyc)
             v_alt, k_alt = alt
+            v_target = v_alt
             status = ControlStatus.AVOIDING
             detail = "avoiding an obstacle"
             self._kappa = k_alt
             v = approach(self._v, v_alt, cfg.max_accel_mps2 * self.dt_s)
             w = v * self._kappa
         self._blocked_since = None
+        if self.people is not None:
+            review = self.people.review(self, cyc.pose, cyc.now_s, v, v_target, self._kappa,
+                                        aim.point, kmax, cyc.dist_goal)
+            if review is not None and review.arrived and self.goal is not None:
+                self._xy_reached = True
+                return self._final_heading(cyc, self.goal)
+            if review is not None:
+                v, self._kappa, status, detail = (review.linear_mps, review.kappa,
+                                                  review.status, review.detail)
+                w = v * self._kappa
+                if review.hold_progress:
+                    self.progress.reset()
         return self._finish(cyc, v, w, status, detail)
+
+    def _people_hold_turn(self, cyc: _Cycle) -> ControlOutput | None:
+        """Someone stands where the corners would swing: brake and wait (None: turn)."""
+        review = None if self.people is None else self.people.review_turn(cyc.pose, cyc.now_s)
+        if review is None:
+            return None
+        step = 2.0 * self.cfg.max_angular_accel_radps2 * self.dt_s
+        self._w = approach(self._w, 0.0, step)
+        self._v = approach(self._v, 0.0, 2.0 * self.cfg.max_accel_mps2 * self.dt_s)
+        if review.hold_progress:
+            self.progress.reset()
+        traj = rollout(cyc.pose, self._v, self._w, self.cfg.collision_horizon_s, 0.1)
+        return ControlOutput(self._v, self._w, review.status, traj, cyc.dist_goal,
+                             cyc.remaining, review.detail)
 
     def _rotation_blocked(self, pose: Pose2D, err: float) -> bool:
         """Whether turning in place towards ``err`` would sweep a corner into an obstacle."""

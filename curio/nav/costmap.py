@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -44,7 +45,7 @@ from curio.nav.costmap_kernels import trace_scan
 from curio.nav.costs import INSCRIBED, LETHAL, NO_INFORMATION, inflation_costs
 from curio.robot import RobotModel, footprint_radii
 
-__all__ = ["Costmap", "CostmapNode", "GridInfo", "costs_to_percent"]
+__all__ = ["Costmap", "CostmapNode", "GridInfo", "MarkFilter", "costs_to_percent"]
 
 log = logging.getLogger("curio.nav.costmap")
 
@@ -253,12 +254,14 @@ class Costmap:
         return self.cost_at(x_m, y_m) >= INSCRIBED
 
     # ------------------------------------------------------------------ obstacle layer
-    def update_from_scan(self, scan: LaserScan, pose_in_map: Pose2D) -> None:
+    def update_from_scan(self, scan: LaserScan, pose_in_map: Pose2D,
+                         skip_marks: BoolArray | None = None) -> None:
         """Mark and clear the obstacle layer from one scan taken at ``pose_in_map`` (base_link).
 
         Clearing runs first (every cell a ray crosses before its end point), then marking (the
         end points of returns within ``obstacle_range_m``), so a return always wins over a
         clearing ray of the same scan. Inflation is recomputed only where marks changed.
+        Beams flagged in ``skip_marks`` (a walking person's) clear but do not mark.
         """
         n = len(scan.ranges_m)
         if n == 0:
@@ -281,6 +284,8 @@ class Costmap:
         dirs = np.stack([np.cos(rot), np.sin(rot)], axis=1)
         # Marking: finite returns within the obstacle range.
         mark = finite_valid & (ranges <= self.cfg.obstacle_range_m)
+        if skip_marks is not None:
+            mark &= ~skip_marks
         mark_len = np.where(mark, ranges / res, -1.0)
         box = np.empty(8, dtype=np.int64)
         changed = trace_scan(self._obstacles, self._seen, self._static_lethal,
@@ -337,6 +342,35 @@ class Costmap:
     def keepout_mask(self) -> BoolArray:
         """Cells of the keep-out layer (a copy)."""
         return self._keepout.copy()
+
+    def clear_spots(self, spots: list[tuple[float, float]], radius_m: float) -> bool:
+        """Remove obstacle-layer marks within ``radius_m`` of each map point (where a walking
+        person is or was); re-inflate once round all of them. Whether any mark went."""
+        if not spots or radius_m <= 0.0:
+            return False
+        rad = math.ceil(radius_m / self.resolution_m)
+        h, w = self.shape
+        box = [h, 0, w, 0]
+        for x, y in spots:
+            r, c = self.world_to_cell(x, y)
+            r0, r1, c0, c1 = max(0, r - rad), min(h, r + rad + 1), max(0, c - rad), min(
+                w, c + rad + 1)
+            if r0 >= r1 or c0 >= c1:
+                continue
+            window = self._obstacles[r0:r1, c0:c1]
+            if not window.any():
+                continue
+            rr, cc = np.ogrid[r0:r1, c0:c1]
+            within = (rr - r) ** 2 + (cc - c) ** 2 <= rad * rad
+            if not (window & within).any():
+                continue
+            window[within] = False
+            box = [min(box[0], r0), max(box[1], r1), min(box[2], c0), max(box[3], c1)]
+        if box[0] >= box[1]:
+            return False
+        m = self._margin_cells
+        self._recompute(box[0] - m, box[1] + m, box[2] - m, box[3] + m)
+        return True
 
     def reset_obstacles(self) -> None:
         """Forget every obstacle-layer mark (the static map stays)."""
@@ -438,6 +472,21 @@ def _points_in_polygon(pts: FloatArray, poly: FloatArray) -> BoolArray:
     return np.asarray(crosses.sum(axis=1) % 2 == 1)
 
 
+class MarkFilter(Protocol):
+    """Tells the obstacle layer which returns not to mark and where to clear: the people
+    tracker (``curio/people/node.py``) keeps walking people out of the costmap."""
+
+    @property
+    def clear_radius_m(self) -> float:
+        """Marks this near a cleared spot are removed, metres."""
+
+    def beams_to_skip(self, scan: LaserScan) -> BoolArray | None:
+        """Beams of ``scan`` to clear along but not mark (None: mark every return)."""
+
+    def cleared_spots(self) -> list[tuple[float, float]]:
+        """Map points (metres) round which marks are to be removed now."""
+
+
 class CostmapNode:
     """Runs a :class:`Costmap` on the bus.
 
@@ -462,6 +511,8 @@ class CostmapNode:
         self._poses = PoseHistory(256, interpolation="linear")
         self._last_pose: Pose2D | None = None
         self.relocalisation_resets = 0
+        # The people tracker when people.aware (None: every return is marked, the baseline).
+        self.mark_filter: MarkFilter | None = None
 
     def pose_at(self, stamp: float) -> Pose2D | None:
         """The rover's pose in ``map`` at ``stamp``, from the recent ``POSE`` history."""
@@ -482,7 +533,12 @@ class CostmapNode:
         if scan is not None and scan.stamp != self._last_scan_stamp:
             self._last_scan_stamp = scan.stamp
             scan_pose = self.pose_at(scan.stamp)
-            self.costmap.update_from_scan(scan, scan_pose if scan_pose is not None else pose)
+            people = self.mark_filter
+            skip = people.beams_to_skip(scan) if people is not None else None
+            self.costmap.update_from_scan(scan, scan_pose if scan_pose is not None else pose,
+                                          skip)
+            if people is not None:
+                self.costmap.clear_spots(people.cleared_spots(), people.clear_radius_m)
             self.updates += 1
         cm = self.costmap
         if (cm.version != self._published_version

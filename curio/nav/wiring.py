@@ -43,13 +43,15 @@ class Navigation:
     recovery: Recovery
     navigator: NavigatorNode
     obstacles: ObstacleNode
+    costmap_node: CostmapNode | None = None
 
 
 def build_navigation(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
                      grid: OccupancyGrid) -> Navigation:
     """Construct the navigation parts on ``grid`` (``map``) and register them on ``parts``."""
     costmap = Costmap(grid, robot, cfg.nav.costmap)
-    parts.add(Part("costmap", run=CostmapNode(costmap, bus, clock, cfg.nav.costmap).run))
+    costmap_node = CostmapNode(costmap, bus, clock, cfg.nav.costmap)
+    parts.add(Part("costmap", run=costmap_node.run))
     planner = GlobalPlanner(cfg.nav.planner, narrow_cost=narrow_cost(
         costmap.inscribed_radius_m, costmap.circumscribed_radius_m,
         costmap.cost_scaling_factor))
@@ -63,4 +65,5 @@ def build_navigation(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: R
 
     obstacles = ObstacleNode(cfg.nav.blocked, robot, clock, bus, goal_active)
     parts.add(Part("obstacles", run=obstacles.run))
-    return Navigation(costmap, planner, controller, recovery, navigator, obstacles)
+    return Navigation(costmap, planner, controller, recovery, navigator, obstacles,
+                      costmap_node)

@@ -22,6 +22,7 @@ SCENARIOS: dict[str, str] = {
     "low-battery": "curio.scenarios.low_battery:LowBatteryScenario",
     "keepout": "curio.scenarios.keepout:KeepoutScenario",
     "lost": "curio.scenarios.lost:LostScenario",
+    "crowd": "curio.scenarios.crowd:CrowdScenario",
 }
 
 

@@ -69,6 +69,7 @@ class ScenarioArgs:
     duration_s: float | None = None
     web: bool = False
     record: Path | None = None
+    visitors: int | None = None  # simulated visitors (sim.crowd.visitors)
 
 
 @dataclass
@@ -237,6 +238,8 @@ def _apply_common_args(cfg: Config, args: ScenarioArgs) -> Config:
         sim.start = args.start
     if args.seed is not None:
         sim.seed = args.seed
+    if args.visitors is not None:
+        sim.crowd = sim.crowd.model_copy(update={"visitors": args.visitors})
     updates["sim"] = sim
     record = cfg.record.model_copy()
     record.enabled = args.record is not None  # scenarios record only when asked

@@ -12,7 +12,10 @@ device emulated or simulated, i.e. in ``sim`` and ``emulated`` mode (None in ``r
   publishers ``/scan`` (``cfg.sim.lidar_rate_hz``), ``/imu`` (``cfg.sim.imu_rate_hz``),
   ``/wheels`` (``cfg.sim.wheel_feedback_rate_hz``) and ``/battery`` (1 Hz). In ``emulated`` mode the
   byte-exact device emulators pull from the world instead.
-* both modes: ``/health`` (name ``simulator``, 1 Hz) with collision, step and scan counters.
+* both modes: ``/health`` (name ``simulator``, 1 Hz) with collision, step and scan counters;
+* with simulated visitors (``sim.crowd.visitors``): ``/people/ground_truth`` at the lidar rate;
+  the visitors hear the rover's ``people.excuse_me`` events and follow it while a guided tour
+  runs (``path.started`` / ``path.finished`` of the tour route).
 """
 
 from __future__ import annotations
@@ -24,7 +27,16 @@ from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.messages import BatteryState, DriverHealth, Event, Odometry, WheelEncoders
 from curio.core.parts import Part, Parts
-from curio.core.topics import BATTERY, EVENTS, GROUND_TRUTH, HEALTH, IMU, SCAN, WHEELS
+from curio.core.topics import (
+    BATTERY,
+    EVENTS,
+    GROUND_TRUTH,
+    HEALTH,
+    IMU,
+    PEOPLE_TRUTH,
+    SCAN,
+    WHEELS,
+)
 from curio.drivers.modes import driver_mode
 from curio.robot import RobotModel
 from curio.sim.base import SimBase
@@ -33,6 +45,7 @@ from curio.sim.world import World
 __all__ = ["SimParts", "Simulator", "build_sim"]
 
 LOW_BATTERY_V = 6.6
+TOUR_ROUTE_ID = -1  # the behaviour tree's route id of a guided tour (curio.bt.follower)
 
 
 class Simulator:
@@ -97,6 +110,26 @@ class Simulator:
                 "in_contact": float(self.world.in_contact)}))
 
 
+    async def run_crowd(self) -> None:
+        """Publish the visitors' ground truth at the lidar rate (just after each scan) and
+        pass them what they hear: "Excuse me", a guided tour starting or ending."""
+        crowd = self.world.crowd
+        if crowd is None:
+            return
+        events = self.bus.subscribe(EVENTS)
+        try:
+            async for t in self.clock.every(1.0 / self.cfg.sim.lidar_rate_hz, phase_s=0.006):
+                for ev in events.drain():
+                    if ev.kind == "people.excuse_me":
+                        crowd.hear_excuse_me(self.world.truth_pose)
+                    elif ev.kind.startswith("path.") and ev.detail.get("path_id") == \
+                            TOUR_ROUTE_ID:
+                        crowd.following = ev.kind == "path.started"
+                self.bus.publish(PEOPLE_TRUTH, self.world.people_truth(t))
+        finally:
+            events.close()
+
+
 @dataclass(frozen=True)
 class SimParts:
     """The simulator's objects; ``base`` only in ``sim`` mode (the emulators drive the world in
@@ -119,6 +152,8 @@ def build_sim(cfg: Config, bus: Bus, clock: Clock, parts: Parts,
     simulator = Simulator(cfg, bus, clock, world, publish_sensors=sim_base)
     parts.add(Part("sim.physics", run=simulator.run_physics))
     parts.add(Part("sim.battery", run=simulator.run_battery))
+    if world.crowd is not None:
+        parts.add(Part("sim.crowd", run=simulator.run_crowd))
     base = None
     if sim_base:
         base = SimBase(cfg, bus, clock, world, robot)

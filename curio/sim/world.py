@@ -59,7 +59,7 @@ import numpy.typing as npt
 from curio.core.config import Config
 from curio.core.errors import SetupError
 from curio.core.geometry import Pose2D, wrap_angle, yaw_to_quat
-from curio.core.messages import Imu, LaserScan, ServoCommand
+from curio.core.messages import Imu, LaserScan, ServoCommand, SimPeople, SimPerson
 from curio.docking.station import DockShape, DockStation
 from curio.drivers.kinematics import (
     STEER_CORNERS,
@@ -70,6 +70,8 @@ from curio.drivers.kinematics import (
 from curio.estimation.last_pose import LAST_POSE_FILE, load_last_pose
 from curio.estimation.maps import OccupancyGrid, load_map
 from curio.robot import RobotModel, wheel_geometry
+from curio.sim.crowd import Crowd, RoverState
+from curio.sim.crowd_kernel import count_hits
 from curio.sim.objects import (
     Box,
     Door,
@@ -265,6 +267,9 @@ class World:
         self._shapes_dirty = True
         self._segs = np.zeros((0, 4))
         self._circles = np.zeros((0, 3))
+        # Simulated visitors (sim.crowd), attached by from_config or a test.
+        self.crowd: Crowd | None = None
+        self._last_endpoints = np.zeros((0, 2))
 
     # -- construction ------------------------------------------------------------------
     @classmethod
@@ -283,6 +288,7 @@ class World:
             d = cfg.dock
             world.set_dock(DockStation(robot.home, DockShape.for_footprint(robot.footprint),
                                        d.contact_xy_m, d.contact_yaw_rad, d.charger_v))
+        world.crowd = Crowd.for_world(grid, cfg, world.truth_pose)
         if world.collides(world.truth_pose):
             log.warning("the start pose (%.2f, %.2f, %.2f) overlaps %s in %s: the rover can only "
                         "move out of it (set sim.start or robot.home to a free pose)",
@@ -461,6 +467,9 @@ class World:
             poly = poly or [pose.transform_point(x, y) for x, y in self.footprint]
             if any(polygons_overlap(poly, block) for block in dock.polygons()):
                 hits.append("dock")
+        if self.crowd is not None:
+            hits += self.crowd.touching(lambda x, y, r: self._person_touches(x, y, r, pose),
+                                        (pose.x, pose.y), self._fp_radius)
         return hits
 
     def _person_touches(self, x: float, y: float, r: float, pose: Pose2D) -> bool:
@@ -476,6 +485,7 @@ class World:
         self.time_s += dt_s
         self._run_door_scripts()
         self._move_people(dt_s)
+        self._move_crowd(dt_s)
         self._step_rover(dt_s)
         if self.dock is not None and self.docked:
             self._charge(dt_s)
@@ -496,6 +506,17 @@ class World:
                 continue  # people wait rather than walk into the rover
             person.commit(state)
         self._shapes_dirty = True
+
+    def _move_crowd(self, dt_s: float) -> None:
+        """Step the visitors; a visitor walking into the rover raises a ``collision`` event
+        with ``fault`` (see :mod:`curio.sim.crowd`)."""
+        if self.crowd is None:
+            return
+        poly = [self._pose.transform_point(x, y) for x, y in self.footprint]
+        rover = RoverState(self._pose, self._vx, self._w)
+        for detail in self.crowd.step(dt_s, rover,
+                                      lambda x, y, r: circle_hits_polygon(x, y, r, poly)):
+            self._events.append(("collision", detail))
 
     def _step_rover(self, dt_s: float) -> None:
         sim = self.cfg.sim
@@ -533,7 +554,8 @@ class World:
             if not self.in_contact:
                 self.collisions += 1
                 self._events.append(("collision", {
-                    "with": sorted(new), "x": round(self._pose.x, 3),
+                    "with": sorted(new), "fault": "rover", "by": "rover",
+                    "x": round(self._pose.x, 3),
                     "y": round(self._pose.y, 3), "yaw": round(self._pose.yaw, 3),
                     "speed_mps": round(math.hypot(vx, vy), 3)}))
             self.in_contact = True
@@ -632,6 +654,13 @@ class World:
         gone = (ranges < sim.lidar_range_min_m) | (ranges > sim.lidar_range_max_m) | (u < p_drop)
         ranges[gone] = np.inf
         ranges[(u >= p_drop) & (u < p_drop + noise.lidar_invalid_fraction)] = np.nan
+        if self.crowd is not None:
+            laser = self.laser_pose()
+            hit = np.isfinite(ranges)
+            ang = angles[hit] + laser.yaw
+            self._last_endpoints = np.column_stack([laser.x + ranges[hit] * np.cos(ang),
+                                                    laser.y + ranges[hit] * np.sin(ang)])
+            self.crowd.note_scan(self._last_endpoints)
         out = ranges.astype(np.float32)
         out.flags.writeable = False
         return LaserScan(stamp=stamp, angle_min_rad=-math.pi, angle_increment_rad=inc,
@@ -665,6 +694,8 @@ class World:
                 np.minimum(ranges, cast_segments(laser.x, laser.y, dx, dy, segs), out=ranges)
             if circles.size:
                 np.minimum(ranges, cast_circles(laser.x, laser.y, dx, dy, circles), out=ranges)
+        if self.crowd is not None:
+            self.crowd.cast(laser.x, laser.y, np.cos(world_angles), np.sin(world_angles), ranges)
         ranges[ranges > max_range_m] = np.inf
         return ranges
 
@@ -712,6 +743,35 @@ class World:
             raise ValueError(f"battery voltage must be 0..20 V, got {volts}")
         self._battery_base_v = volts
         self._battery_t0 = self.time_s
+
+    def people_now(self) -> tuple[list[int], F64, F64]:
+        """Ids, positions ``(N, 2)`` (map, m) and body radii (m) of every person now: the
+        crowd's visitors, then the scripted people (ids 1000 + object id)."""
+        ids: list[int] = []
+        xy, radii = [np.zeros((0, 2))], [np.zeros(0)]
+        if self.crowd is not None:
+            ids += [v.vid for v in self.crowd.visitors]
+            xy.append(self.crowd.pos)
+            radii.append(np.full(len(self.crowd.visitors), self.crowd.radius_m))
+        if self._people:
+            ids += [1000 + oid for oid in self._people]
+            xy.append(np.array([(p.x_m, p.y_m) for p in self._people.values()]))
+            radii.append(np.array([p.radius_m for p in self._people.values()]))
+        return ids, np.concatenate(xy), np.concatenate(radii)
+
+    def people_truth(self, stamp: float) -> SimPeople:
+        """Ground truth of every person: the crowd's visitors and the scripted people (ids
+        1000 + their object id, behaviour ``scripted``), with the returns of the latest scan
+        that hit each."""
+        out = list(self.crowd.truth(stamp).people) if self.crowd is not None else []
+        if self._people:
+            pts = np.array([(p.x_m, p.y_m) for p in self._people.values()])
+            hits = np.zeros(len(pts), dtype=np.int64)
+            count_hits(self._last_endpoints, pts, 0.35, hits)
+            out += [SimPerson(1000 + oid, p.x_m, p.y_m, 0.0, 0.0, p.radius_m, "scripted",
+                              visible_beams=int(h))
+                    for (oid, p), h in zip(self._people.items(), hits.tolist(), strict=True)]
+        return SimPeople(stamp, tuple(out))
 
     def pop_events(self) -> list[tuple[str, dict[str, Any]]]:
         """Events since the last call: ``("collision", detail)``, ``("door", detail)``."""

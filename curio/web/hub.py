@@ -23,7 +23,8 @@ Design (after rosboard's per-client throttling, made safe for a robot):
   rover while it is blocked or asks for help (:mod:`curio.web.blocker`), the health panel with
   every part's age (:mod:`curio.web.liveness`), and each event's wall-clock time.
 
-Frames: see :mod:`curio.web.encode`. Times come from the injected clock.
+Frames: see :mod:`curio.web.encode` (and :mod:`curio.web.people` for the people frames). Times
+come from the injected clock.
 """
 
 from __future__ import annotations
@@ -79,6 +80,8 @@ from curio.core.topics import (
     MAP,
     OBSTACLES,
     ODOM,
+    PEOPLE,
+    PEOPLE_TRUTH,
     PLAN,
     POSE,
     PROGRESS,
@@ -102,6 +105,7 @@ from curio.web.encode import (
     path_to_json,
 )
 from curio.web.liveness import GOAL_OVER, Liveness
+from curio.web.people import people_frame, truth_frame
 from curio.web.session import ClientSession
 from curio.web.tokens import Identity
 
@@ -220,6 +224,8 @@ class Hub:
         self._sub(BLOCKED, self._on_blocked)
         self._sub(CMD_VEL, self._on_cmd_vel)
         self._sub(TOUR, self._on_tour)
+        self._sub(PEOPLE, lambda m: self._stream("people", lambda: people_frame(m)))
+        self._sub(PEOPLE_TRUTH, lambda m: self._stream("people_truth", lambda: truth_frame(m)))
         for name, topic in GRID_TOPICS.items():
             self._sub(topic, self._grid_handler(name))
 

@@ -21,6 +21,9 @@ from curio.cli import main
         (["sim", "square", "--set", "sim.sed=3"], "Did you mean 'seed'"),
         (["bench", "nosuch"], "unknown benchmark 'nosuch'; known:"),
         (["bench", "sim", "--pairs", "0"], "--pairs takes a whole number > 0"),
+        (["sim", "crowd", "--visitors", "-1"], "--visitors takes a whole number 0..100"),
+        (["bench", "crowd", "--set", "counts=5,x"], "counts= takes visitor counts 0..100"),
+        (["bench", "crowd", "--set", "maps=atlantis"], "unknown map 'atlantis'"),
     ],
 )
 def test_bad_arguments_exit_2_with_a_message(

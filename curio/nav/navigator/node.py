@@ -246,6 +246,8 @@ class NavigatorNode:
         if out.status is ControlStatus.GOAL_REACHED:
             self._waypoint_reached(handle)
             return
+        if out.status is ControlStatus.YIELDING:
+            self.progress.pause(now)  # waiting for people to pass is not being stuck
         progress = self.progress.update(out.distance_remaining_m, now)
         if progress is Progress.IMPROVED:
             self.ladder.note_progress(out.distance_remaining_m)

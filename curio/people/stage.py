@@ -1,0 +1,380 @@
+"""The people stage of the local controller: drive among people by predicting them.
+
+The stages before it (pure pursuit, regulation, the costmap guard) choose an arc; this stage
+reviews it against the tracked people (``/people``, ``map``) within
+``interaction_radius_m``, predicted at constant velocity over ``horizon_s``:
+
+1. **Candidates** — the chosen arc at its target speed, the same arc slower, *stop* on it,
+   nine curvatures at full and half speed, side-steps (a hard or half bend to either side
+   for 1 or 2 s, then straight on, at full and half speed: the lane change the others cannot
+   express), and backing off when someone walks straight at the rover. Within
+   ``near_distance_m`` of a person ahead (who is not walking away) the speed is at most
+   ``near_speed_mps``.
+   Each is rolled out from the current speed under the acceleration limits (braking twice as
+   hard).
+2. **Hard rule: never drive at a person** — a candidate that comes nearer than
+   ``min_distance_m`` to a person (footprint to body, ``person_radius_m`` around a track)
+   and nearer than stopping would come to them over the horizon is out; so is one whose
+   footprint meets a lethal costmap cell within ``collision_horizon_s``. Stopping is always
+   allowed (stepping aside from someone walking at the rover is allowed too: it keeps the
+   closest approach farther than stopping would).
+3. **Comfort** — each person has a comfortable distance, ``passing_distance_m`` beside and
+   behind them growing to ``head_on_distance_m`` in front of someone walking (the rover
+   ahead of their motion); a track that never walked (a pillar? someone standing since the
+   rover came) only asks ``min_distance_m``. For each person the worst squared shortfall over
+   the horizon counts (nearer times weigh more); a candidate's cost is what its motion *adds*
+   to the worst that stopping would leave (someone walking up behind the rover is not its
+   doing), plus a fifth of the whole (so it steps aside from someone walking at it and a
+   dodge that ends farther away wins over standing there), against progress towards
+   the lookahead point and bending away from the chosen curvature. Coming nearer than
+   ``min_distance_m`` to anyone (even where stopping would too: someone walking at the rover)
+   costs ten times more than any discomfort, so the rover rather dodges. When the chosen arc
+   is allowed and costs (almost) nothing, it is kept as it is.
+4. **Yield, then "Excuse me"** — when the best is to stand still the rover *yields*
+   (``YIELDING``: the progress checks pause, for up to ``yield_max_s``). After
+   ``excuse_me_after_s`` it says ``excuse_me_text`` (every ``excuse_me_interval_s`` at most)
+   and for ``assertive_s`` the comfortable distances shrink to ``min_distance_m``, so it
+   creeps past a person who does not move rather than freezing for ever.
+
+While it steers round someone the controller does not start turning in place back to its
+path (:meth:`PeopleStage.steering`): the stage's arcs take it back once they have passed.
+Turning in place (to the path, or to a goal's heading) waits while someone is within
+``min_distance_m`` of the circle the footprint's corners sweep (:meth:`PeopleStage.review_turn`;
+"Excuse me" as above; after ``yield_max_s`` the progress checks run again). In a narrow
+passage (the costmap says the footprint's corners are near a wall) the comfortable distances
+are ``min_distance_m``: stopping in a doorway helps nobody through it.
+
+With :attr:`PeopleStage.stop_short` (the guide sets it on the way to a tour stop) a goal
+with people standing on it counts as reached within ``stop_short_m``: the rover keeps its
+distance instead of pushing into the group. The safety stage's stop zone still has the last
+word on every command.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import numpy.typing as npt
+
+from curio.core.config import ControllerConfig, PeopleConfig
+from curio.core.geometry import Pose2D, approach
+from curio.core.messages import PeopleTracks
+from curio.nav.controller import ControlStatus, LocalController, Review
+from curio.nav.costs import LETHAL, NO_INFORMATION, cost_at_distance
+from curio.people.stage_kernel import people_clearances
+from curio.robot import RobotModel
+
+__all__ = ["PeopleStage"]
+
+F64 = npt.NDArray[np.float64]
+
+STEP_S = 0.1
+STALE_S = 1.0  # tracks older than this are ignored
+WALKING_MPS = 0.3
+W_PROGRESS = 1.0
+W_COMFORT = 30.0
+W_BEND = 0.3
+W_SAFE = 300.0
+BACK_OFF_MPS = 0.1
+COMFORT_SLACK = 1e-3  # a comfort cost this small is nobody's concern
+STEERING_S = 1.5
+
+
+class PeopleStage:
+    """Reviews the controller's arc against predicted people (see the module docstring).
+
+    Args:
+        cfg: ``people``.
+        ccfg: ``nav.controller`` (speeds, accelerations, the collision horizon).
+        robot: the robot model (footprint, speed on an arc).
+        tracks: the latest ``/people`` message (None before the first).
+    """
+
+    def __init__(self, cfg: PeopleConfig, ccfg: ControllerConfig, robot: RobotModel,
+                 tracks: Callable[[], PeopleTracks | None]) -> None:
+        self.cfg = cfg
+        self.ccfg = ccfg
+        self.robot = robot
+        self.tracks = tracks
+        self.footprint = np.asarray(robot.footprint_points, dtype=np.float64)
+        self.reach_m = float(np.max(np.hypot(self.footprint[:, 0], self.footprint[:, 1])))
+        k = max(2, math.ceil(cfg.horizon_s / STEP_S))
+        self.times: F64 = np.arange(k + 1, dtype=np.float64) * STEP_S
+        self.weights: F64 = np.linspace(1.0, 0.4, k + 1)
+        self.stop_short = False
+        self.on_excuse_me: list[Callable[[str], None]] = []
+        self._yield_since: float | None = None
+        self._last_excuse_s = -math.inf
+        self._assertive_until_s = -math.inf
+        self.excuse_me_count = 0
+        self.reviews = 0
+        self.changed = 0
+        self._changed_at_s = -math.inf
+        self.last_costs: tuple[F64, ...] = ()  # the last review's numbers (for inspection)
+
+    # -- people ------------------------------------------------------------------------------
+    def people_near(self, pose: Pose2D, now_s: float) -> F64:
+        """``(J, 5)`` tracked people within reach, predicted to ``now_s``: x, y, vx, vy (map,
+        m, m/s) and 1 for a track that walked (0: it never did)."""
+        msg = self.tracks()
+        if msg is None or not msg.tracks or now_s - msg.stamp > STALE_S:
+            return np.zeros((0, 5))
+        dt = max(0.0, now_s - msg.stamp)
+        reach = self.cfg.interaction_radius_m + self.reach_m
+        rows = []
+        for t in msg.tracks:
+            x, y = t.x_m + t.vx_mps * dt, t.y_m + t.vy_mps * dt
+            if math.hypot(x - pose.x, y - pose.y) > reach:
+                continue
+            vx, vy = t.vx_mps, t.vy_mps
+            sp = math.hypot(vx, vy)
+            if sp < 0.1:
+                vx = vy = 0.0
+            elif sp > 2.0:
+                vx, vy = vx * 2.0 / sp, vy * 2.0 / sp
+            rows.append((x, y, vx, vy, 1.0 if t.walked else 0.0))
+        return np.array(rows, dtype=np.float64).reshape(-1, 5)
+
+    def _goal_taken(self, ctl: LocalController, people: F64) -> bool:
+        """Whether someone stands where the rover would stand at its goal."""
+        goal = ctl.goal
+        if goal is None or len(people) == 0:
+            return False
+        need = self.reach_m + self.cfg.person_radius_m + self.cfg.passing_distance_m
+        return bool((np.hypot(people[:, 0] - goal.x, people[:, 1] - goal.y) < need).any())
+
+    # -- candidates --------------------------------------------------------------------------
+    def _candidates(self, target: float, kappa: float, kmax: float, near: bool,
+                    approaching: bool) -> F64:
+        """``(M, 4)`` target speed (m/s), first curvature (1/m), when it ends (s) and the
+        curvature after it; row 0 the chosen arc, row 3 stopping on it."""
+        vmax = self.ccfg.max_speed_mps
+        if near:
+            vmax = min(vmax, self.cfg.near_speed_mps)
+        v_nom = min(max(target, 0.0), vmax)
+        never = math.inf
+        rows = [(v_nom, kappa, never, kappa), (0.6 * v_nom, kappa, never, kappa),
+                (0.3 * v_nom, kappa, never, kappa), (0.0, kappa, never, kappa)]
+        for k in np.linspace(-kmax, kmax, 9):
+            v = min(vmax, self.robot.max_speed_on_arc_mps(float(k)))
+            rows += [(v, float(k), never, float(k)), (0.5 * v, float(k), never, float(k))]
+        for k in (-kmax, -0.5 * kmax, 0.5 * kmax, kmax):
+            v = min(vmax, self.robot.max_speed_on_arc_mps(float(k)))
+            for t_bend in (1.0, 2.0):
+                rows += [(v, float(k), t_bend, 0.0), (0.5 * v, float(k), 2.0 * t_bend, 0.0)]
+        if approaching:
+            rows.append((-BACK_OFF_MPS, 0.0, never, 0.0))
+        return np.array(rows, dtype=np.float64)
+
+    def _rollout(self, pose: Pose2D, v_now: float, cands: F64) -> F64:
+        """``(M, K, 3)`` poses (map) of each candidate from the current speed (the speed ramps
+        under the acceleration limits, braking twice as hard)."""
+        t = self.times[None, :]
+        vc = cands[:, 0:1]
+        up = self.ccfg.max_accel_mps2
+        acc = np.where(vc >= v_now, up, -2.0 * up)
+        t_ramp = np.abs(vc - v_now) / np.abs(acc)
+        tr = np.minimum(t, t_ramp)
+        s = v_now * tr + 0.5 * acc * tr * tr + vc * np.maximum(t - t_ramp, 0.0)
+        kap = np.where(t < cands[:, 2:3], cands[:, 1:2], cands[:, 3:4])
+        ds = np.diff(s, axis=1)
+        th = pose.yaw + np.concatenate([np.zeros((len(cands), 1)),
+                                        np.cumsum(kap[:, :-1] * ds, axis=1)], axis=1)
+        mid = th[:, :-1] + 0.5 * kap[:, :-1] * ds
+        x = pose.x + np.concatenate([np.zeros((len(cands), 1)),
+                                     np.cumsum(ds * np.cos(mid), axis=1)], axis=1)
+        y = pose.y + np.concatenate([np.zeros((len(cands), 1)),
+                                     np.cumsum(ds * np.sin(mid), axis=1)], axis=1)
+        return np.stack([x, y, th], axis=-1)
+
+    def _required(self, poses: F64, times: F64, people: F64) -> F64:
+        """``(M, K, J)`` comfortable distance (m) of each person from each rover pose at
+        ``times`` (s from now)."""
+        cfg = self.cfg
+        px = people[None, None, :, 0] + people[None, None, :, 2] * times[None, :, None]
+        py = people[None, None, :, 1] + people[None, None, :, 3] * times[None, :, None]
+        rx = poses[:, :, 0:1] - px
+        ry = poses[:, :, 1:2] - py
+        sp = np.hypot(people[:, 2], people[:, 3])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            front = (people[None, None, :, 2] * rx + people[None, None, :, 3] * ry) / (
+                np.hypot(rx, ry) * np.maximum(sp, 1e-9)[None, None, :])
+        front = np.where(sp[None, None, :] > WALKING_MPS, np.clip(np.nan_to_num(front), 0.0,
+                                                                  1.0), 0.0)
+        req = cfg.passing_distance_m + (cfg.head_on_distance_m - cfg.passing_distance_m) * front
+        return np.where(people[None, None, :, 4] > 0.5, req, cfg.min_distance_m)
+
+    @staticmethod
+    def _narrow(ctl: LocalController, pose: Pose2D) -> bool:
+        """Whether the rover stands in a narrow passage (a wall nearer than its corners)."""
+        cm = ctl.costmap
+        if cm is None:
+            return False
+        limit = cost_at_distance(cm.circumscribed_radius_m - cm.inscribed_radius_m,
+                                 cm.cost_scaling_factor)
+        cost = cm.cost_at(pose.x, pose.y)
+        return bool(limit <= cost < NO_INFORMATION)
+
+    def _costmap_ok(self, ctl: LocalController, poses: F64) -> npt.NDArray[np.bool_]:
+        if ctl.costmap is None:
+            return np.ones(len(poses), dtype=bool)
+        k = max(2, math.ceil(self.ccfg.collision_horizon_s / STEP_S) + 1)
+        costs = ctl.trajectory_costs(poses[:, :k])
+        start_hit = costs[:, 0] >= LETHAL
+        return ~((costs[:, 1:] >= LETHAL).any(axis=1) & ~start_hit)
+
+    # -- the review --------------------------------------------------------------------------
+    def steering(self, now_s: float) -> bool:
+        """Whether the stage changed the motion in the last 1.5 s (it is steering round
+        someone: the controller should not turn in place back to its path meanwhile)."""
+        return now_s - self._changed_at_s < STEERING_S
+
+    def review_turn(self, pose: Pose2D, now_s: float) -> Review | None:
+        """None when nobody is (or within a second will be) within ``min_distance_m`` of the
+        circle the footprint's corners sweep turning in place; else wait for them."""
+        people = self.people_near(pose, now_s)
+        room = self.reach_m + self.cfg.person_radius_m + self.cfg.min_distance_m
+        for t in (0.0, 0.5, 1.0):
+            d = np.hypot(people[:, 0] + people[:, 2] * t - pose.x,
+                         people[:, 1] + people[:, 3] * t - pose.y)
+            if (d < room).any():
+                if self._note_yield(now_s) < self.cfg.yield_max_s:
+                    return Review(0.0, 0.0, ControlStatus.YIELDING,
+                                  "waiting for people to step back before turning",
+                                  hold_progress=True)
+                return Review(0.0, 0.0, ControlStatus.AVOIDING,
+                              "still waiting for people to step back before turning")
+        return None
+
+    def review(self, controller: LocalController, pose: Pose2D, now_s: float,
+               linear_mps: float, target_mps: float, kappa: float, aim: tuple[float, float],
+               kmax: float, dist_goal_m: float) -> Review | None:
+        """The stage (see the module docstring); None: no person matters, keep the arc."""
+        people = self.people_near(pose, now_s)
+        if len(people) == 0:
+            self._yield_since = None
+            return None
+        self.reviews += 1
+        if self.stop_short and dist_goal_m <= self.cfg.stop_short_m and self._goal_taken(
+                controller, people):
+            return Review(0.0, kappa, ControlStatus.FOLLOWING,
+                          "people stand at the stop: keeping my distance", arrived=True)
+        best, cands, near = self._choose(controller, pose, now_s, people, target_mps, kappa,
+                                         kmax, aim)
+        if best == 0 and not near:
+            self._yield_since = None
+            return None
+        self.changed += 1
+        self._changed_at_s = now_s
+        return self._command(controller, now_s, cands[best], target_mps)
+
+    def _choose(self, ctl: LocalController, pose: Pose2D, now_s: float, people: F64,
+                target: float, kappa: float, kmax: float,
+                aim: tuple[float, float]) -> tuple[int, F64, bool]:
+        """The best candidate's row, the candidates, and whether a person is near."""
+        near, approaching = self._situation(pose, people)
+        cands = self._candidates(target, kappa, kmax, near, approaching)
+        if not near:  # first the chosen arc (and stopping) alone: most of the time it is fine
+            few = cands[:4]
+            poses = self._rollout(pose, ctl.commanded_mps, few)
+            cost, comfort = self._score(ctl, pose, now_s, people, few, poses, kappa, kmax, aim)
+            if comfort[0] <= COMFORT_SLACK and math.isfinite(cost[0]):
+                return 0, cands, near  # nobody minds the chosen arc: keep it
+        poses = self._rollout(pose, ctl.commanded_mps, cands)
+        cost, comfort = self._score(ctl, pose, now_s, people, cands, poses, kappa, kmax, aim)
+        if comfort[0] <= COMFORT_SLACK and math.isfinite(cost[0]) and \
+                self._costmap_ok(ctl, poses[:1])[0]:
+            return 0, cands, near
+        # The cheapest candidates first; the costmap is asked only until one fits.
+        order = [int(i) for i in np.argsort(cost, kind="stable") if math.isfinite(cost[i])]
+        for k in range(0, len(order), 4):
+            batch = order[k:k + 4]
+            fits = self._costmap_ok(ctl, poses[batch])
+            for i, ok in zip(batch, fits.tolist(), strict=True):
+                if ok or i == 3:
+                    return i, cands, near
+        return 3, cands, near
+
+    def _situation(self, pose: Pose2D, people: F64) -> tuple[bool, bool]:
+        """Whether someone ahead is near (slow down) and someone walks straight at the rover
+        (offer backing off)."""
+        now_d = np.empty((1, 1, len(people)))
+        people_clearances(np.array([[[pose.x, pose.y, pose.yaw]]]), self.times[:1],
+                          people[:, :4], self.footprint, self.cfg.person_radius_m, now_d)
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        ahead = (people[:, 0] - pose.x) * c + (people[:, 1] - pose.y) * s
+        towards = people[:, 2] * c + people[:, 3] * s
+        # Slow near someone ahead, unless they walk away from the rover anyway.
+        near = bool(((now_d[0, 0] < self.cfg.near_distance_m) & (ahead > 0.0)
+                     & (towards < WALKING_MPS)).any())
+        approaching = bool(((ahead > 0) & (towards < -WALKING_MPS)
+                            & (now_d[0, 0] < 1.5)).any())
+        return near, approaching
+
+    def _score(self, ctl: LocalController, pose: Pose2D, now_s: float, people: F64,
+               cands: F64, poses: F64, kappa: float, kmax: float,
+               aim: tuple[float, float]) -> tuple[F64, F64]:
+        """Each candidate's cost (inf: it drives at someone) and comfort cost, from the
+        people predicted every 0.2 s."""
+        cfg = self.cfg
+        steps = poses[:, ::2]
+        times = self.times[::2]
+        dist = np.empty((len(cands), len(times), len(people)))
+        people_clearances(steps, times, people[:, :4], self.footprint, cfg.person_radius_m,
+                          dist)
+        req = self._required(steps, times, people)
+        if now_s < self._assertive_until_s or self._narrow(ctl, pose):
+            req = np.minimum(req, cfg.min_distance_m + 0.05)
+        # Each person's worst (time-weighted, squared) shortfall over the horizon.
+        worst = (np.clip(req - dist, 0.0, None) ** 2
+                 * self.weights[::2][None, :, None]).max(axis=1)
+        comfort = (np.clip(worst - worst[3:4], 0.0, None) + 0.2 * worst).sum(axis=1)
+        closest = dist.min(axis=1)  # (M, J): each candidate's closest approach to each person
+        bad = ((closest < cfg.min_distance_m) & (closest < closest[3:4] - 0.02)).any(axis=1)
+        bad[3] = False
+        ax, ay = aim[0] - pose.x, aim[1] - pose.y
+        norm = math.hypot(ax, ay) or 1.0
+        span = max(self.ccfg.max_speed_mps * self.times[-1], 1e-6)
+        progress = ((poses[:, -1, 0] - pose.x) * ax + (poses[:, -1, 1] - pose.y) * ay) / (
+            norm * span)
+        bend = np.abs(cands[:, 1] - kappa) / (2.0 * max(kmax, 1e-6))
+        # Coming nearer than min_distance_m to anyone is far worse than any discomfort.
+        unsafe = (np.clip(cfg.min_distance_m - closest, 0.0, None) ** 2).sum(axis=1)
+        cost = (W_SAFE * unsafe + W_COMFORT * comfort - W_PROGRESS * progress
+                + W_BEND * bend)
+        cost[bad] = np.inf
+        self.last_costs = (cands, cost, comfort, progress, closest.min(axis=1))
+        return cost, comfort
+
+    def _note_yield(self, now_s: float) -> float:
+        """The rover waits for people: start the clock, say "Excuse me" when it is time;
+        return how long it has waited (s)."""
+        if self._yield_since is None:
+            self._yield_since = now_s
+        waited = now_s - self._yield_since
+        cfg = self.cfg
+        if waited >= cfg.excuse_me_after_s and now_s - self._last_excuse_s >= \
+                cfg.excuse_me_interval_s:
+            self._last_excuse_s = now_s
+            self._assertive_until_s = now_s + cfg.assertive_s
+            self.excuse_me_count += 1
+            for listener in list(self.on_excuse_me):
+                listener(cfg.excuse_me_text)
+        return waited
+
+    def _command(self, ctl: LocalController, now_s: float, cand: F64,
+                 target: float) -> Review:
+        """The review for the chosen candidate; the yield timer and "Excuse me"."""
+        v_c, k_c = float(cand[0]), float(cand[1])  # the first step of the candidate
+        up = self.ccfg.max_accel_mps2 * ctl.dt_s
+        v = approach(ctl.commanded_mps, v_c, up if v_c >= ctl.commanded_mps else 2.0 * up)
+        if v_c > 0.02 or target <= 0.02:
+            self._yield_since = None
+            return Review(v, k_c, ControlStatus.AVOIDING, "giving way to people")
+        waited = self._note_yield(now_s)
+        if waited < self.cfg.yield_max_s:
+            return Review(v, k_c, ControlStatus.YIELDING, "waiting for people to pass",
+                          hold_progress=True)
+        return Review(v, k_c, ControlStatus.AVOIDING, "still waiting for people to pass")

@@ -1,0 +1,170 @@
+"""The controller's people stage: yielding to a head-on walker, never driving at a person,
+"Excuse me" instead of freezing, keeping the chosen arc when nobody minds."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from curio.core.config import Config
+from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.messages import PeopleTracks, PersonTrack
+from curio.nav.controller import ControlStatus, LocalController
+from curio.nav.costmap import Costmap
+from curio.people.stage import PeopleStage
+from curio.robot import RobotModel
+from curio.safety.stop_zone import polygon_distances
+from tests.unit.test_controller import open_grid, straight_plan
+
+BODY_M = 0.2  # the walker's real body radius (the stage assumes people.person_radius_m)
+
+
+class Walker:
+    """A scripted person: walks from ``start`` at ``velocity`` (m/s) after ``delay_s``."""
+
+    def __init__(self, start: tuple[float, float], velocity: tuple[float, float],
+                 delay_s: float = 0.0) -> None:
+        self.start, self.velocity, self.delay_s = start, velocity, delay_s
+
+    def at(self, t: float) -> tuple[float, float, float, float]:
+        dt = max(0.0, t - self.delay_s)
+        moving = t >= self.delay_s
+        vx, vy = self.velocity if moving else (0.0, 0.0)
+        return (self.start[0] + self.velocity[0] * dt, self.start[1] + self.velocity[1] * dt,
+                vx, vy)
+
+
+def run(ctrl: LocalController, pose: Pose2D, walkers: list[Walker], seconds: float,
+        stage: PeopleStage | None) -> tuple[Pose2D, list, float]:
+    """Drive the controller with perfect tracks of ``walkers``; return the final pose, the
+    log and the smallest footprint-to-body distance."""
+    now = {"t": 0.0}
+    footprint = np.asarray(ctrl.robot.footprint_points)
+
+    def tracks() -> PeopleTracks:
+        t = now["t"]
+        return PeopleTracks(t, tuple(PersonTrack(k + 1, *w.at(t), walked=True)
+                                     for k, w in enumerate(walkers)))
+
+    if stage is not None:
+        stage.tracks = tracks
+    ctrl.people = stage
+    dt = ctrl.dt_s
+    log = []
+    closest = math.inf
+    for _ in range(int(seconds / dt)):
+        t = now["t"]
+        out = ctrl.compute(pose, t)
+        log.append((t, pose, out))
+        xy = np.array([w.at(t)[:2] for w in walkers])
+        d = polygon_distances(pose.inverse().transform_points(xy), footprint) - BODY_M
+        closest = min(closest, float(d.min()))
+        if out.status is ControlStatus.GOAL_REACHED:
+            break
+        v, w = out.linear_mps, out.angular_radps
+        if abs(w) < 1e-9:
+            pose = Pose2D(pose.x + v * dt * math.cos(pose.yaw),
+                          pose.y + v * dt * math.sin(pose.yaw), pose.yaw)
+        else:
+            r = v / w
+            th = pose.yaw + w * dt
+            pose = Pose2D(pose.x + r * (math.sin(th) - math.sin(pose.yaw)),
+                          pose.y - r * (math.cos(th) - math.cos(pose.yaw)), wrap_angle(th))
+        now["t"] = t + dt
+    return pose, log, closest
+
+
+@pytest.fixture
+def parts(cfg: Config) -> tuple[LocalController, PeopleStage, Config]:
+    robot = RobotModel.from_config(cfg.robot)
+    cm = Costmap(open_grid(12.0), robot, cfg.nav.costmap)
+    ctrl = LocalController(cfg.nav.controller, robot, cm)
+    ctrl.set_plan(straight_plan(-4.0, 4.0), Pose2D(4.0, 0.0, 0.0))
+    stage = PeopleStage(cfg.people, cfg.nav.controller, robot, lambda: None)
+    return ctrl, stage, cfg
+
+
+def test_yields_to_a_head_on_walker_and_then_goes_on(
+        parts: tuple[LocalController, PeopleStage, Config]) -> None:
+    """A walker comes down the rover's path (0.3 m off its centre line) at 0.9 m/s and never
+    swerves: the rover gets out of the way (bends aside, waits) and keeps its distance — at
+    least 0.25 m edge to edge, where a rover that did nothing would be walked into — then
+    reaches its goal. (The stage keeps min_distance_m to a body of person_radius_m = 0.25 m
+    round the track; this walker's body is 0.2 m.)"""
+    ctrl, stage, cfg = parts
+    walker = Walker((4.5, 0.3), (-0.9, 0.0), delay_s=2.0)
+    pose, log, closest = run(ctrl, Pose2D(-4.0, 0.0, 0.0), [walker], 90.0, stage)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    assert pose.distance_to(Pose2D(4.0, 0.0)) <= cfg.nav.controller.xy_goal_tolerance_m + 0.01
+    assert closest >= 0.25, closest
+    # It gave way: stepped off the line while the walker came, or waited for them.
+    near = [(p, o) for t, p, o in log if abs(walker.at(t)[0] - p.x) < 2.5]
+    assert max(abs(p.y) for p, _ in near) > 0.3 or min(o.linear_mps for _, o in near) < 0.05
+    assert any(o.status in (ControlStatus.AVOIDING, ControlStatus.YIELDING) for _, o in near)
+
+
+def test_without_the_stage_the_walker_is_run_into(
+        parts: tuple[LocalController, PeopleStage, Config]) -> None:
+    """The same walk without the people stage: nothing keeps the distance (the test above
+    would catch a stage that does nothing)."""
+    ctrl, _stage, _cfg = parts
+    walker = Walker((4.5, 0.3), (-0.9, 0.0), delay_s=2.0)
+    _pose, _log, closest = run(ctrl, Pose2D(-4.0, 0.0, 0.0), [walker], 20.0, None)
+    assert closest < 0.0
+
+
+def test_passes_a_standing_person_at_a_comfortable_distance(
+        parts: tuple[LocalController, PeopleStage, Config]) -> None:
+    """Someone stands just beside the path (driving straight on would brush them): the rover
+    bends away and passes at about the passing distance. (Someone standing *on* the path is
+    the planner's: a person who stands still is marked in the costmap.)"""
+    ctrl, stage, cfg = parts
+    person = Walker((0.0, 0.6), (0.0, 0.0))
+    _pose, log, closest = run(ctrl, Pose2D(-4.0, 0.0, 0.0), [person], 90.0, stage)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    assert closest >= cfg.people.passing_distance_m - 0.1, closest
+    ctrl.reset()
+    ctrl.set_plan(straight_plan(-4.0, 4.0), Pose2D(4.0, 0.0, 0.0))
+    _pose, _log, straight = run(ctrl, Pose2D(-4.0, 0.0, 0.0), [person], 90.0, None)
+    assert straight < 0.15  # without the stage it passes far too close
+
+
+def test_never_drives_at_a_person_and_says_excuse_me(cfg: Config) -> None:
+    """In a corridor too narrow to pass, someone stands in the way: the rover stops short,
+    waits, says "Excuse me" after excuse_me_after_s, and never comes nearer than
+    min_distance_m."""
+    robot = RobotModel.from_config(cfg.robot)
+    grid = open_grid(12.0)
+    res = grid.resolution_m
+    data = grid.data.copy()
+    n = data.shape[0]
+    centre = n // 2
+    half = round(0.75 / res)  # a 1.5 m corridor along x
+    data[: centre - half, :] = 100
+    data[centre + half:, :] = 100
+    grid = type(grid)(data, res, grid.origin)
+    cm = Costmap(grid, robot, cfg.nav.costmap)
+    ctrl = LocalController(cfg.nav.controller, robot, cm)
+    ctrl.set_plan(straight_plan(-4.0, 4.0), Pose2D(4.0, 0.0, 0.0))
+    stage = PeopleStage(cfg.people, cfg.nav.controller, robot, lambda: None)
+    said: list[str] = []
+    stage.on_excuse_me.append(said.append)
+    person = Walker((1.0, 0.0), (0.0, 0.0))
+    _pose, log, closest = run(ctrl, Pose2D(-3.0, 0.0, 0.0), [person], 25.0, stage)
+    assert closest >= cfg.people.min_distance_m, closest
+    assert said and said[0] == cfg.people.excuse_me_text
+    assert any(o.status is ControlStatus.YIELDING for _, _, o in log)
+
+
+def test_keeps_the_arc_when_nobody_minds(
+        parts: tuple[LocalController, PeopleStage, Config]) -> None:
+    """People far off the path do not change a single command."""
+    ctrl, stage, _cfg = parts
+    far = Walker((0.0, 3.5), (0.3, 0.0))
+    _pose, with_stage, _ = run(ctrl, Pose2D(-4.0, 0.0, 0.0), [far], 40.0, stage)
+    ctrl.reset()
+    ctrl.set_plan(straight_plan(-4.0, 4.0), Pose2D(4.0, 0.0, 0.0))
+    _pose, without, _ = run(ctrl, Pose2D(-4.0, 0.0, 0.0), [far], 40.0, None)
+    assert [o.linear_mps for _, _, o in with_stage] == [o.linear_mps for _, _, o in without]
