@@ -6,7 +6,8 @@ objects by constructor injection, registers its running pieces on a
 (``curio/sim/wiring.py``), ``build_drivers`` (``curio/drivers/wiring.py``),
 ``build_estimation`` (``curio/estimation/wiring.py``), ``build_safety``
 (``curio/safety/wiring.py``), ``build_navigation`` (``curio/nav/wiring.py``),
-``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``) and
+``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``),
+``build_fleet`` (``curio/fleet/wiring.py``, only with ``fleet.enabled``) and
 ``build_web`` (``curio/web/wiring.py``); the flight recorder (``build_recorder``,
 ``curio/record/wiring.py``) comes first, so its bus tap sees every message, then the event log
 (``build_eventlog``, ``curio/eventlog/wiring.py``). The order of the calls below is the order of
@@ -40,6 +41,8 @@ from curio.estimation.ekf import EkfNode
 from curio.estimation.wiring import Localiser, MapServer, build_estimation
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
+from curio.fleet.transport import Transport
+from curio.fleet.wiring import Fleet, build_fleet
 from curio.nav.controller import LocalController
 from curio.nav.costmap import Costmap
 from curio.nav.navigator import NavigatorNode
@@ -69,13 +72,16 @@ class App:
     """
 
     def __init__(self, cfg: Config, clock: Clock, *, web: bool | None = None,
-                 inputs: Callable[[Bus, Clock, Parts], None] | None = None) -> None:
+                 inputs: Callable[[Bus, Clock, Parts], None] | None = None,
+                 fleet_transport: Transport | None = None) -> None:
         """Build every part.
 
         Args:
             web: serve the dashboard (default: ``web.enabled``).
             inputs: instead of the simulator and the device drivers, registers the parts that
                 publish the sensor streams (``curio replay``); ``drivers.mode`` must be ``sim``.
+            fleet_transport: the fleet's link (default: a Zenoh session from ``[fleet]``; the
+                fleet simulator and tests pass their own).
         """
         self.cfg = cfg
         self.clock = clock
@@ -123,6 +129,10 @@ class App:
         behaviour = build_behaviour(cfg, self.bus, clock, reg, nav, paths, self.tours.store)
         self.paths: PathManager = behaviour.paths
         self.tree: TreeRunner = behaviour.tree
+        self.fleet: Fleet | None = build_fleet(
+            cfg, self.bus, clock, reg, self.robot, navigator=nav.navigator,
+            grid=lambda: est.map_server.grid, tours=self.tours, paths=self.paths,
+            world=self.world, transport=fleet_transport)
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:
