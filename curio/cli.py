@@ -2,7 +2,7 @@
 
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
 ``curio emulate DEVICE``, ``curio map ...``, ``curio report --day YYYY-MM-DD``,
-``curio replay FILE``, ``curio export ...``, ``curio token ...`` and
+``curio replay FILE``, ``curio export ...``, ``curio token ...``, ``curio fleet ...`` and
 ``curio bench NAME``. Exit codes: 0 success,
 1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
 can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
@@ -106,6 +106,7 @@ def _build_parser() -> argparse.ArgumentParser:
                    "report where it diverges"),
         ("export", "convert a recording: --ros2 writes a ROS 2 bag (ros2 bag play)"),
         ("token", "create, list, revoke and rotate the dashboard's named tokens"),
+        ("fleet", "fleet manager, fleet simulator, keys, signed commands (curio[fleet])"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -291,8 +292,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _delegate(command: str, rest: list[str]) -> int:
-    """Hand ``check``, ``emulate``, ``map``, ``replay``, ``export`` and ``token`` to the modules
-    that own them."""
+    """Hand ``check``, ``emulate``, ``map``, ``replay``, ``export``, ``token`` and ``fleet`` to
+    the modules that own them."""
     import importlib
 
     module_name = {
@@ -302,6 +303,7 @@ def _delegate(command: str, rest: list[str]) -> int:
         "replay": "curio.commands.replay",
         "export": "curio.commands.export",
         "token": "curio.commands.token",
+        "fleet": "curio.commands.fleet",
     }[command]
     try:
         module = importlib.import_module(module_name)
@@ -320,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     verbose = bool(argv) and argv[0] in ("-v", "--verbose")
     rest = argv[1:] if verbose else argv
     if rest and rest[0] in _DELEGATED:
-        # check / emulate / map / token parse their own arguments (--help included).
+        # check / emulate / map / token / fleet parse their own arguments (--help included).
         _setup_logging(verbose)
         return _delegate(rest[0], rest[1:])
     parser = _build_parser()
@@ -353,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-_DELEGATED = ("check", "emulate", "map", "replay", "export", "token")
+_DELEGATED = ("check", "emulate", "map", "replay", "export", "token", "fleet")
 
 
 def _setup_logging(verbose: bool) -> None:

@@ -276,7 +276,7 @@ class FleetBridge:
                                "v": odom.linear_mps if odom is not None else 0.0,
                                "w": odom.angular_radps if odom is not None else 0.0})
         if self.traffic is not None:
-            self._put("traffic", self.traffic.message(0.25))
+            self._put("traffic", self.traffic.message())
         if self.fcfg.share_sim_truth:
             truth = self.bus.latest(GROUND_TRUTH)
             if truth is not None:

@@ -592,6 +592,7 @@ class TrafficNode:
             self._event("traffic.go", x=c[0], y=c[1])
         if before.state == "yield" and after.state != "yield":
             waited = now - self._holding_since if self._holding_since is not None else 0.0
+            self.longest_wait_s = max(self.longest_wait_s, waited)
             self._event("traffic.resume", waited_s=round(waited, 2), after=before.yield_to)
             self._holding_since = None
             self._waiting = False
@@ -620,8 +621,9 @@ class TrafficNode:
         """Whether the rover is holding for another rover now."""
         return self._holding_since is not None and self.decision.state == "yield"
 
-    def message(self, plan_step_m: float) -> dict[str, Any]:
-        """This rover's traffic message (for ``curio/<rover>/traffic``)."""
+    def message(self, plan_step_m: float = 0.4) -> dict[str, Any]:
+        """This rover's traffic message (for ``curio/<rover>/traffic``): the plan ahead every
+        ``plan_step_m``, to the centimetre."""
         pose_msg = self.bus.latest(POSE)
         odom = self.bus.latest(ODOM)
         pose = pose_msg.pose if pose_msg is not None else Pose2D()
@@ -629,7 +631,7 @@ class TrafficNode:
         if len(self._plan_xy) >= 2:
             pts, s = _resample(self._plan_xy, plan_step_m)
             keep = (s >= self._start_s) & (s <= self._start_s + self.cfg.lookahead_m)
-            ahead = [[float(x), float(y)] for x, y in pts[keep]]
+            ahead = [[round(float(x), 2), round(float(y), 2)] for x, y in pts[keep]]
         d = self.decision
         return {"t": self.clock.wall_time(), "x": pose.x, "y": pose.y, "yaw": pose.yaw,
                 "v": odom.linear_mps if odom is not None else 0.0,

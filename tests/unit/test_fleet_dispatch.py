@@ -163,3 +163,19 @@ def test_attempts_are_bounded(max_attempts: int) -> None:
             f.d.on_reply(job.rover or "", {"ok": False, "reason": "no",
                                            "request_id": job.request_id}, T0 + k)
     assert job.attempts == max_attempts and job.state == "dropped"
+
+
+def test_equally_near_rovers_share_the_work_by_battery_and_unreachable_ones_wait() -> None:
+    f = Fleet()
+    f.rover("a", 9.0, battery_v=7.6)
+    f.rover("b", 8.0, battery_v=8.0)  # 1 m further: as near, fuller
+    job = f.d.request(1, "T", "operator", T0)
+    f.d.tick(T0)
+    assert job.rover == "b"
+    g = Fleet()
+    g.rover("a", 0.0)
+    g.distance = lambda r, t: float("inf")  # type: ignore[method-assign]
+    g.d.distance = g.distance
+    job = g.d.request(1, "T", "operator", T0)
+    g.d.tick(T0)
+    assert job.state == "queued"

@@ -12,7 +12,8 @@ request id came) → ``done`` (``tour.finished``). A queued job that no rover ca
 idle/arrived/docked/charging, no tour, battery at or above the rover's minimum, localised —
 ``docs/tours.md``), at or above ``min_battery_v``, not busy with another job, not one that
 already failed this job; then the nearest by driving distance on the shared map to the tour's
-first stop, then the fuller battery, then the name.
+first stop (within ``NEAR_EQUAL_M`` counts as equally near), then the fuller battery, then the
+name.
 
 **Re-dispatch** (the job goes back to the queue, the rover is excluded for it):
 
@@ -43,6 +44,9 @@ from curio.fleet.manager.roster import Roster, RoverState
 __all__ = ["Dispatcher", "Job"]
 
 RESEND_S = 3.0
+# Rovers whose driving distances differ by less than this are equally near: the fuller
+# battery goes (it also spreads the work over the fleet).
+NEAR_EQUAL_M = 3.0
 
 
 @dataclass
@@ -230,7 +234,9 @@ class Dispatcher:
         self._note("dispatch.dropped", job, reason=reason)
 
     def candidates(self, job: Job, now: float) -> list[tuple[float, float, str]]:
-        """(distance m, −battery V, name) of every rover that may take ``job``, best first."""
+        """(distance m, −battery V, name) of every rover that may take ``job``, best first:
+        the nearest (distances within ``NEAR_EQUAL_M`` count as equal), then the fuller
+        battery, then the name."""
         busy = {j.rover for j in self.jobs if j.state in ("sent", "running")}
         out = []
         for r in self.roster.rovers.values():
@@ -240,7 +246,8 @@ class Dispatcher:
                     or battery is None or battery < self.cfg.min_battery_v):
                 continue
             out.append((self.distance(r, job.tour_id), -battery, r.name))
-        return sorted(out)
+        return sorted(out, key=lambda c: (c[0] // NEAR_EQUAL_M if math.isfinite(c[0])
+                                          else math.inf, c[1], c[2]))
 
     def _assign(self, job: Job, now: float) -> None:
         if now > job.deadline_wall_s:
