@@ -244,12 +244,12 @@ class MemoryNetwork:
         """Every live token."""
         return [k for t in self.up() for k in t._tokens]
 
-    def broadcast_token(self, key: str, kind: Literal["put", "delete"]) -> None:
-        """Tell every liveliness watcher that ``key`` appeared or went."""
+    def broadcast_token(self, key: str, kind: Literal["put", "delete"],
+                        exclude: MemoryTransport | None = None) -> None:
+        """Tell every liveliness watcher (but ``exclude``'s) that ``key`` appeared or went."""
         for t in self.up():
-            for i, sub in enumerate(t._subs):
-                if sub.liveliness and keyexpr_intersects(sub.keyexpr, key):
-                    t._enqueue(i, Sample(key, b"", kind, "~live", 0))
+            if t is not exclude:
+                t.tell(key, kind)
 
 
 class MemoryTransport(InboxTransport):
@@ -276,15 +276,17 @@ class MemoryTransport(InboxTransport):
         self._open = True
         self._announce()
 
+    def tell(self, key: str, kind: Literal["put", "delete"]) -> None:
+        """Queue a token change for this transport's matching liveliness watchers."""
+        for i, sub in enumerate(self._subs):
+            if sub.liveliness and keyexpr_intersects(sub.keyexpr, key):
+                self._enqueue(i, Sample(key, b"", kind, "~live", 0))
+
     def _announce(self) -> None:
         for key in self._tokens:
             self.network.broadcast_token(key, "put")
-        others = [k for t in self.network.up() if t is not self for k in t._tokens]
-        for i, sub in enumerate(self._subs):
-            if sub.liveliness:
-                for key in others:
-                    if keyexpr_intersects(sub.keyexpr, key):
-                        self._enqueue(i, Sample(key, b"", "put", "~live", 0))
+        for key in [k for t in self.network.up() if t is not self for k in t._tokens]:
+            self.tell(key, "put")
 
     def close(self) -> None:
         """Leave the network for good."""
@@ -294,11 +296,7 @@ class MemoryTransport(InboxTransport):
 
     def _withdraw(self) -> None:
         for key in self._tokens:
-            for t in self.network.up():
-                if t is not self:
-                    for i, sub in enumerate(t._subs):
-                        if sub.liveliness and keyexpr_intersects(sub.keyexpr, key):
-                            t._enqueue(i, Sample(key, b"", "delete", "~live", 0))
+            self.network.broadcast_token(key, "delete", exclude=self)
 
     def cut(self) -> None:
         """Lose the link (tokens go for the others)."""

@@ -52,6 +52,15 @@ class Fleet:
         self.d.on_event(rover, {"kind": "tour.started",
                                 "detail": {"request_id": job.request_id}}, now)
 
+    def running_on_a(self) -> Any:
+        """Rovers a (nearer) and b, one job given to a and started there."""
+        self.rover("a", 9.0)
+        self.rover("b", 0.0)
+        job = self.d.request(1, "T", "operator", T0)
+        self.d.tick(T0)
+        self.started("a", job, T0 + 1)
+        return job
+
 
 def test_the_nearest_ready_charged_rover_gets_the_tour() -> None:
     f = Fleet()
@@ -101,11 +110,7 @@ def test_a_refusal_and_a_silent_rover_send_the_tour_elsewhere() -> None:
 
 def test_an_offline_rover_keeps_its_tour_for_a_while_then_loses_it() -> None:
     f = Fleet(offline_after_s=5.0, redispatch_after_s=60.0)
-    f.rover("a", 9.0)
-    f.rover("b", 0.0)
-    job = f.d.request(1, "T", "operator", T0)
-    f.d.tick(T0)
-    f.started("a", job, T0 + 1)
+    job = f.running_on_a()
     f.roster.get("a").alive = False  # its token went
     for t in (T0 + 10, T0 + 40):
         f.rover("b", 0.0, now=t)
@@ -126,11 +131,7 @@ def test_an_offline_rover_keeps_its_tour_for_a_while_then_loses_it() -> None:
 
 def test_low_battery_and_a_failed_tour_hand_the_tour_over() -> None:
     f = Fleet(low_battery_v=6.8, failed_tour_s=30.0)
-    f.rover("a", 9.0)
-    f.rover("b", 0.0)
-    job = f.d.request(1, "T", "operator", T0)
-    f.d.tick(T0)
-    f.started("a", job, T0 + 1)
+    job = f.running_on_a()
     f.rover("a", 9.0, now=T0 + 5, battery_v=6.7, ready=False, tour=1, tour_phase="moving")
     f.d.tick(T0 + 5)
     assert job.rover == "b" and "battery is low" in job.reason  # handed over at once

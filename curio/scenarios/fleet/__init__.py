@@ -7,6 +7,7 @@ The registry maps a name to ``"module:Class"``; the module is imported only when
 from __future__ import annotations
 
 import importlib
+from typing import cast
 
 from curio.scenarios.fleet.base import FleetScenario
 
@@ -18,16 +19,9 @@ FLEET_SCENARIOS: dict[str, str] = {
 
 
 def get_fleet_scenario(name: str) -> FleetScenario:
-    """Instantiate the fleet scenario called ``name``.
-
-    Raises:
-        KeyError: with the list of known fleet scenarios.
-    """
-    try:
-        target = FLEET_SCENARIOS[name]
-    except KeyError:
-        known = ", ".join(sorted(FLEET_SCENARIOS))
-        raise KeyError(f"unknown fleet scenario '{name}'; known: {known}") from None
-    module_name, _, class_name = target.partition(":")
-    scenario: FleetScenario = getattr(importlib.import_module(module_name), class_name)()
-    return scenario
+    """Instantiate the fleet scenario called ``name`` (KeyError listing the known ones)."""
+    if name not in FLEET_SCENARIOS:
+        raise KeyError(f"unknown fleet scenario '{name}'; known: "
+                       f"{', '.join(sorted(FLEET_SCENARIOS))}")
+    module_name, _, class_name = FLEET_SCENARIOS[name].partition(":")
+    return cast(FleetScenario, getattr(importlib.import_module(module_name), class_name)())

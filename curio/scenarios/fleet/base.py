@@ -34,7 +34,7 @@ import math
 import secrets
 import shutil
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -322,8 +322,8 @@ async def run_fleet(scenario: FleetScenario, cfg: Config, args: FleetArgs,
         mcfg = base.model_copy(update={"data_dir": str(root / "manager")})
         manager = scenario.make_manager(mcfg, clock, mgr_t, key, names)
     ctx = FleetContext(rovers, clock, manager, args, base)
-    duration = args.duration_s if args.duration_s is not None else scenario.default_duration_s
-    failure = await _drive(scenario, ctx, mgr_t, ledger, duration)
+    failure = await _drive(scenario, ctx, mgr_t, ledger,
+                           args.duration_s or scenario.default_duration_s)
     report = _report(scenario, ctx, failure, wall_start, ledger)
     if report_path is not None:
         atomic_write_json(report_path, report)
@@ -341,6 +341,18 @@ async def _open_all(ctx: FleetContext, mgr_t: Transport, ledger: DeliveryLedger 
             raise FleetScenarioFailed("the Zenoh sessions did not hear each other within 10 s")
 
 
+async def _outcome(clock: SimClock, script: Coroutine[Any, Any, None],
+                   duration: float) -> str | None:
+    """Run ``script`` for at most ``duration`` simulated seconds; why it failed, or None."""
+    try:
+        await clock.wait_for(script, duration)
+    except TimeoutError:
+        return f"the scenario did not finish within {duration:g} s of simulated time"
+    except FleetScenarioFailed as exc:
+        return str(exc)
+    return None
+
+
 async def _drive(scenario: FleetScenario, ctx: FleetContext, mgr_t: Transport,
                  ledger: DeliveryLedger | None, duration: float) -> str | None:
     """Start everything, run the script for at most ``duration`` simulated seconds, stop."""
@@ -350,14 +362,8 @@ async def _drive(scenario: FleetScenario, ctx: FleetContext, mgr_t: Transport,
 
     async def script() -> None:
         nonlocal failure, done
-        try:
-            await clock.wait_for(scenario.run(ctx), duration)
-        except TimeoutError:
-            failure = f"the scenario did not finish within {duration:g} s of simulated time"
-        except FleetScenarioFailed as exc:
-            failure = str(exc)
-        finally:
-            done = True
+        failure = await _outcome(clock, scenario.run(ctx), duration)
+        done = True
 
     for r in ctx.rovers:
         r.sub = r.app.bus.subscribe(EVENTS)
