@@ -61,3 +61,34 @@ def test_samples_tokens_and_queries_cross_the_loopback(net) -> None:
     router.pump()
     assert live[-1] == ("curio/r1/alive", "put") and got[-1].payload == b"back"
     assert ledger.timeouts == 0 and ledger.received == ledger.expected
+
+
+def test_a_stuck_network_never_blocks_the_caller(monkeypatch) -> None:
+    """With threaded puts (the rover on real time) a put returns at once even when Zenoh's
+    own put hangs; beyond the bounded queue messages are dropped and counted."""
+    import threading
+    import time as _time
+
+    from curio.fleet import zenoh_link
+
+    monkeypatch.setattr(zenoh_link, "SEND_QUEUE", 5)
+    release = threading.Event()
+
+    class Stuck:
+        def put(self, *args, **kwargs) -> None:
+            release.wait(5.0)
+
+    t = ZenohTransport("r1", ZenohSettings(), threaded_puts=True)
+    t._zenoh = pytest.importorskip("zenoh")
+    t._s = zenoh_link._Session(Stuck())
+    t._queue = zenoh_link.queue.Queue(zenoh_link.SEND_QUEUE)
+    t._sender = threading.Thread(target=t._send_loop, daemon=True)
+    t._sender.start()
+    start = _time.perf_counter()
+    for i in range(50):
+        t.put("curio/r1/pose", b"%d" % i)
+    elapsed = _time.perf_counter() - start
+    release.set()
+    assert elapsed < 0.5
+    assert t.stats.dropped >= 40 and t.stats.out_msgs["pose"] == 50
+    t.close()
