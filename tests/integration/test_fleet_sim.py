@@ -50,4 +50,5 @@ async def test_a_rover_that_loses_its_link_mid_tour_carries_on_and_its_tour_move
     assert checks["the tour was re-dispatched to r2 and finished there"]["ok"]
     assert report["collisions"] == 0
     assert report["metrics"]["redispatched_after_s"] >= 20.0
+    assert report["metrics"]["delivery_timeouts"] == 0
     assert (tmp_path / "r.json").is_file()

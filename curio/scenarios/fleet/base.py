@@ -107,8 +107,9 @@ class FleetContext:
     """What a fleet scenario script works with."""
 
     def __init__(self, rovers: list[RoverRun], clock: SimClock, manager: Any,
-                 args: FleetArgs, cfg: Config) -> None:
+                 args: FleetArgs, cfg: Config, manager_transport: Transport | None = None) -> None:
         self.rovers = rovers
+        self.manager_transport = manager_transport
         self.clock = clock
         self.manager = manager
         self.args = args
@@ -150,6 +151,20 @@ class FleetContext:
                          poll_s: float = 0.2) -> bool:
         """Wait (simulated) until ``predicate()``; False on timeout."""
         return await self.clock.wait_until(predicate, timeout_s, poll_s)
+
+    def cut(self, rover: str) -> None:
+        """Cut ``rover``'s link (its session closes, as a pulled access point would)."""
+        self.rover(rover).transport.cut()
+
+    def restore(self, rover: str) -> None:
+        """Give ``rover`` its link back; with Zenoh, wait until the routes are there again
+        (so the run stays reproducible)."""
+        t = self.rover(rover).transport
+        t.restore()
+        if isinstance(t, ZenohTransport) and isinstance(self.manager_transport, ZenohTransport):
+            others = [r.transport for r in self.rovers if isinstance(r.transport, ZenohTransport)]
+            if not self.manager_transport.sync_routes(others):
+                raise FleetScenarioFailed(f"{rover}'s restored session was not heard in 10 s")
 
     def truth(self, rover: str) -> Pose2D | None:
         """The rover's true pose in ``map``."""
@@ -321,7 +336,7 @@ async def run_fleet(scenario: FleetScenario, cfg: Config, args: FleetArgs,
     if scenario.wants_manager:
         mcfg = base.model_copy(update={"data_dir": str(root / "manager")})
         manager = scenario.make_manager(mcfg, clock, mgr_t, key, names)
-    ctx = FleetContext(rovers, clock, manager, args, base)
+    ctx = FleetContext(rovers, clock, manager, args, base, mgr_t)
     failure = await _drive(scenario, ctx, mgr_t, ledger,
                            args.duration_s or scenario.default_duration_s)
     report = _report(scenario, ctx, failure, wall_start, ledger)
