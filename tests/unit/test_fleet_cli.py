@@ -45,3 +45,15 @@ def test_keys_are_created_listed_and_revoked(tmp_path: Path,
     assert secret not in listing
     assert main(["fleet", "key", "revoke", "lobby", *data]) == 0
     assert main(["fleet", "key", "revoke", "lobby", *data]) == 2
+
+
+def test_without_the_extra_a_fleet_rover_stops_with_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    monkeypatch.setitem(sys.modules, "zenoh", None)  # as if curio[fleet] were not installed
+    code = main(["run", "--set", "fleet.enabled=true", "--set", "web.enabled=false",
+                 "--set", f'data_dir="{tmp_path}"'])
+    err = capsys.readouterr().err
+    assert code == 2 and "pip install 'curio[fleet]'" in err and "Traceback" not in err
