@@ -4,7 +4,7 @@ Out, under ``curio/<rover>/`` (JSON unless said; :mod:`curio.fleet.codec`):
 
 * ``pose`` — ``/pose`` (map) with the speed from ``/odom``, at ``pose_rate_hz``;
 * ``traffic`` — pose, speed, the plan ahead and the right-of-way state (``traffic.py``), at
-  ``pose_rate_hz``;
+  ``pose_rate_hz`` while the rover has a goal, 1/``IDLE_EVERY`` of that without;
 * ``status`` — state and text, e-stop, localisation, goal, tour, battery, ready (and why
   not), home, the map's fingerprint, the link; every ``status_period_s``;
 * ``battery``, ``plan`` (thinned to ``plan_step_m``), ``tour`` (the kiosk's state) — when
@@ -77,6 +77,9 @@ OPEN_RETRY_S = 5.0
 # Events the fleet manager must not miss: kept for ``q/events`` (fetched after an outage).
 RECALLED = ("tour.", "bt.command_", "fleet.command")
 RECALL_EVENTS = 64
+# A rover without a goal sends its traffic message every this many ticks (1 Hz at 5 Hz):
+# every rover of a site receives every other's, so the idle ones keep quiet.
+IDLE_EVERY = 5
 PeerHandler = Callable[[str, dict[str, Any]], None]
 
 
@@ -139,6 +142,7 @@ class FleetBridge:
         self._peer_handlers: list[tuple[str, PeerHandler]] = []
         self._event_seq = itertools.count(1)
         self._recent: deque[dict[str, Any]] = deque(maxlen=RECALL_EVENTS)
+        self._ticks = 0
         self._last: dict[str, Any] = {}
         self._health: dict[str, str] = {}
         self.link_up: bool | None = None
@@ -275,7 +279,8 @@ class FleetBridge:
                                "yaw": pose.pose.yaw,
                                "v": odom.linear_mps if odom is not None else 0.0,
                                "w": odom.angular_radps if odom is not None else 0.0})
-        if self.traffic is not None:
+        self._ticks += 1
+        if self.traffic is not None and (self.goal_active() or self._ticks % IDLE_EVERY == 0):
             self._put("traffic", self.traffic.message())
         if self.fcfg.share_sim_truth:
             truth = self.bus.latest(GROUND_TRUTH)
