@@ -431,6 +431,7 @@ def link_rates(ctx: FleetContext) -> list[dict[str, Any]]:
         out.append({"rover": r.name, "msgs_per_s": round(totals["out_msgs"] / t, 2),
                     "bytes_per_s": round(totals["out_bytes"] / t, 1),
                     "in_msgs_per_s": round(totals["in_msgs"] / t, 2),
+                    "in_bytes_per_s": round(totals["in_bytes"] / t, 1),
                     "dropped": s.dropped,
                     "by_topic_bytes_per_s": {k: round(v / t, 1)
                                              for k, v in sorted(s.out_bytes.items())}})
