@@ -49,6 +49,7 @@ def _rover_args(config: Path | None, overrides: list[str], name: str, endpoint: 
             f'fleet.connect=["{endpoint}"]', "fleet.share_sim_truth=true",
             f"robot.name={name}", f"robot.home={pose}", f"sim.start={pose}", f"sim.seed={seed}",
             'bt.tree="tour"', "bt.speak=false", f"bt.paths={home_path}", "web.enabled=false",
+            "record.enabled=false",
             f'data_dir="{data}"', *overrides]
     args = [sys.executable, "-m", "curio", "run"]
     if config is not None:

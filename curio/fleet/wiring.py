@@ -8,7 +8,8 @@ run`` stops with one line), and registers:
   loop) — :class:`~curio.fleet.bridge.FleetBridge`;
 * ``fleet.traffic`` — :class:`~curio.fleet.traffic.TrafficNode`, whose hold is added to the
   navigator's ``holds`` (``fleet.traffic.enabled``);
-* ``fleet.keys`` — re-reads the keyring when ``curio fleet key`` changed it;
+* ``fleet.keys`` — re-reads the keyring (and the dashboard's tokens) when ``curio fleet key``
+  (``curio token``) changed them; a command may be signed with either;
 * ``fleet.ros2`` — :class:`~curio.fleet.ros2.publisher.Ros2Publisher` (``fleet.ros2.enabled``);
 * with ``fleet.share_sim_truth`` in the simulator, the other rovers' true poses become bodies
   in this rover's world (:class:`~curio.fleet.simworld.PeerBodies`).
@@ -30,7 +31,13 @@ from curio.core.config import Config
 from curio.core.errors import SetupError
 from curio.core.parts import Part, Parts
 from curio.estimation.maps import OccupancyGrid
-from curio.fleet.auth import ChainedKeys, CommandVerifier, FleetKeyring
+from curio.fleet.auth import (
+    ChainedKeys,
+    CommandVerifier,
+    FleetKeyring,
+    KeyLookup,
+    TokenStoreKeys,
+)
 from curio.fleet.bridge import FleetBridge
 from curio.fleet.commands import CommandExecutor
 from curio.fleet.keys import check_rover_name
@@ -81,9 +88,13 @@ def zenoh_settings(cfg: Config) -> ZenohSettings:
 
 def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel, *,
                 navigator: NavigatorNode, grid: Callable[[], OccupancyGrid], tours: Tours,
-                paths: Any = None, world: World | None = None,
+                paths: Any = None, world: World | None = None, tokens: Any = None,
                 transport: Transport | None = None) -> Fleet | None:
-    """Construct and register the rover's fleet parts (None when ``fleet.enabled`` is off)."""
+    """Construct and register the rover's fleet parts (None when ``fleet.enabled`` is off).
+
+    ``tokens`` is the dashboard's token store (``curio.web.tokens.TokenStore``): its named
+    tokens sign fleet commands too, with their roles, after the fleet's own keyring.
+    """
     f = cfg.fleet
     if not f.enabled:
         return None
@@ -93,7 +104,8 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
         transport = ZenohTransport(rover, zenoh_settings(cfg),
                                    threaded_puts=not isinstance(clock, SimClock))
     keys = FleetKeyring(cfg.data_path(f.keys_file))
-    verifier = CommandVerifier(rover, ChainedKeys([keys]), clock.wall_time, f.command_max_age_s)
+    sources: list[KeyLookup] = [keys] if tokens is None else [keys, TokenStoreKeys(tokens)]
+    verifier = CommandVerifier(rover, ChainedKeys(sources), clock.wall_time, f.command_max_age_s)
     executor = CommandExecutor(bus, clock, tours.service, tours.store)
 
     def goal_active() -> bool:
@@ -132,8 +144,11 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     parts.add(Part("fleet.pump", run=bridge.run_pump))
 
     async def watch_keys() -> None:
+        reload_tokens = getattr(tokens, "reload_if_changed", None)
         async for _ in clock.every(1.0, phase_s=0.5):
             keys.reload_if_changed()
+            if reload_tokens is not None:
+                reload_tokens()
 
     parts.add(Part("fleet.keys", run=watch_keys))
     return Fleet(rover, transport, bridge, traffic, keys, ros2, bodies)

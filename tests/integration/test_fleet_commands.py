@@ -92,3 +92,27 @@ async def test_unsigned_foreign_and_underprivileged_commands_are_refused(
     assert not app.bus.latest(ESTOP).engaged
     await app.stop()
     them.close()
+
+
+async def test_dashboard_tokens_sign_fleet_commands_with_their_roles(cfg: Config) -> None:
+    cfg = cfg.model_copy(update={"fleet": cfg.fleet.model_copy(update={
+        "enabled": True, "rover": "r1"})})
+    rover_link, them = links("memory")
+    clock = SimClock()
+    app = App(cfg, clock, fleet_transport=rover_link)
+    admin = app.tokens.first_admin()
+    kiosk = app.tokens.create("lobby screen", "kiosk")
+    assert admin is not None
+    them.open()
+    await app.start()
+    await clock.run(until_s=2.0)
+    wall = clock.wall_time
+    for entry in (kiosk, admin):
+        key = KeyEntry(entry.name, entry.role, entry.token)
+        them.put("curio/r1/cmd", CommandSigner(key, wall).sign("r1", {"action": "estop"}))
+        await clock.run(until_s=clock.now() + 1.0)
+        latest = app.bus.latest(ESTOP)
+        engaged = latest is not None and latest.engaged
+        assert engaged is (entry.role == "admin")
+    assert app.bus.latest(ESTOP).source == f"fleet:{admin.name}"
+    await app.stop()

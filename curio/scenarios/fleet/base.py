@@ -262,8 +262,9 @@ def _rover_cfg(base: Config, root: Path, name: str, index: int,
     sim = base.sim.model_copy(update={"start": start, "seed": seed * 100 + index})
     fleet = base.fleet.model_copy(update={"enabled": True, "rover": name})
     web = base.web.model_copy(update={"enabled": False})
+    record = base.record.model_copy(update={"enabled": False})  # as curio sim: only if asked
     return base.model_copy(update={"robot": robot, "sim": sim, "fleet": fleet, "web": web,
-                                   "bt": bt, "data_dir": str(root / name)})
+                                   "bt": bt, "record": record, "data_dir": str(root / name)})
 
 
 def _transports(names: list[str], kind: str) -> tuple[Transport, list[Transport],
