@@ -7,7 +7,8 @@ objects by constructor injection, registers its running pieces on a
 ``build_estimation`` (``curio/estimation/wiring.py``), ``build_safety``
 (``curio/safety/wiring.py``), ``build_navigation`` (``curio/nav/wiring.py``),
 ``build_people`` (``curio/people/wiring.py``),
-``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``) and
+``build_tours`` (``curio/tours/wiring.py``), ``build_behaviour`` (``curio/bt/wiring.py``),
+``build_fleet`` (``curio/fleet/wiring.py``, only with ``fleet.enabled``) and
 ``build_web`` (``curio/web/wiring.py``); the flight recorder (``build_recorder``,
 ``curio/record/wiring.py``) comes first, so its bus tap sees every message, then the event log
 (``build_eventlog``, ``curio/eventlog/wiring.py``), the loop watch
@@ -55,6 +56,8 @@ from curio.estimation.wiring import Localiser, MapServer, build_estimation, map_
 from curio.eventlog.commands import CommandJournal
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
+from curio.fleet.transport import Transport
+from curio.fleet.wiring import Fleet, build_fleet
 from curio.help.desk import HelpDesk
 from curio.help.wiring import build_help
 from curio.nav.clearance import ClearanceProbe
@@ -93,13 +96,16 @@ class App:
     """
 
     def __init__(self, cfg: Config, clock: Clock, *, web: bool | None = None,
-                 inputs: Callable[[Bus, Clock, Parts], None] | None = None) -> None:
+                 inputs: Callable[[Bus, Clock, Parts], None] | None = None,
+                 fleet_transport: Transport | None = None) -> None:
         """Build every part.
 
         Args:
             web: serve the dashboard (default: ``web.enabled``).
             inputs: instead of the simulator and the device drivers, registers the parts that
                 publish the sensor streams (``curio replay``); ``drivers.mode`` must be ``sim``.
+            fleet_transport: the fleet's link (default: a Zenoh session from ``[fleet]``; the
+                fleet simulator and tests pass their own).
         """
         self.cfg = cfg
         self.clock = clock
@@ -190,6 +196,10 @@ class App:
         notes.reset(paths.load_warning)
         reg.add(Part("data", run=notes.run))
         attach_guide(self.people, behaviour.tree.ctx.follower)
+        self.fleet: Fleet | None = build_fleet(
+            cfg, self.bus, clock, reg, self.robot, navigator=nav.navigator,
+            grid=lambda: est.map_server.grid, tours=self.tours, paths=self.paths,
+            world=self.world, tokens=self.tokens, transport=fleet_transport)
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:

@@ -2,7 +2,8 @@
 
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
 ``curio emulate DEVICE``, ``curio map ...``, ``curio report --day YYYY-MM-DD``,
-``curio replay FILE``, ``curio export ...``, ``curio token ...``, ``curio soak`` and
+``curio replay FILE``, ``curio export ...``, ``curio token ...``, ``curio fleet ...``,
+``curio soak`` and
 ``curio bench NAME``. Exit codes: 0 success,
 1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
 can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
@@ -111,6 +112,7 @@ def _build_parser() -> argparse.ArgumentParser:
         ("token", "create, list, revoke and rotate the dashboard's named tokens"),
         ("pose", "relocalise a running rover or set its pose on the map"),
         ("zones", "list a map's keep-out and speed zones, export them as Nav2 masks"),
+        ("fleet", "fleet manager, fleet simulator, keys, signed commands (curio[fleet])"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -305,8 +307,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _delegate(command: str, rest: list[str]) -> int:
-    """Hand ``check``, ``emulate``, ``map``, ``replay``, ``export``, ``token``, ``pose`` and
-    ``zones`` to the modules that own them."""
+    """Hand ``check``, ``emulate``, ``map``, ``replay``, ``export``, ``token``, ``pose``,
+    ``zones`` and ``fleet`` to the modules that own them."""
     import importlib
 
     module_name = {
@@ -318,6 +320,7 @@ def _delegate(command: str, rest: list[str]) -> int:
         "token": "curio.commands.token",
         "pose": "curio.commands.pose",
         "zones": "curio.commands.zones",
+        "fleet": "curio.commands.fleet",
     }[command]
     try:
         module = importlib.import_module(module_name)
@@ -336,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     verbose = bool(argv) and argv[0] in ("-v", "--verbose")
     rest = argv[1:] if verbose else argv
     if rest and rest[0] in _DELEGATED:
-        # check / emulate / map / token parse their own arguments (--help included).
+        # check / emulate / map / token / fleet parse their own arguments (--help included).
         _setup_logging(verbose)
         return _delegate(rest[0], rest[1:])
     parser = _build_parser()
@@ -373,7 +376,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-_DELEGATED = ("check", "emulate", "map", "replay", "export", "token", "pose", "zones")
+_DELEGATED = ("check", "emulate", "map", "replay", "export", "token", "pose", "zones",
+              "fleet")
 
 
 def _setup_logging(verbose: bool) -> None:

@@ -12,6 +12,7 @@ import copy
 import difflib
 import itertools
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
@@ -983,6 +984,116 @@ class FoxgloveConfig(Section):
         "has set the parameter operator_token to the dashboard's token; through the safety stage")
 
 
+class FleetTrafficConfig(Section):
+    """Traffic between rovers: others as moving obstacles, one rover at a time through narrow
+    passages (curio/fleet/traffic.py)."""
+
+    enabled: bool = True
+    narrow_width_m: float = Field(
+        1.6, gt=0.0, le=5.0, description="a passage narrower than this (wall to wall, across "
+        "the plan) takes one rover at a time")
+    lookahead_m: float = Field(
+        8.0, gt=0.0, le=50.0, description="passages this far ahead along the plan are "
+        "negotiated with the other rovers")
+    stop_before_m: float = Field(
+        1.3, ge=0.3, le=10.0, description="a rover that gives way holds at least this far "
+        "(along its plan) before the passage")
+    wait_back_m: float = Field(
+        3.0, ge=0.3, le=20.0, description="and at most this far, choosing the spot that stands "
+        "clearest of the other rover's way")
+    clearance_m: float = Field(
+        0.9, gt=0.0, le=5.0, description="another rover whose plan or pose comes this close "
+        "to the passage uses it")
+    clear_after_m: float = Field(
+        0.9, ge=0.0, le=10.0, description="a rover has left a passage once it is this far "
+        "from it")
+    peer_timeout_s: float = Field(
+        2.0, gt=0.0, le=60.0, description="a rover not heard from for this long is left to "
+        "the lidar and the safety stage")
+    tie_margin_s: float = Field(
+        2.0, ge=0.0, le=60.0, description="the rover that will reach the passage sooner by more "
+        "than this goes first (distance and turns, estimated); closer than that, the one whose "
+        "name sorts first")
+    rate_hz: float = Field(5.0, gt=0.0, le=50.0, description="right-of-way decisions per second")
+
+
+class FleetRos2Config(Section):
+    """ROS 2 can listen: /scan, /odom, /tf, /map as CDR under rmw_zenoh's keys
+    (curio/fleet/ros2)."""
+
+    enabled: bool = False
+    domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID")
+    namespace: str = Field("", description="ROS namespace of the topics; '' = /<rover name>")
+    frame_prefix: str = Field("", description="put before every frame id (e.g. 'r1/')")
+    scan_rate_hz: float = Field(5.0, gt=0.0, le=50.0)
+    odom_rate_hz: float = Field(10.0, gt=0.0, le=100.0)
+    tf_rate_hz: float = Field(10.0, gt=0.0, le=100.0)
+
+
+class FleetManagerConfig(Section):
+    """The fleet manager of ``curio fleet run`` (curio/fleet/manager)."""
+
+    host: str = "127.0.0.1"
+    port: int = Field(8090, ge=0, le=65535, description="the fleet page and JSON API")
+    mode: Literal["peer", "client", "router"] = "router"
+    listen: list[str] = Field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
+    connect: list[str] = Field(default_factory=list)
+    key_name: str = Field("fleet", description="the key (in fleet.keys_file) it signs with")
+    min_battery_v: float = Field(7.0, ge=0.0, description="a rover below this gets no tour")
+    low_battery_v: float = Field(
+        6.8, ge=0.0, description="a rover on a tour below this is sent home and its tour goes "
+        "to another rover")
+    offline_after_s: float = Field(5.0, gt=0.0, description="no status for this long: offline")
+    redispatch_after_s: float = Field(
+        60.0, ge=0.0, description="a rover that stays offline this long during a tour loses it "
+        "to another rover")
+    failed_tour_s: float = Field(
+        120.0, gt=0.0, description="a tour stuck 'failed' this long goes to another rover")
+    ack_timeout_s: float = Field(20.0, gt=0.0, description="a dispatched tour must start "
+                                 "within this")
+    start_window_s: float = Field(900.0, ge=0.0, description="a tour no rover can take is "
+                                  "dropped after waiting this long")
+    max_attempts: int = Field(3, ge=1, le=20, description="dispatches of one tour at most")
+    check_period_s: float = Field(1.0, gt=0.0, le=60.0)
+
+
+class FleetConfig(Section):
+    """A fleet over Eclipse Zenoh (curio[fleet]; off unless enabled; docs/fleet.md)."""
+
+    enabled: bool = False
+    rover: str = Field("", description="this rover's name in the fleet ('' = robot.name)")
+    mode: Literal["peer", "client", "router"] = "peer"
+    connect: list[str] = Field(default_factory=list, description="Zenoh endpoints, e.g. "
+                               "tcp/10.0.0.2:7447 (the site's zenohd)")
+    listen: list[str] = Field(default_factory=list)
+    multicast_scouting: bool = False
+    zenoh_config: str = Field("", description="a Zenoh JSON5 config file (wins over the keys "
+                              "above)")
+    keys_file: str = Field("fleet_keys.json", description="named keys, in data_dir (0600)")
+    command_max_age_s: float = Field(30.0, gt=0.0, le=3600.0)
+    pose_rate_hz: float = Field(5.0, gt=0.0, le=50.0)
+    scan_rate_hz: float = Field(1.0, ge=0.0, le=20.0, description="thinned scans; 0 = none")
+    scan_beams: int = Field(90, ge=8, le=2000)
+    status_period_s: float = Field(1.0, gt=0.0, le=60.0)
+    health_period_s: float = Field(5.0, gt=0.0, le=600.0)
+    plan_step_m: float = Field(0.2, gt=0.0, le=5.0, description="plans are thinned to this")
+    pump_period_s: float = Field(0.05, gt=0.0, le=1.0, description="received samples are "
+                                 "handed to the rover this often")
+    share_sim_truth: bool = Field(False, description="simulator: publish the true pose so "
+                                  "rovers in other processes appear in this one's world")
+    traffic: FleetTrafficConfig = Field(default_factory=FleetTrafficConfig)
+    ros2: FleetRos2Config = Field(default_factory=FleetRos2Config)
+    manager: FleetManagerConfig = Field(default_factory=FleetManagerConfig)
+
+    @field_validator("rover")
+    @classmethod
+    def _rover_name(cls, value: str) -> str:
+        if value and not re.match(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,31}$", value):
+            raise ValueError("use 1-32 letters, digits, '-' or '_', starting with a letter or "
+                             "digit")
+        return value
+
+
 class Config(Section):
     """The whole application configuration."""
 
@@ -1004,6 +1115,7 @@ class Config(Section):
     help: HelpConfig = Field(default_factory=HelpConfig)
     zones: ZonesConfig = Field(default_factory=ZonesConfig)
     people: PeopleConfig = Field(default_factory=PeopleConfig)
+    fleet: FleetConfig = Field(default_factory=FleetConfig)
 
     # Where relative paths are resolved; not a config key.
     base_dir: Path = Field(default_factory=lambda: REPO_ROOT, exclude=True)

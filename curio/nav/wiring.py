@@ -61,7 +61,8 @@ def build_navigation(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: R
     parts.add(Part("navigator", run=navigator.run, close=navigator.close))
 
     def goal_active() -> bool:
-        return navigator.active is not None
+        # Holding for another rover (navigator.holds) is waiting, not being blocked.
+        return navigator.active is not None and navigator.held_by is None
 
     obstacles = ObstacleNode(cfg.nav.blocked, robot, clock, bus, goal_active)
     parts.add(Part("obstacles", run=obstacles.run))

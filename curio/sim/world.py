@@ -25,7 +25,8 @@ Public API (other parts — the sim wiring, the device emulators, scenarios — 
   ``world.charger_voltage()`` reads ``dock.charger_v`` (else 0; None without a dock).
 * ``world.truth_pose -> Pose2D`` (``base_link`` in ``map``), ``world.truth_twist -> (v, ω)``,
   ``world.teleport(pose)``.
-* ``world.add_box(x, y, w, h, yaw=0) -> int``, ``world.add_person(route, speed_mps=0.8,
+* ``world.add_box(x, y, w, h, yaw=0) -> int``, ``world.move_box(id, x, y, yaw)``,
+  ``world.add_person(route, speed_mps=0.8,
   radius_m=0.25, loop=True, wait_s=0, start_delay_s=0) -> int``, ``world.remove_object(id)``,
   ``world.set_door(name, open)``, ``world.doors`` (names), ``world.door(name) -> Door``.
 * ``world.collisions`` (count of contacts so far), ``world.in_contact``, and
@@ -311,6 +312,17 @@ class World:
         self._shapes_dirty = True
         self._contacts_stale = True
         return oid
+
+    def move_box(self, object_id: int, x: float, y: float, yaw: float) -> None:
+        """Put box ``object_id`` at map (x, y) with heading ``yaw`` (another rover of a fleet,
+        curio/fleet/simworld.py); its size is kept.
+
+        Raises:
+            KeyError: no such box.
+        """
+        box = self._boxes[object_id]
+        self._boxes[object_id] = Box(x, y, box.w_m, box.h_m, yaw)
+        self._shapes_dirty = True
 
     def add_person(self, route: list[tuple[float, float]], speed_mps: float = 0.8,
                    radius_m: float = 0.25, loop: bool = True, wait_s: float = 0.0,

@@ -270,6 +270,20 @@ class TourStore:
         self._tours[tour.id] = tour
         return self._changed(change, tour, actor)
 
+    def upsert(self, tour: Tour, *, actor: str = "") -> Tour:
+        """Keep ``tour`` under its own id and revision, replacing the tour with that id (a
+        tour distributed by the fleet manager, ``curio/fleet``); its stops are checked like
+        any edit and its name must not be another tour's. Unchanged: nothing is written."""
+        old = self._tours.get(tour.id)
+        if old is not None and old == tour:
+            return old
+        if old is None and len(self._tours) >= MAX_TOURS:
+            raise TourError(f"There are already {MAX_TOURS} tours; delete one first.")
+        placed = Tour(tour.id, self._unique_name(tour.name, tour.id),
+                      tuple(self._placed(s) for s in tour.stops), tour.revision)
+        self._next_id = max(self._next_id, tour.id + 1)
+        return self._put(placed, "created" if old is None else "replaced", actor)
+
     def rename(self, tour_id: Any, name: Any, *, expect_revision: int | None = None,
                actor: str = "") -> Tour:
         """Rename a tour."""

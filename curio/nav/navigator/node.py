@@ -100,6 +100,10 @@ class NavigatorNode:
         self.ladder = RecoveryLadder(cfg.nav.recovery, recovery)
         self._sent_zero = True
         self.on_done: list[Callable[[GoalHandle], None]] = []
+        # Reasons to stand still with the goal kept active (another rover has the right of
+        # way, curio/fleet/traffic.py): each returns why, or None; asked every cycle.
+        self.holds: list[Callable[[Pose2D, float], str | None]] = []
+        self.held_by: str | None = None
 
     # --- the action interface -------------------------------------------------------------
     @property
@@ -158,6 +162,7 @@ class NavigatorNode:
             self._activate()
         handle = self.goals.current
         if handle is None or handle.done:
+            self.held_by = None
             if not self._sent_zero:
                 self._stop_motion()
             return
@@ -166,7 +171,8 @@ class NavigatorNode:
                 self._after_recovery(handle, pose_msg)
             return
         pose = self._usable_pose(handle, pose_msg, now)
-        if pose is not None and self._plan_step(handle, pose, now):
+        if pose is not None and self._plan_step(handle, pose, now) \
+                and not self._held(handle, pose, now):
             self._control(handle, pose, now)
 
     def _activate(self) -> None:
@@ -205,6 +211,17 @@ class NavigatorNode:
         if verdict.error is not None:
             self._finish(handle, GoalState.ABORTED, verdict.error, verdict.reason)
         return None
+
+    def _held(self, handle: GoalHandle, pose: Pose2D, now: float) -> bool:
+        """Stand still while one of :attr:`holds` gives a reason (``nav.holding`` once)."""
+        reason = next((r for r in (hold(pose, now) for hold in self.holds) if r), None)
+        if reason != self.held_by:
+            if reason:
+                self.goals.event("nav.holding", handle, reason=reason)
+            self.held_by = reason
+        if reason:
+            self._hold(now)
+        return reason is not None
 
     def _plan_step(self, handle: GoalHandle, pose: Pose2D, now: float) -> bool:
         """Follow a finished plan, start the next one when due; whether there is a plan to

@@ -1,0 +1,154 @@
+"""Fleet wiring: the rover's bridge, its traffic part and its ROS 2 publisher.
+
+``build_fleet`` returns None unless ``fleet.enabled``; then it checks that Zenoh is installed
+(the ``curio[fleet]`` extra: a :class:`~curio.core.errors.SetupError` otherwise, so ``curio
+run`` stops with one line), and registers:
+
+* ``fleet.bridge`` (publish loop, link check) and ``fleet.pump`` (received samples to the
+  loop) — :class:`~curio.fleet.bridge.FleetBridge`;
+* ``fleet.traffic`` — :class:`~curio.fleet.traffic.TrafficNode`, whose hold is added to the
+  navigator's ``holds`` (``fleet.traffic.enabled``);
+* ``fleet.keys`` — re-reads the keyring (and the dashboard's tokens) when ``curio fleet key``
+  (``curio token``) changed them; a command may be signed with either;
+* ``fleet.ros2`` — :class:`~curio.fleet.ros2.publisher.Ros2Publisher` (``fleet.ros2.enabled``);
+* with ``fleet.share_sim_truth`` in the simulator, the other rovers' true poses become bodies
+  in this rover's world (:class:`~curio.fleet.simworld.PeerBodies`).
+
+A transport can be passed in (the fleet simulator passes one per rover; tests an in-process
+one); by default it is a Zenoh session with ``fleet.mode``, ``fleet.connect``,
+``fleet.listen``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from curio.core.bus import Bus
+from curio.core.clock import Clock, SimClock
+from curio.core.config import Config
+from curio.core.errors import SetupError
+from curio.core.parts import Part, Parts
+from curio.estimation.maps import OccupancyGrid
+from curio.fleet.auth import (
+    ChainedKeys,
+    CommandVerifier,
+    FleetKeyring,
+    KeyLookup,
+    TokenStoreKeys,
+)
+from curio.fleet.bridge import FleetBridge
+from curio.fleet.commands import CommandExecutor
+from curio.fleet.keys import check_rover_name
+from curio.fleet.simworld import PeerBodies
+from curio.fleet.traffic import PassageFinder, TrafficNode
+from curio.fleet.transport import Transport
+from curio.fleet.zenoh_link import ZenohSettings, ZenohTransport, load_zenoh
+from curio.nav.navigator import NavigatorNode
+from curio.robot import RobotModel
+from curio.sim.world import World
+from curio.tours.wiring import Tours
+
+__all__ = ["Fleet", "build_fleet", "rover_name", "zenoh_settings"]
+
+
+@dataclass(frozen=True)
+class Fleet:
+    """The fleet subsystem's objects on a rover."""
+
+    rover: str
+    transport: Transport
+    bridge: FleetBridge
+    traffic: TrafficNode | None
+    keys: FleetKeyring
+    ros2: Any | None
+    bodies: PeerBodies | None = None
+
+
+def rover_name(cfg: Config) -> str:
+    """This rover's fleet name: ``fleet.rover``, else ``robot.name``.
+
+    Raises:
+        SetupError: the name cannot be a key chunk.
+    """
+    name = cfg.fleet.rover or cfg.robot.name
+    try:
+        return check_rover_name(name)
+    except ValueError as exc:
+        raise SetupError(f"fleet.rover / robot.name: {exc}") from None
+
+
+def zenoh_settings(cfg: Config) -> ZenohSettings:
+    """The Zenoh session settings of ``[fleet]``."""
+    f = cfg.fleet
+    return ZenohSettings(f.mode, tuple(f.connect), tuple(f.listen), f.multicast_scouting,
+                         str(cfg.resolve(f.zenoh_config)) if f.zenoh_config else "")
+
+
+def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel, *,
+                navigator: NavigatorNode, grid: Callable[[], OccupancyGrid], tours: Tours,
+                paths: Any = None, world: World | None = None, tokens: Any = None,
+                transport: Transport | None = None) -> Fleet | None:
+    """Construct and register the rover's fleet parts (None when ``fleet.enabled`` is off).
+
+    ``tokens`` is the dashboard's token store (``curio.web.tokens.TokenStore``): its named
+    tokens sign fleet commands too, with their roles, after the fleet's own keyring.
+    """
+    f = cfg.fleet
+    if not f.enabled:
+        return None
+    rover = rover_name(cfg)
+    if transport is None:
+        load_zenoh()
+        transport = ZenohTransport(rover, zenoh_settings(cfg),
+                                   threaded_puts=not isinstance(clock, SimClock))
+    keys = FleetKeyring(cfg.data_path(f.keys_file))
+    sources: list[KeyLookup] = [keys] if tokens is None else [keys, TokenStoreKeys(tokens)]
+    verifier = CommandVerifier(rover, ChainedKeys(sources), clock.wall_time, f.command_max_age_s)
+    executor = CommandExecutor(bus, clock, tours.service, tours.store)
+
+    def goal_active() -> bool:
+        return navigator.active is not None
+
+    traffic = None
+    if f.traffic.enabled:
+        width = float(robot.footprint[:, 1].max() - robot.footprint[:, 1].min())
+        traffic = TrafficNode(f.traffic, rover, bus, clock,
+                              PassageFinder(grid, f.traffic.narrow_width_m), width,
+                              robot.circumscribed_radius_m, goal_active)
+        navigator.holds.append(traffic.hold)
+        parts.add(Part("fleet.traffic", run=traffic.run))
+    snapshots: dict[str, Callable[[], Any]] = {"tours": lambda: [
+        t.to_json() for t in tours.store.list_tours()]}
+    if paths is not None:
+        snapshots["paths"] = lambda: [p.to_json() for p in paths.list_paths()]
+    bridge = FleetBridge(cfg, rover, bus, clock, transport, robot, verifier, executor, traffic,
+                         goal_active, snapshots)
+    if traffic is not None:
+        bridge.on_peer("traffic", traffic.on_peer)
+    bodies = None
+    if f.share_sim_truth and world is not None:
+        bodies = PeerBodies(world, robot)
+        bridge.on_peer("sim/truth", bodies.on_truth)
+    ros2 = None
+    if f.ros2.enabled:
+        from curio.fleet.ros2.publisher import Ros2Publisher
+
+        ros2 = Ros2Publisher(f.ros2, rover, bus, clock, transport, robot)
+        parts.add(Part("fleet.ros2", run=ros2.run))
+    bridge.declare()
+    if ros2 is not None:
+        ros2.declare()
+    parts.add(Part("fleet.bridge", run=bridge.run, close=bridge.close))
+    parts.add(Part("fleet.pump", run=bridge.run_pump))
+
+    async def watch_keys() -> None:
+        reload_tokens = getattr(tokens, "reload_if_changed", None)
+        async for _ in clock.every(1.0, phase_s=0.5):
+            keys.reload_if_changed()
+            if reload_tokens is not None:
+                reload_tokens()
+
+    parts.add(Part("fleet.keys", run=watch_keys))
+    return Fleet(rover, transport, bridge, traffic, keys, ros2, bodies)
