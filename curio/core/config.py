@@ -213,7 +213,7 @@ class SimConfig(Section):
 
 
 class EkfConfig(Section):
-    """Odometry + IMU fusion (filterpy inside)."""
+    """Odometry + IMU fusion (the EKF of ``curio/estimation/ekf.py``)."""
 
     enabled: bool = True
     rate_hz: float = Field(50.0, gt=0.0, le=500.0)
