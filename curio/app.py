@@ -40,6 +40,7 @@ from curio.estimation.ekf import EkfNode
 from curio.estimation.wiring import Localiser, MapServer, build_estimation
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
+from curio.kernels import use_cache_dir
 from curio.nav.controller import LocalController
 from curio.nav.costmap import Costmap
 from curio.nav.navigator import NavigatorNode
@@ -80,6 +81,7 @@ class App:
         """
         self.cfg = cfg
         self.clock = clock
+        use_cache_dir(cfg)  # numba_cache_dir, before any kernel compiles or loads
         self.bus: Bus = make_bus()
         self.robot = RobotModel.from_config(cfg.robot)
         self._registry = Parts()

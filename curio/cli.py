@@ -2,7 +2,7 @@
 
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
 ``curio emulate DEVICE``, ``curio map ...``, ``curio report --day YYYY-MM-DD``,
-``curio replay FILE``, ``curio export ...`` and
+``curio replay FILE``, ``curio export ...``, ``curio warmup`` and
 ``curio bench NAME``. Exit codes: 0 success,
 1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
 can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
@@ -105,6 +105,8 @@ def _build_parser() -> argparse.ArgumentParser:
         ("replay", "replay a recording (or a ROS bag) through estimation and navigation and "
                    "report where it diverges"),
         ("export", "convert a recording: --ros2 writes a ROS 2 bag (ros2 bag play)"),
+        ("warmup", "compile every numba kernel into the cache (numba_cache_dir) before the "
+                   "first start"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -229,6 +231,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from curio.drivers.modes import driver_mode
 
     cfg = _load(args)
+    from curio.commands.warmup import prepare
+
+    prepare(cfg)  # the compiled kernels loaded (or compiled) before the rover starts
     clock: Clock
     sim_clock: SimClock | None = None
     if driver_mode(cfg).world and cfg.sim.speed is not None:
@@ -300,6 +305,7 @@ def _delegate(command: str, rest: list[str]) -> int:
         "map": "curio.commands.map",
         "replay": "curio.commands.replay",
         "export": "curio.commands.export",
+        "warmup": "curio.commands.warmup",
     }[command]
     try:
         module = importlib.import_module(module_name)
@@ -351,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-_DELEGATED = ("check", "emulate", "map", "replay", "export")
+_DELEGATED = ("check", "emulate", "map", "replay", "export", "warmup")
 
 
 def _setup_logging(verbose: bool) -> None:
