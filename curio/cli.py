@@ -233,7 +233,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     cfg = _load(args)
     from curio.commands.warmup import prepare
 
-    prepare(cfg)  # the compiled kernels loaded (or compiled) before the rover starts
+    config_args = [*(["--config", str(args.config)] if args.config else []),
+                   *(f"--set={o}" for o in args.overrides)]
+    prepare(cfg, config_args)  # the compiled kernels loaded (or compiled) before the start
     clock: Clock
     sim_clock: SimClock | None = None
     if driver_mode(cfg).world and cfg.sim.speed is not None:

@@ -81,23 +81,28 @@ def warm(cfg: Config, sim_s: float = 30.0) -> dict[str, Any]:
             "compiled": compiled, "cold": cold}
 
 
-def prepare(cfg: Config) -> None:
-    """Before the rover starts: use the configured cache, load every cached kernel, and when
-    some kernel has nothing cached (a first start, or new sources) compile them all first
-    (:func:`warm`) — a kernel compiling inside the running loop would stall it for seconds
-    (longer than the systemd watchdog allows on a Pi)."""
+def prepare(cfg: Config, config_args: list[str]) -> None:
+    """Before the rover starts: use the configured cache and load every cached kernel; when
+    some kernel has nothing cached (a first start, or new sources), compile them all first by
+    running ``curio warmup`` with ``config_args`` (``--config``/``--set``) in a child process
+    (the workload's memory is not kept by the rover's process), then load them. A kernel
+    compiling inside the running loop would stall it for seconds (longer than the systemd
+    watchdog allows on a Pi)."""
+    import subprocess
+
     where = kernels.use_cache_dir(cfg) or "next to the sources"
     t0 = wall_perf_counter()
     loaded, cold = kernels.preload()
-    if not cold:
-        log.info("compiled kernels: %d loaded from the cache (%s) in %.1f s", loaded, where,
-                 wall_perf_counter() - t0)
-        return
-    log.warning("compiled kernels: %d of %d not in the cache (%s): compiling them before the "
-                "rover starts; 'curio warmup' after installing or updating Curio avoids this",
-                len(cold), len(kernels.dispatchers()), where)
-    result = warm(cfg)
-    log.info("compiled kernels: compiled in %.1f s", result["seconds"])
+    if cold:
+        log.warning("compiled kernels: %d of %d not in the cache (%s): compiling them before "
+                    "the rover starts; 'curio warmup' after installing or updating Curio "
+                    "avoids this", len(cold), len(kernels.dispatchers()), where)
+        subprocess.run([sys.executable, "-m", "curio", "warmup", *config_args], check=False,
+                       stdout=subprocess.DEVNULL)
+        more, cold = kernels.preload()
+        loaded += more
+    log.info("compiled kernels: %d loaded from the cache (%s) in %.1f s%s", loaded, where,
+             wall_perf_counter() - t0, f"; still not cached: {', '.join(cold)}" if cold else "")
 
 
 def _parser() -> argparse.ArgumentParser:
