@@ -39,7 +39,6 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-from scipy import linalg
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
@@ -67,6 +66,8 @@ def _inverse(s: F64) -> F64:
     """The inverse of the innovation covariance ``s`` (1 × 1: one division, as LAPACK does)."""
     if s.shape == (1, 1):
         return np.array([[1.0 / s[0, 0]]])
+    from scipy import linalg  # filterpy's inverse; here: only when the gyro is silent (26 MB)
+
     return np.asarray(linalg.inv(s), dtype=np.float64)
 
 
