@@ -6,7 +6,7 @@ AMCL-class, vectorised over particles × beams:
   odometry increment into rotation, translation, rotation and perturbs each with noise scaled by
   ``odom_alpha1..4``.
 * **Sensor model:** the likelihood field — beam end points looked up in a precomputed Euclidean
-  distance field of the occupied cells (``scipy.ndimage.distance_transform_edt``), a Gaussian of
+  distance field of the occupied cells (``curio.core.distance``, SciPy's EDT), a Gaussian of
   ``laser_sigma_hit_m`` mixed with a uniform ``laser_z_rand``.
 * **Adaptive particle count** by KLD sampling (``kld_err``, ``kld_z``; bins 0.25 m × 0.25 m ×
   10°), between ``min_particles`` and ``max_particles``.
@@ -36,11 +36,11 @@ from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import LocalizationConfig
+from curio.core.distance import distance_to_features
 from curio.core.geometry import Pose2D, wrap_angle, wrap_angles
 from curio.core.messages import (
     LaserScan,
@@ -93,7 +93,7 @@ class DistanceField:
         self.max_dist_m = max_dist_m
         occ = grid.occupied_mask()
         if occ.any():
-            dist = ndimage.distance_transform_edt(~occ) * grid.resolution_m
+            dist = distance_to_features(occ) * grid.resolution_m
         else:
             dist = np.full(occ.shape, max_dist_m)
         self.dist_m: F64 = np.minimum(np.asarray(dist, dtype=np.float64), max_dist_m)
