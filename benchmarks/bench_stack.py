@@ -24,6 +24,11 @@ figure to trust):
   (median). ``app_naive_scans_per_sim_s`` = ``app_cpu_per_sim_s × naive_scans_per_cpu_s`` is
   the application's cost in host-independent units: divide it by another host's calibration
   to predict that host's share of a core (a Raspberry Pi 4 measures ~3–5× lower).
+* ``app_per_sim_cpu`` — the application's CPU over the simulator's in the same run: a second,
+  in-run calibration. The simulator's per-step work (physics, ray casting, IMU) is the same code
+  from run to run, and it suffers the same contention as the application (another process on
+  the sibling hardware thread slows both), which the pure-Python naive caster tracks less well.
+  Valid for comparing runs while the simulator's own code is unchanged.
 
 Options (``--set``): ``scenario=guided-tour`` (any ``curio sim`` scenario), ``duration=1800``,
 ``repeats=3``, ``parts=1`` (add each part's share of a core, every task metered: slower),
@@ -95,6 +100,7 @@ def _figures(report: dict[str, Any], window: dict[str, float]) -> dict[str, floa
         "harness_cpu_s": harness_cpu,
         "app_cpu_s": app_cpu,
         "app_cpu_per_sim_s": app_cpu / sim_t,
+        "app_per_sim_cpu": app_cpu / sim_cpu if sim_cpu > 0 else float("nan"),
     }
 
 
@@ -120,6 +126,7 @@ def _subject(label: str, scenario_name: str, web: bool, opts: BenchOptions, dura
         "app_cpu_per_sim_s": round(med["app_cpu_per_sim_s"], 5),
         "app_pct_core": round(100 * med["app_cpu_per_sim_s"], 2),
         "app_pct_core_runs": [round(100 * f["app_cpu_per_sim_s"], 2) for f in figs],
+        "app_per_sim_cpu": round(med["app_per_sim_cpu"], 3),
         "goals": f"{report['goals_reached']}/{report['goals_total']}",
         "collisions": report["collisions"],
         "localization_rmse_m": report["localization_rmse_m"],
