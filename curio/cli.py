@@ -3,7 +3,7 @@
 ``curio run``, ``curio sim SCENARIO``, ``curio config show``, ``curio check``,
 ``curio emulate DEVICE``, ``curio map ...``, ``curio report --day YYYY-MM-DD``,
 ``curio replay FILE``, ``curio export ...``, ``curio token ...``, ``curio fleet ...``,
-``curio soak`` and
+``curio soak``, ``curio warmup`` and
 ``curio bench NAME``. Exit codes: 0 success,
 1 failure (a scenario or a check failed), 2 bad arguments, bad configuration or a setup the user
 can fix (a missing or corrupt file, a busy port): one line on stderr, no traceback.
@@ -113,6 +113,8 @@ def _build_parser() -> argparse.ArgumentParser:
         ("pose", "relocalise a running rover or set its pose on the map"),
         ("zones", "list a map's keep-out and speed zones, export them as Nav2 masks"),
         ("fleet", "fleet manager, fleet simulator, keys, signed commands (curio[fleet])"),
+        ("warmup", "compile every numba kernel into the cache (numba_cache_dir) before the "
+                   "first start"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -246,6 +248,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from curio.drivers.modes import driver_mode
 
     cfg = _load(args)
+    from curio.commands.warmup import prepare
+
+    config_args = [*(["--config", str(args.config)] if args.config else []),
+                   *(f"--set={o}" for o in args.overrides)]
+    prepare(cfg, config_args)  # the compiled kernels loaded (or compiled) before the start
     clock: Clock
     sim_clock: SimClock | None = None
     if driver_mode(cfg).world and cfg.sim.speed is not None:
@@ -308,7 +315,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 def _delegate(command: str, rest: list[str]) -> int:
     """Hand ``check``, ``emulate``, ``map``, ``replay``, ``export``, ``token``, ``pose``,
-    ``zones`` and ``fleet`` to the modules that own them."""
+    ``zones``, ``fleet`` and ``warmup`` to the modules that own them."""
     import importlib
 
     module_name = {
@@ -321,6 +328,7 @@ def _delegate(command: str, rest: list[str]) -> int:
         "pose": "curio.commands.pose",
         "zones": "curio.commands.zones",
         "fleet": "curio.commands.fleet",
+        "warmup": "curio.commands.warmup",
     }[command]
     try:
         module = importlib.import_module(module_name)
@@ -377,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 _DELEGATED = ("check", "emulate", "map", "replay", "export", "token", "pose", "zones",
-              "fleet")
+              "fleet", "warmup")
 
 
 def _setup_logging(verbose: bool) -> None:

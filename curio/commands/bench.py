@@ -39,8 +39,10 @@ def _bench_dir() -> Path:
 
 
 def available_benchmarks() -> list[str]:
-    """Names of the benchmarks found in ``benchmarks/``."""
-    return sorted(p.stem.removeprefix("bench_") for p in _bench_dir().glob("bench_*.py"))
+    """Names of the benchmarks found in ``benchmarks/`` (``bench_pi_budget.py`` is
+    ``pi-budget``)."""
+    return sorted(p.stem.removeprefix("bench_").replace("_", "-")
+                  for p in _bench_dir().glob("bench_*.py"))
 
 
 def machine_info() -> str:
@@ -89,7 +91,7 @@ def run_benchmark(name: str, opts: BenchOptions, json_path: Path | None = None) 
         raise KeyError(f"unknown benchmark '{name}'; known: {', '.join(available_benchmarks())}")
     if str(REPO_ROOT) not in sys.path:
         sys.path.insert(0, str(REPO_ROOT))
-    module = importlib.import_module(f"benchmarks.bench_{name}")
+    module = importlib.import_module(f"benchmarks.bench_{name.replace('-', '_')}")
     rows: list[dict[str, Any]] = module.run(opts)
     result = {
         "benchmark": name,

@@ -18,6 +18,9 @@ device's own check lives in its folder (``curio/drivers/*/check.py``):
 4. **BNO055** (``curio/drivers/bno055/check.py``): CHIP_ID at the configured address (and the
    other one), repeated reads to spot the Raspberry Pi's clock-stretching garbage, the
    self-test result, the saved calibration.
+5. **Compiled kernels** (:mod:`curio.kernels`): whether the numba cache (``numba_cache_dir``)
+   holds every kernel for the installed sources (``warn`` when not: the first start compiles,
+   and ``curio warmup`` fixes it).
 
 Every row is ``ok``, ``warn`` or ``FAIL`` with what was found and, when it is not ok, what to
 do. Exit code: 0 when nothing failed, 1 when something did, 2 on bad arguments.
@@ -82,6 +85,23 @@ def _choose(explicit: str | None, configured: str, found: list[PortInfo]) -> str
     return found[0].device if found else None
 
 
+def kernel_cache_row(cfg: Config) -> CheckResult:
+    """The compiled kernels' cache: ``ok`` when every kernel is cached for these sources."""
+    from curio import kernels
+
+    where = kernels.use_cache_dir(cfg) or "next to the sources"
+    found = kernels.status()
+    cold = [k.name.rsplit(".", 1)[-1] for k in found if k.cached == 0]
+    if not cold:
+        return CheckResult("kernels", "ok", f"all {len(found)} compiled kernels cached ({where})")
+    listed = ", ".join(cold[:4]) + (" ..." if len(cold) > 4 else "")
+    return CheckResult(
+        "kernels", "warn", f"{len(cold)} of {len(found)} compiled kernels not cached ({where}): "
+        f"{listed}; the next start compiles them first",
+        "run 'curio warmup' as the user that runs Curio (on the rover: sudo -u curio "
+        "/opt/curio/.venv/bin/curio warmup --config /etc/curio/config.toml)")
+
+
 # --- main -------------------------------------------------------------------------------------
 def format_table(results: list[CheckResult]) -> str:
     """The report as an aligned table with a fix line under each problem."""
@@ -104,8 +124,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--lidar", help="the RPLidar's serial port (default: config / USB id)")
     ap.add_argument("--i2c-bus", help="I2C bus number, or 'emulated' for the fake BNO055 bus")
     ap.add_argument("--imu-address", help="0x28 or 0x29 (default: drivers.imu.address)")
-    ap.add_argument("--skip", default="", help="devices not to check, comma-separated: "
-                    "arduino,lidar,imu")
+    ap.add_argument("--skip", default="", help="checks to leave out, comma-separated: "
+                    "arduino,lidar,imu,kernels")
     return ap
 
 
@@ -168,9 +188,9 @@ def main(argv: list[str]) -> int:
     """Run ``curio check``; return the exit code (0 all good, 1 a check failed, 2 bad usage)."""
     args = _parser().parse_args(argv)
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
-    unknown = skip - {"arduino", "lidar", "imu"}
+    unknown = skip - {"arduino", "lidar", "imu", "kernels"}
     if unknown:
-        print(f"curio check: --skip takes arduino, lidar, imu; got {sorted(unknown)}",
+        print(f"curio check: --skip takes arduino, lidar, imu, kernels; got {sorted(unknown)}",
               file=sys.stderr)
         return 2
     try:
@@ -183,6 +203,8 @@ def main(argv: list[str]) -> int:
               "'curio run' would not use these devices); this checks the hardware anyway. On "
               "the rover set drivers.mode = \"real\".\n")
     results = _device_rows(args, cfg, skip)
+    if "kernels" not in skip:
+        results.append(kernel_cache_row(cfg))
     print(format_table(results))
     failed = [r.name for r in results if r.status == "FAIL"]
     if failed:

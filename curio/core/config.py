@@ -277,7 +277,7 @@ class SimConfig(Section):
 
 
 class EkfConfig(Section):
-    """Odometry + IMU fusion (filterpy inside)."""
+    """Odometry + IMU fusion (the EKF of ``curio/estimation/ekf.py``)."""
 
     enabled: bool = True
     rate_hz: float = Field(50.0, gt=0.0, le=500.0)
@@ -1098,6 +1098,10 @@ class Config(Section):
     """The whole application configuration."""
 
     data_dir: str = Field("var", description="where paths, tokens and calibrations are kept")
+    numba_cache_dir: str | None = Field(
+        None, description="where the compiled kernels are cached (NUMBA_CACHE_DIR); must be "
+        "writable by the user running curio (deploy/: /var/cache/curio/numba). None: next to "
+        "the sources (a development checkout), or NUMBA_CACHE_DIR from the environment")
     robot: RobotConfig = Field(default_factory=RobotConfig)
     drivers: DriversConfig = Field(default_factory=DriversConfig)
     sim: SimConfig = Field(default_factory=SimConfig)

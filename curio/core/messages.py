@@ -8,6 +8,7 @@ fresh array for each message and consumers never write into it.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -33,6 +34,26 @@ class Twist:
     angular_radps: float = 0.0
     source: str = ""
     frame_id: str = "base_link"
+
+
+@functools.lru_cache(maxsize=16)
+def _beam_trig(angle_min_rad: float, angle_increment_rad: float,
+               n: int) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Cosine and sine of the ``n`` beam angles of a scan geometry (read-only, shared: every
+    scan of one lidar has the same angles)."""
+    ang = angle_min_rad + np.arange(n, dtype=np.int64) * angle_increment_rad
+    cos, sin = np.cos(ang), np.sin(ang)
+    cos.flags.writeable = False
+    sin.flags.writeable = False
+    return cos, sin
+
+
+@functools.lru_cache(maxsize=64)
+def _even_pick(n: int, count: int) -> npt.NDArray[np.int64]:
+    """``count`` evenly spread indices of ``range(n)`` (read-only, shared)."""
+    pick = np.linspace(0, n - 1, count).round().astype(np.int64)
+    pick.flags.writeable = False
+    return pick
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -82,11 +103,10 @@ class LaserScan:
             valid &= ranges <= range_max_m
         idx = np.flatnonzero(valid)
         if max_beams is not None and len(idx) > max_beams:
-            pick = np.linspace(0, len(idx) - 1, max_beams).round().astype(np.int64)
-            idx = idx[pick]
-        ang = self.angle_min_rad + idx * self.angle_increment_rad
+            idx = idx[_even_pick(len(idx), max_beams)]
+        cos, sin = _beam_trig(self.angle_min_rad, self.angle_increment_rad, len(ranges))
         r = ranges[idx]
-        pts = np.stack([r * np.cos(ang), r * np.sin(ang)], axis=1)
+        pts = np.stack([r * cos[idx], r * sin[idx]], axis=1)
         return pts if laser_in_base is None else laser_in_base.transform_points(pts)
 
 

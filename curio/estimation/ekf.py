@@ -1,4 +1,4 @@
-"""Odometry + IMU fusion: an extended Kalman filter in ``odom`` (filterpy inside).
+"""Odometry + IMU fusion: an extended Kalman filter in ``odom``.
 
 State (``odom`` frame, REP-105): ``x`` m, ``y`` m, ``yaw`` rad, ``v`` m/s (forward speed in
 ``base_link``), ``omega`` rad/s (yaw rate) and ``b_gyro`` rad/s (the gyro's z bias, so a biased
@@ -24,9 +24,13 @@ bias. Measurements, each gated by its Mahalanobis distance (``gate_mahalanobis``
   ``use_imu_heading`` and a calibrated magnetometer, the absolute heading too
   (``imu_heading_sigma_rad``), offset so that the first accepted heading matches the filter's yaw.
 
-The filter is wrapped by :class:`OdomEkf` so that a change of the filterpy API touches this file
-only. :class:`EkfNode` connects it to the bus and publishes ``ODOM`` (``odom`` → ``base_link``)
-at ``rate_hz``.
+The Kalman update is the Joseph form of filterpy's ``ExtendedKalmanFilter.update``, operation for
+operation (a test checks that the two agree to the last bit): filterpy's generic update (copies,
+a deep copy of every measurement, SciPy's checked inverse) cost more than the rest of the
+filter, at 80 updates a second, and importing it pulled in ``scipy.stats``. A 1 × 1 innovation
+covariance is inverted by one division (what LAPACK computes for it); the state and covariance
+are kept as plain arrays. :class:`EkfNode` connects the filter to the bus and publishes ``ODOM``
+(``odom`` → ``base_link``) at ``rate_hz``.
 """
 
 from __future__ import annotations
@@ -35,7 +39,6 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-from filterpy.kalman import ExtendedKalmanFilter
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
@@ -55,6 +58,37 @@ BIAS_WINDOW_S = 1.0  # wheel-vs-gyro comparison window for the bias, seconds
 BIAS_WINDOW_YAW_SIGMA_RAD = 0.01  # wheel + gyro yaw-increment error over one window
 BIAS_SKID_FRACTION = 0.05  # extra yaw-increment error per radian turned (skid steering)
 BIAS_MAX_TURN_RAD = 0.2  # windows in which the gyro saw a larger turn are not compared
+_I6 = np.eye(6)
+_I6.flags.writeable = False
+
+
+def _inverse(s: F64) -> F64:
+    """The inverse of the innovation covariance ``s`` (1 × 1: one division, as LAPACK does)."""
+    if s.shape == (1, 1):
+        return np.array([[1.0 / s[0, 0]]])
+    from scipy import linalg  # filterpy's inverse; here: only when the gyro is silent (26 MB)
+
+    return np.asarray(linalg.inv(s), dtype=np.float64)
+
+
+def kalman_update(x: F64, p: F64, z: F64, h: F64, r: F64,
+                  angle_rows: tuple[int, ...] = ()) -> tuple[F64, F64]:
+    """One Kalman update of ``(x, p)`` with the linear measurement ``z = h @ x``, covariance
+    ``r``, in Joseph form; return the new state and covariance (the inputs are not changed).
+
+    The operations, and their order, are those of filterpy's ``ExtendedKalmanFilter.update``
+    (``residual`` wraps the ``angle_rows`` of the innovation), so the result is the same to
+    the last bit.
+    """
+    pht = np.dot(p, h.T)
+    k = pht.dot(_inverse(np.dot(h, pht) + r))
+    y = np.asarray(z, dtype=np.float64) - np.asarray(h @ x, dtype=np.float64)
+    for i in angle_rows:
+        y[i] = wrap_angle(float(y[i]))
+    x_new = x + np.dot(k, y)
+    i_kh = _I6 - np.dot(k, h)
+    p_new = np.dot(i_kh, p).dot(i_kh.T) + np.dot(k, r).dot(k.T)
+    return x_new, p_new
 
 
 class OdomEkf:
@@ -68,9 +102,8 @@ class OdomEkf:
 
     def __init__(self, cfg: EkfConfig, imu_yaw_in_base_rad: float = 0.0) -> None:
         self.cfg = cfg
-        self._kf = ExtendedKalmanFilter(dim_x=6, dim_z=1)
-        self._kf.x = np.zeros(6)
-        self._kf.P = np.diag([1e-9, 1e-9, 1e-9, 0.01, 0.01, 0.01**2])
+        self._x: F64 = np.zeros(6)  # the state (owned: replaced, never handed out)
+        self._p: F64 = np.diag([1e-9, 1e-9, 1e-9, 0.01, 0.01, 0.01**2])  # its covariance
         self.t_s: float | None = None
         self.imu_yaw_in_base_rad = imu_yaw_in_base_rad
         self._heading_offset: float | None = None
@@ -87,12 +120,12 @@ class OdomEkf:
     @property
     def x(self) -> F64:
         """The state vector (x, y, yaw, v, omega, b_gyro) — a copy."""
-        return np.array(self._kf.x, dtype=np.float64).reshape(6)
+        return self._x.copy()
 
     @property
     def P(self) -> F64:
         """The state covariance — a copy."""
-        return np.array(self._kf.P, dtype=np.float64)
+        return self._p.copy()
 
     @property
     def last_wheel_stamp(self) -> float | None:
@@ -101,7 +134,7 @@ class OdomEkf:
 
     def pose(self) -> Pose2D:
         """``base_link`` in ``odom``."""
-        s = self.x
+        s = self._x
         return Pose2D(float(s[X]), float(s[Y]), wrap_angle(float(s[YAW])))
 
     def odometry_at(self, t_s: float) -> Odometry:
@@ -110,34 +143,31 @@ class OdomEkf:
         The extrapolation stops ``MAX_EXTRAPOLATION_S`` after the last measurement, so a dead
         sensor freezes the pose instead of driving it away.
         """
-        s, p = self.x, self.P
+        s, p = self._x, self._p  # read only: _propagate and the product make new arrays
         if self.t_s is not None and t_s > self.t_s:
             dt = min(t_s - self.t_s, MAX_EXTRAPOLATION_S)
             s, f = self._propagate(s, dt)
             p = f @ p @ f.T + self._q(dt)
-        cov = p[:3, :3]
-        return Odometry(t_s, Pose2D(float(s[X]), float(s[Y]), wrap_angle(float(s[YAW]))),
-                        float(s[V]), float(s[W]), tuple(float(v) for v in cov.ravel()))
+        x, y, yaw, v, w, _ = s.tolist()
+        return Odometry(t_s, Pose2D(x, y, wrap_angle(yaw)), v, w,
+                        tuple(p[:3, :3].ravel().tolist()))
 
     # --- prediction --------------------------------------------------------------------------
     @staticmethod
     def _propagate(s: F64, dt: float) -> tuple[F64, F64]:
         """Constant (v, omega) motion over ``dt``; return the new state and its Jacobian."""
-        out = s.copy()
-        yaw, v, w = s[YAW], s[V], s[W]
+        x, y, yaw, v, w, b = s.tolist()
         mid = yaw + 0.5 * w * dt  # midpoint integration (exact enough at 50 Hz)
         c, sn = math.cos(mid), math.sin(mid)
-        out[X] = s[X] + v * dt * c
-        out[Y] = s[Y] + v * dt * sn
-        out[YAW] = yaw + w * dt
-        f = np.eye(6)
-        f[X, YAW] = -v * dt * sn
-        f[X, V] = dt * c
-        f[X, W] = -v * dt * sn * 0.5 * dt
-        f[Y, YAW] = v * dt * c
-        f[Y, V] = dt * sn
-        f[Y, W] = v * dt * c * 0.5 * dt
-        f[YAW, W] = dt
+        out = np.array([x + v * dt * c, y + v * dt * sn, yaw + w * dt, v, w, b])
+        f = np.array([
+            [1.0, 0.0, -v * dt * sn, dt * c, -v * dt * sn * 0.5 * dt, 0.0],
+            [0.0, 1.0, v * dt * c, dt * sn, v * dt * c * 0.5 * dt, 0.0],
+            [0.0, 0.0, 1.0, 0.0, dt, 0.0],
+            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        ])
         return out, f
 
     def _q(self, dt: float) -> F64:
@@ -162,21 +192,20 @@ class OdomEkf:
         if dt <= 0:
             return
         if dt > 1.0:  # a long gap (paused sensors): do not extrapolate old speeds far
-            self._kf.x[V] = 0.0
-            self._kf.x[W] = 0.0
-        s, f = self._propagate(self.x, dt)
-        self._kf.x = s
-        self._kf.P = f @ self._kf.P @ f.T + self._q(dt)
+            self._x[V] = 0.0
+            self._x[W] = 0.0
+        s, f = self._propagate(self._x, dt)
+        self._x = s
+        self._p = f @ self._p @ f.T + self._q(dt)
         self.t_s = t_s
 
     # --- measurements ------------------------------------------------------------------------
     def _update(self, kind: str, z: F64, h: F64, r: F64, angle_rows: tuple[int, ...] = ()) -> bool:
         """Linear measurement ``z = h @ x`` with covariance ``r``, gated; return if fused."""
-        s = self.x
-        y = z - h @ s
+        y = z - h @ self._x
         for i in angle_rows:
             y[i] = wrap_angle(float(y[i]))
-        cov = h @ self._kf.P @ h.T + r
+        cov = h @ self._p @ h.T + r
         if len(y) == 1:  # the usual case: a scalar measurement
             d2 = float(y[0] * y[0] / cov[0, 0]) if cov[0, 0] > 0.0 else math.inf
         else:
@@ -188,17 +217,48 @@ class OdomEkf:
         if not math.isfinite(d2) or math.sqrt(max(d2, 0.0)) > self.cfg.gate_mahalanobis:
             self.rejected[kind] += 1
             return False
+        self._x, self._p = kalman_update(self._x, self._p, z, h, r, angle_rows)
+        self._x[YAW] = wrap_angle(float(self._x[YAW]))
+        self.accepted[kind] += 1
+        return True
 
-        def residual(a: F64, b: F64) -> F64:
-            out = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
-            for i in angle_rows:
-                out[i] = wrap_angle(float(out[i]))
-            return out
+    def _update_unit(self, kind: str, z: float, cols: tuple[int, ...], r: float,
+                     angle: bool = False) -> bool:
+        """The usual measurement: the sum of one or two state entries ``cols`` (``h`` a row of
+        ones there), variance ``r``, gated; return if fused. ``angle``: compare on the circle.
 
-        self._kf.update(z, HJacobian=lambda _x: h, Hx=lambda x: h @ np.asarray(x).reshape(6),
-                        R=r, residual=residual)
-        self._kf.x = np.asarray(self._kf.x, dtype=np.float64).reshape(6)
-        self._kf.x[YAW] = wrap_angle(float(self._kf.x[YAW]))
+        The same result as :meth:`_update` with that ``h``, to the last bit: every sum it
+        forms has at most two nonzero terms (exact in any order, fused or not), so it is done
+        on Python floats; only the Joseph covariance product stays a matrix product.
+        """
+        x = self._x.tolist()
+        pl = self._p.tolist()
+        a = cols[0]
+        b = cols[1] if len(cols) > 1 else -1
+        hx = x[a] if b < 0 else x[a] + x[b]
+        y = z - hx
+        if angle:
+            y = wrap_angle(y)
+        if b < 0:  # h P hᵀ, summed as (h P) hᵀ; then the gain's P hᵀ and h (P hᵀ)
+            cov = pl[a][a] + r
+            pht = [row[a] for row in pl]
+            s_inv = 1.0 / (pht[a] + r)
+        else:
+            cov = (pl[a][a] + pl[b][a]) + (pl[a][b] + pl[b][b]) + r
+            pht = [row[a] + row[b] for row in pl]
+            s_inv = 1.0 / ((pht[a] + pht[b]) + r)
+        d2 = y * y / cov if cov > 0.0 else math.inf
+        if not math.isfinite(d2) or math.sqrt(max(d2, 0.0)) > self.cfg.gate_mahalanobis:
+            self.rejected[kind] += 1
+            return False
+        k = np.array(pht) * s_inv
+        x_new = self._x + k * y
+        i_kh = _I6.copy()
+        for col in cols:
+            i_kh[:, col] -= k
+        self._p = np.dot(i_kh, self._p).dot(i_kh.T) + np.outer(k * r, k)
+        x_new[YAW] = wrap_angle(float(x_new[YAW]))
+        self._x = x_new
         self.accepted[kind] += 1
         return True
 
@@ -231,8 +291,8 @@ class OdomEkf:
         x = self.x + k @ y
         x[YAW] = wrap_angle(float(x[YAW]))
         ikh = np.eye(6) - k @ h
-        self._kf.x = x
-        self._kf.P = ikh @ p @ ikh.T + k @ r @ k.T
+        self._x = x
+        self._p = ikh @ p @ ikh.T + k @ r @ k.T
         self.accepted["bias"] += 1
         return True
 
@@ -255,13 +315,14 @@ class OdomEkf:
         h[0, V] = 1.0
         h[1, W] = 1.0
         r = np.diag([self.cfg.odom_speed_sigma_mps**2, self.cfg.odom_yaw_rate_sigma_radps**2])
+        r_v = self.cfg.odom_speed_sigma_mps**2
         if self._gyro_alive(odom.stamp):
-            ok = self._update("wheel", np.array([v]), h[:1], r[:1, :1])
+            ok = self._update_unit("wheel", v, (V,), r_v)
         else:
             ok = self._update("wheel", np.array([v, w]), h, r)
             if not ok:
                 # The yaw rate is the usual culprit (slip); keep the speed if it alone is sane.
-                ok = self._update("wheel", np.array([v]), h[:1], r[:1, :1])
+                ok = self._update_unit("wheel", v, (V,), r_v)
         self.predict_to(odom.stamp)
         self._bias_window(odom)
         return ok
@@ -328,23 +389,18 @@ class OdomEkf:
         rate_sum = sum(float(imu.angular_velocity_radps[2]) for imu in samples)
         n = len(samples)
         self.predict_to(sum(imu.stamp for imu in samples) / n)
-        h = np.zeros((1, 6))
-        h[0, W] = 1.0
-        h[0, B] = 1.0
-        r = np.array([[self.cfg.imu_yaw_rate_sigma_radps**2 / n]])
-        ok = self._update("gyro", np.array([rate_sum / n]), h, r)
+        ok = self._update_unit("gyro", rate_sum / n, (W, B),
+                               self.cfg.imu_yaw_rate_sigma_radps**2 / n)
         last = samples[-1]
         if self.cfg.use_imu_heading and last.orientation_valid and self._calibrated(last):
             self.predict_to(last.stamp)
             yaw_base = wrap_angle(quat_to_yaw(last.orientation_xyzw) - self.imu_yaw_in_base_rad)
             if self._heading_offset is None:
                 self._heading_offset = wrap_angle(float(self.x[YAW]) - yaw_base)
-            hh = np.zeros((1, 6))
-            hh[0, YAW] = 1.0
-            z = np.array([wrap_angle(yaw_base + self._heading_offset)])
+            z = wrap_angle(yaw_base + self._heading_offset)
             # The filter's yaw is unwrapped-by-wrap: compare on the circle.
-            self._update("heading", z, hh, np.array([[self.cfg.imu_heading_sigma_rad**2]]),
-                         angle_rows=(0,))
+            self._update_unit("heading", z, (YAW,), self.cfg.imu_heading_sigma_rad**2,
+                              angle=True)
         return ok
 
     @staticmethod

@@ -6,7 +6,7 @@ AMCL-class, vectorised over particles × beams:
   odometry increment into rotation, translation, rotation and perturbs each with noise scaled by
   ``odom_alpha1..4``.
 * **Sensor model:** the likelihood field — beam end points looked up in a precomputed Euclidean
-  distance field of the occupied cells (``scipy.ndimage.distance_transform_edt``), a Gaussian of
+  distance field of the occupied cells (``curio.core.distance``, SciPy's EDT), a Gaussian of
   ``laser_sigma_hit_m`` mixed with a uniform ``laser_z_rand``.
 * **Adaptive particle count** by KLD sampling (``kld_err``, ``kld_z``; bins 0.25 m × 0.25 m ×
   10°), between ``min_particles`` and ``max_particles``.
@@ -36,11 +36,11 @@ from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import LocalizationConfig
+from curio.core.distance import distance_to_features
 from curio.core.geometry import Pose2D, wrap_angle, wrap_angles
 from curio.core.messages import (
     DriverHealth,
@@ -52,6 +52,12 @@ from curio.core.messages import (
 from curio.core.pose_history import PoseHistory
 from curio.core.topics import HEALTH, INITIAL_POSE, LOCALIZATION, ODOM, SCAN
 from curio.estimation.correction import MapOdomPublisher
+from curio.estimation.localization_kernels import (
+    lookup_grad_points,
+    lookup_points,
+    lookup_poses,
+    match_terms,
+)
 from curio.estimation.maps import OccupancyGrid
 
 __all__ = [
@@ -68,10 +74,18 @@ F64 = npt.NDArray[np.float64]
 State = Literal["ok", "uncertain", "lost", "off"]
 
 
+def _flat(a: F64) -> F64:
+    """``a`` as a contiguous 1-D float64 array (a view when it already is one)."""
+    return np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+
+
 class DistanceField:
     """Distance (metres) from every cell centre to the nearest occupied cell centre.
 
-    Lookups take points in ``map``; points outside the grid read ``max_dist_m``.
+    Lookups take points in ``map``; points outside the grid read ``max_dist_m``. On an
+    unrotated grid (every map Curio builds) they run compiled
+    (:mod:`curio.estimation.localization_kernels`, the same arithmetic); a rotated origin takes
+    the numpy path.
     """
 
     def __init__(self, grid: OccupancyGrid, max_dist_m: float = 2.0) -> None:
@@ -80,7 +94,7 @@ class DistanceField:
         self.max_dist_m = max_dist_m
         occ = grid.occupied_mask()
         if occ.any():
-            dist = ndimage.distance_transform_edt(~occ) * grid.resolution_m
+            dist = distance_to_features(occ) * grid.resolution_m
         else:
             dist = np.full(occ.shape, max_dist_m)
         self.dist_m: F64 = np.minimum(np.asarray(dist, dtype=np.float64), max_dist_m)
@@ -98,6 +112,11 @@ class DistanceField:
 
     def lookup(self, x: F64, y: F64) -> F64:
         """Nearest-cell distance at map points (any shape), metres."""
+        if not self._rotated:
+            out = np.empty(np.shape(x))
+            lookup_points(self.dist_m, self.origin.x, self.origin.y, self.resolution_m,
+                          self.max_dist_m, _flat(x), _flat(y), out.reshape(-1))
+            return out
         lx, ly = self.to_local(x, y)
         col = np.floor(lx / self.resolution_m).astype(np.int64)
         row = np.floor(ly / self.resolution_m).astype(np.int64)
@@ -105,8 +124,30 @@ class DistanceField:
         idx = np.where(inside, row * self.width + col, 0)
         return np.where(inside, self._flat[idx], self.max_dist_m)
 
+    def lookup_poses(self, poses: F64, pts: F64) -> F64:
+        """Nearest-cell distance ``(M, N)`` at the points ``pts`` ``(N, 2)`` (``base_link``)
+        seen from each of the poses ``poses`` ``(M, 3)`` (x, y, yaw in ``map``), metres."""
+        c = np.cos(poses[:, 2])
+        s = np.sin(poses[:, 2])
+        if self._rotated:
+            wx = poses[:, 0:1] + c[:, None] * pts[None, :, 0] - s[:, None] * pts[None, :, 1]
+            wy = poses[:, 1:2] + s[:, None] * pts[None, :, 0] + c[:, None] * pts[None, :, 1]
+            return self.lookup(wx, wy)
+        out = np.empty((len(poses), len(pts)))
+        lookup_poses(self.dist_m, self.origin.x, self.origin.y, self.resolution_m,
+                     self.max_dist_m, _flat(poses[:, 0]), _flat(poses[:, 1]), c, s,
+                     _flat(pts[:, 0]), _flat(pts[:, 1]), out)
+        return out
+
     def lookup_grad(self, x: F64, y: F64) -> tuple[F64, F64, F64]:
         """Bilinear distance and its gradient (d/dx, d/dy in ``map``) at map points."""
+        if not self._rotated:
+            shape = np.shape(x)
+            val, gx, gy = np.empty(shape), np.empty(shape), np.empty(shape)
+            lookup_grad_points(self.dist_m, self.origin.x, self.origin.y, self.resolution_m,
+                               self.max_dist_m, _flat(x), _flat(y), val.reshape(-1),
+                               gx.reshape(-1), gy.reshape(-1))
+            return val, gx, gy
         lx, ly = self.to_local(x, y)
         res = self.resolution_m
         fx = lx / res - 0.5
@@ -170,6 +211,53 @@ class MatchResult:
     converged: bool
 
 
+HUBER_M = 0.05  # scan match: residuals beyond this weigh HUBER_M / |r|
+
+
+class _MatchTerms:
+    """The per-point terms of one scan-match iteration: residuals ``r`` of the used points
+    (``|r| < max_residual_m``), their Jacobian rows ``j`` (x, y, yaw) and the Huber-weighted
+    rows ``jw``; None when fewer than 6 points are used."""
+
+    def __init__(self, field: DistanceField, px: F64, py: F64, half: float,
+                 max_residual_m: float) -> None:
+        self.field = field
+        self.px, self.py = _flat(px), _flat(py)
+        self.half = half
+        self.max_residual_m = max_residual_m
+        n = len(self.px)
+        self._r = np.empty(n)
+        self._j = np.empty((n, 3))
+        self._jw = np.empty((n, 3))
+
+    def at(self, x: float, y: float, c: float, s: float) -> tuple[F64, F64, F64] | None:
+        """The terms at pose ``(x, y)`` with heading cosine ``c`` and sine ``s``."""
+        f = self.field
+        if f._rotated:
+            return self._numpy(x, y, c, s)
+        k = match_terms(f.dist_m, f.origin.x, f.origin.y, f.resolution_m, f.max_dist_m, x, y,
+                        c, s, self.px, self.py, self.half, self.max_residual_m, HUBER_M,
+                        self._r, self._j, self._jw)
+        if k < 6:
+            return None
+        return self._r[:k], self._j[:k], self._jw[:k]
+
+    def _numpy(self, x: float, y: float, c: float, s: float) -> tuple[F64, F64, F64] | None:
+        px, py = self.px, self.py
+        d, gx, gy = self.field.lookup_grad(x + c * px - s * py, y + s * px + c * py)
+        r = d - self.half
+        use = np.abs(r) < self.max_residual_m
+        if np.count_nonzero(use) < 6:
+            return None
+        r = r[use]
+        jx = gx[use]
+        jy = gy[use]
+        jt = jx * (-s * px[use] - c * py[use]) + jy * (c * px[use] - s * py[use])
+        j = np.stack([jx, jy, jt], axis=1)
+        w = np.where(np.abs(r) <= HUBER_M, 1.0, HUBER_M / np.maximum(np.abs(r), 1e-12))
+        return r, j, j * w[:, None]
+
+
 def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: int = 8,
                max_residual_m: float = 0.15, inlier_m: float = 0.1,
                sigma_m: float = 0.03, surface_offset_m: float | None = None,
@@ -196,23 +284,13 @@ def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: 
     if prior_cov is not None:  # in units of the point residuals (m²)
         prior_info = np.asarray(np.linalg.inv(prior_cov) * sigma_m**2, dtype=np.float64)
     h = np.eye(3) * 1e-6 if prior_info is None else prior_info.copy()
+    terms = _MatchTerms(field, px, py, half, max_residual_m)
     for _ in range(iterations):
         c, s = math.cos(th), math.sin(th)
-        wx = x + c * px - s * py
-        wy = y + s * px + c * py
-        d, gx, gy = field.lookup_grad(wx, wy)
-        r = d - half
-        use = np.abs(r) < max_residual_m
-        if np.count_nonzero(use) < 6:
+        got = terms.at(x, y, c, s)
+        if got is None:
             break
-        r = r[use]
-        jx = gx[use]
-        jy = gy[use]
-        jt = jx * (-s * px[use] - c * py[use]) + jy * (c * px[use] - s * py[use])
-        j = np.stack([jx, jy, jt], axis=1)
-        huber = 0.05
-        w = np.where(np.abs(r) <= huber, 1.0, huber / np.maximum(np.abs(r), 1e-12))
-        jw = j * w[:, None]
+        r, j, jw = got
         h = jw.T @ j + np.diag([1e-4, 1e-4, 1e-3])
         g = jw.T @ r
         if prior_info is not None:
@@ -418,13 +496,7 @@ class Localizer:
 
     def _loglik(self, poses: F64, pts: F64, sigma_m: float) -> F64:
         """Per-pose mean log-likelihood per beam (likelihood field), shape ``(M,)``."""
-        c = np.cos(poses[:, 2])[:, None]
-        s = np.sin(poses[:, 2])[:, None]
-        px = pts[None, :, 0]
-        py = pts[None, :, 1]
-        wx = poses[:, 0:1] + c * px - s * py
-        wy = poses[:, 1:2] + s * px + c * py
-        d = self.field.lookup(wx, wy) - 0.5 * self.grid.resolution_m
+        d = self.field.lookup_poses(poses, pts) - 0.5 * self.grid.resolution_m
         z_rand = self.cfg.laser_z_rand / self.cfg.laser_likelihood_max_dist_m
         p = self.cfg.laser_z_hit * np.exp(-0.5 * (d / sigma_m) ** 2) + z_rand
         out: F64 = np.mean(np.log(p), axis=1)
@@ -460,8 +532,11 @@ class Localizer:
         best = int(np.argmax(mass))
         sel = inv == best
         w = self.weights[sel]
-        cx = float(np.average(p[sel, 0], weights=w))
-        cy = float(np.average(p[sel, 1], weights=w))
+        scl = w.sum()  # np.average's arithmetic, without its checks and dispatch
+        if scl == 0.0:
+            raise ZeroDivisionError("Weights sum to zero, can't be normalized")
+        cx = float((p[sel, 0] * w).sum() / scl)
+        cy = float((p[sel, 1] * w).sum() / scl)
         near = np.hypot(p[:, 0] - cx, p[:, 1] - cy) < 0.6
         return np.asarray(near)
 
@@ -826,6 +901,8 @@ class LocalizerNode(MapOdomPublisher):
         self.update_times_s: list[float] = []
         self._health_state = ""
         self._health_due_s = -math.inf
+        self._cov_array: F64 | None = None  # the covariance last converted, and its tuple
+        self._cov_tuple: tuple[float, ...] = ()
 
     def global_localization(self) -> None:
         """Forget the pose and search the whole map (API for the dashboard and CLI)."""
@@ -861,8 +938,13 @@ class LocalizerNode(MapOdomPublisher):
         return self.start
 
     def pose_covariance(self, odom: Odometry | None = None) -> tuple[float, ...]:
-        """The filter's covariance."""
-        return tuple(float(v) for v in self.localizer.covariance.ravel())
+        """The filter's covariance (converted once per filter update: the localiser replaces
+        the array, never writes into it, and ``POSE`` goes out with every odometry message)."""
+        cov = self.localizer.covariance
+        if cov is not self._cov_array:
+            self._cov_array = cov
+            self._cov_tuple = tuple(cov.ravel().tolist())
+        return self._cov_tuple
 
     def on_scan(self, scan: LaserScan) -> None:
         """Run the filter on one scan and update the correction."""

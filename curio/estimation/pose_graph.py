@@ -23,11 +23,10 @@ whose χ² stays large so the caller can drop them for good.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import scipy.sparse as sp
-from scipy.sparse.linalg import spsolve
 
 from curio.core.geometry import Pose2D, wrap_angles
 
@@ -204,7 +203,9 @@ class PoseGraph:
         return [k for k in range(len(c)) if self.active[k] and self.robust[k] and c[k] > chi2_max]
 
     def _system(self, x: F64, ii: I64, jj: I64, z: F64, info: F64,
-                rob: npt.NDArray[np.bool_]) -> tuple[sp.csr_matrix, F64]:
+                rob: npt.NDArray[np.bool_]) -> tuple[Any, F64]:
+        import scipy.sparse as sp  # here: scipy.sparse is imported only when mapping
+
         n = len(x)
         e, ci, si, cz, sz, d = _errors(x, ii, jj, z)
         chi2 = np.einsum("mi,mij,mj->m", e, info, e)
@@ -255,6 +256,9 @@ class PoseGraph:
         cost0 = cost = self._cost(x, ii, jj, z, info, rob)
         it = 0
         for it in range(1, iterations + 1):  # noqa: B007
+            import scipy.sparse as sp
+            from scipy.sparse.linalg import spsolve
+
             h, g = self._system(x, ii, jj, z, info, rob)
             h = h[3:, 3:].tocsc()
             damped = h + sp.diags(1e-9 * np.maximum(h.diagonal(), 1.0))

@@ -32,7 +32,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
 
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.estimation.scan_matching_kernels import branch_and_bound, max_pyramid, splat_points
@@ -201,6 +200,8 @@ class PointMap:
     def __init__(self, points: F64, normals: F64) -> None:
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.normals = np.ascontiguousarray(normals, dtype=np.float64)
+        from scipy.spatial import cKDTree  # here: scipy.spatial is ~12 MB, mapping only
+
         self.tree = cKDTree(self.points) if len(self.points) else None
 
     def __len__(self) -> int:

@@ -31,11 +31,11 @@ from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import CostmapConfig
+from curio.core.distance import dilate_square, distance_to_features
 from curio.core.geometry import Pose2D
 from curio.core.messages import GridMessage, LaserScan
 from curio.core.pose_history import PoseHistory
@@ -159,8 +159,7 @@ class Costmap:
         n = self.cfg.static_mark_tolerance_cells
         if n <= 0 or not lethal.any():
             return np.zeros(lethal.shape, dtype=bool)
-        grown = ndimage.binary_dilation(lethal, structure=np.ones((3, 3), dtype=bool),
-                                        iterations=n)
+        grown = dilate_square(lethal, n)
         return np.asarray(grown & ~lethal)
 
     @property
@@ -191,7 +190,7 @@ class Costmap:
         """Inflated costs for a whole lethal mask (distances measured inside this array)."""
         if not lethal.any():
             return np.zeros(lethal.shape, dtype=np.uint8)
-        dist_cells = ndimage.distance_transform_edt(~lethal)
+        dist_cells = distance_to_features(lethal)  # SciPy's EDT, bit for bit, without SciPy
         return inflation_costs(np.asarray(dist_cells) * self.resolution_m,
                                self.inscribed_radius_m, self.cfg.inflation_radius_m,
                                self.cfg.cost_scaling_factor)

@@ -24,6 +24,7 @@ each change.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -95,14 +96,31 @@ class BlockedVerdict:
     reason: str
 
 
+@functools.lru_cache(maxsize=256)
+def _unit_steps(n: int) -> F64:
+    """``np.linspace(0, 1, n)`` (read-only, shared)."""
+    t = np.linspace(0.0, 1.0, n)
+    t.flags.writeable = False
+    return t
+
+
 def obstacle_points(obs: Obstacles, step_m: float = 0.05) -> F64:
     """Sample segments every ``step_m`` and circles' centres, in ``map``; ``(N, 3)`` rows
     ``(x, y, radius)`` (radius 0 for segment samples)."""
     rows: list[F64] = []
-    for (x1, y1), (x2, y2) in obs.segments:
-        n = max(2, int(math.hypot(x2 - x1, y2 - y1) / step_m) + 1)
-        t = np.linspace(0.0, 1.0, n)
-        rows.append(np.stack([x1 + t * (x2 - x1), y1 + t * (y2 - y1), np.zeros(n)], axis=1))
+    if obs.segments:
+        # All segments in one pass: the same samples as one linspace per segment.
+        counts = [max(2, int(math.hypot(x2 - x1, y2 - y1) / step_m) + 1)
+                  for (x1, y1), (x2, y2) in obs.segments]
+        ends = np.asarray(obs.segments, dtype=np.float64).reshape(-1, 4)  # x1, y1, x2, y2
+        which = np.repeat(np.arange(len(counts)), counts)
+        t = np.concatenate([_unit_steps(n) for n in counts])
+        x1, y1, x2, y2 = (ends[which, k] for k in range(4))
+        seg = np.empty((len(t), 3))
+        seg[:, 0] = x1 + t * (x2 - x1)
+        seg[:, 1] = y1 + t * (y2 - y1)
+        seg[:, 2] = 0.0
+        rows.append(seg)
     if obs.circles:
         rows.append(np.asarray(obs.circles, dtype=np.float64).reshape(-1, 3))
     if not rows:
@@ -186,13 +204,17 @@ def travel_direction(plan: list[Pose2D] | tuple[Pose2D, ...], pose: Pose2D,
     nearest one; None without a usable plan."""
     if len(plan) < 2:
         return None
-    xy = np.array([[p.x, p.y] for p in plan])
+    return travel_direction_xy(np.array([[p.x, p.y] for p in plan]), pose, ahead_m)
+
+
+def travel_direction_xy(xy: F64, pose: Pose2D, ahead_m: float = 0.5) -> float | None:
+    """:func:`travel_direction` for a plan given as its ``(N, 2)`` positions (N ≥ 2)."""
     d = np.hypot(xy[:, 0] - pose.x, xy[:, 1] - pose.y)
     i = int(np.argmin(d))
     seg = np.hypot(np.diff(xy[i:, 0]), np.diff(xy[i:, 1]))
     cum = np.concatenate([[0.0], np.cumsum(seg)])
     j = i + int(np.searchsorted(cum, ahead_m))
-    j = min(j, len(plan) - 1)
+    j = min(j, len(xy) - 1)
     tx, ty = xy[j]
     if math.hypot(tx - pose.x, ty - pose.y) < 0.05:
         return None
@@ -220,6 +242,8 @@ class ObstacleNode:
         self.latest: Obstacles | None = None
         self.state: BlockedState | None = None
         self._was_active = False
+        self._plan_msg: object = None  # the PLAN message last converted, and its positions
+        self._plan_xy: F64 = np.zeros((0, 2))
 
     def step(self) -> BlockedState:
         """Extract from the newest scan, update progress, evaluate, publish."""
@@ -239,8 +263,12 @@ class ObstacleNode:
         if odom is not None:
             self.detector.note_odometry(odom.pose, now)
         plan = self.bus.latest(PLAN)
-        travel = travel_direction(plan.poses, pose) if plan is not None and pose is not None \
-            else None
+        travel = None
+        if plan is not None and pose is not None and len(plan.poses) >= 2:
+            if plan is not self._plan_msg:  # the positions once per plan, not every cycle
+                self._plan_msg = plan
+                self._plan_xy = np.array([[p.x, p.y] for p in plan.poses])
+            travel = travel_direction_xy(self._plan_xy, pose)
         v = self.detector.evaluate(self.latest, pose, travel, active, now)
         msg = BlockedState(now, v.blocked, v.obstacle_distance_m, v.reason)
         if self.state is None or self.state.blocked != v.blocked:

@@ -22,8 +22,8 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
 
+from curio.core.distance import distance_to_features
 from curio.estimation.maps import OccupancyGrid
 from curio.sim.raycast_kernel import cast_beams
 
@@ -61,7 +61,7 @@ class GridRaycaster:
         code[1:-1, 1:-1] = self.occupied.astype(np.int8)
         # Distance (cells) from each cell centre to the nearest blocking cell centre, and a
         # lower bound of the distance from any point of the cell to any blocking square.
-        dist_cells = ndimage.distance_transform_edt(code == 0)
+        dist_cells = distance_to_features(code != 0)
         clr_cells = np.maximum(dist_cells - math.sqrt(2.0), 0.0)
         self.clearance_m = np.ascontiguousarray(clr_cells[1:-1, 1:-1] * self.res)
         # Sphere-tracing step (cells): the clearance, at least half a cell; 0 where blocked.

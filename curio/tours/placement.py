@@ -15,8 +15,8 @@ from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
-from scipy.ndimage import distance_transform_edt
 
+from curio.core.distance import distance_to_features
 from curio.estimation.maps import OccupancyGrid
 
 __all__ = ["MapPlacement"]
@@ -41,7 +41,7 @@ class MapPlacement:
         if grid is not self._cached:
             occupied = grid.occupied_mask()
             if occupied.any():
-                dist = distance_transform_edt(~occupied) * grid.resolution_m
+                dist = distance_to_features(occupied) * grid.resolution_m
             else:
                 dist = np.full(occupied.shape, np.inf)
             self._distance_m = np.asarray(dist, dtype=np.float64)

@@ -68,3 +68,25 @@ def test_signal_stops_the_rover_then_exits_cleanly(tmp_path: Path, sig: int) -> 
     assert "stopping the rover" in log
     assert "Traceback" not in log
     assert (tmp_path / "web_tokens.json").is_file()  # the admin token made on the first start
+
+
+async def test_a_crashed_part_is_reported_and_stops_the_stepper(cfg: Config) -> None:
+    """failed_parts() is cheap while nothing crashed, and names a part whose run raised."""
+    from curio.core.parts import Part
+
+    clock = SimClock(speed=None)
+    app = App(cfg, clock, web=False)
+
+    async def boom() -> None:
+        await clock.sleep(1.0)
+        raise RuntimeError("broken part")
+
+    app.add(Part("boom", run=boom))
+    await app.start()
+    assert app.failed_parts() == []
+    await clock.run(until_s=30.0, stop=lambda: bool(app.failed_parts()))
+    failed = app.failed_parts()
+    assert [name for name, _ in failed] == ["boom"]
+    assert isinstance(failed[0][1], RuntimeError)
+    assert clock.now() == pytest.approx(1.0, abs=0.05)  # stopped right after the crash
+    await app.stop()

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from curio.core.config import EkfConfig
-from curio.core.geometry import Pose2D, yaw_to_quat
+from curio.core.geometry import Pose2D, wrap_angle, yaw_to_quat
 from curio.core.messages import Imu, Odometry
 from curio.estimation.ekf import OdomEkf
 
@@ -171,3 +171,67 @@ def test_a_batch_of_gyro_samples_carries_the_information_of_separate_updates() -
     assert np.allclose(batched.x, one_by_one.x, atol=1e-12)
     assert np.allclose(batched.P, one_by_one.P, atol=1e-12)
     assert 0.25 < batched.x[4] + batched.x[5] < 0.35  # omega + bias near the mean rate
+
+
+def _random_state(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A state and a symmetric positive-definite covariance, not exactly symmetric (as a
+    propagated covariance is not)."""
+    x = rng.normal(0.0, 1.0, 6)
+    a = rng.normal(0.0, 0.3, (6, 6))
+    p = a @ a.T + np.diag(rng.uniform(1e-6, 0.1, 6))
+    p[0, 3] += 1e-17  # break the exact symmetry the way rounding does
+    return x, p
+
+
+@pytest.mark.parametrize("rows", [[(3,)], [(4, 5)], [(2,)], [(3,), (4,)]])
+def test_kalman_update_is_filterpys_to_the_last_bit(rows: list[tuple[int, ...]]) -> None:
+    """The Joseph update Curio does itself is filterpy's ExtendedKalmanFilter.update,
+    operation for operation (filterpy is a test dependency only)."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    from curio.estimation.ekf import kalman_update
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        x, p = _random_state(rng)
+        h = np.zeros((len(rows), 6))
+        for i, cols in enumerate(rows):
+            h[i, list(cols)] = 1.0
+        z = rng.normal(0.0, 1.0, len(rows))
+        r = np.diag(rng.uniform(1e-4, 0.1, len(rows)))
+        angle_rows = (0,) if rows == [(2,)] else ()
+        kf = ExtendedKalmanFilter(dim_x=6, dim_z=len(rows))
+        kf.x, kf.P = x.copy(), p.copy()
+
+        def residual(a: np.ndarray, b: np.ndarray,
+                     angle_rows: tuple[int, ...] = angle_rows) -> np.ndarray:
+            out = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+            for i in angle_rows:
+                out[i] = wrap_angle(float(out[i]))
+            return out
+
+        kf.update(z, HJacobian=lambda _x, h=h: h, Hx=lambda s, h=h: h @ np.asarray(s),
+                  R=r, residual=residual)
+        x2, p2 = kalman_update(x, p, z, h, r, angle_rows)
+        assert np.array_equal(np.asarray(kf.x).reshape(6), x2)
+        assert np.array_equal(kf.P, p2)
+
+
+@pytest.mark.parametrize(("cols", "angle"), [((3,), False), ((4, 5), False), ((2,), True)])
+def test_the_scalar_update_equals_the_matrix_update_to_the_last_bit(
+        cols: tuple[int, ...], angle: bool) -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        x, p = _random_state(rng)
+        z = float(rng.normal(0.0, 1.0))
+        r = float(rng.uniform(1e-4, 0.1))
+        matrix, scalar = OdomEkf(EkfConfig()), OdomEkf(EkfConfig())
+        for ekf in (matrix, scalar):
+            ekf._x, ekf._p = x.copy(), p.copy()
+        h = np.zeros((1, 6))
+        h[0, list(cols)] = 1.0
+        ok = matrix._update("wheel", np.array([z]), h, np.array([[r]]),
+                            angle_rows=(0,) if angle else ())
+        assert scalar._update_unit("wheel", z, cols, r, angle=angle) == ok
+        assert np.array_equal(matrix.x, scalar.x)
+        assert np.array_equal(matrix.P, scalar.P)

@@ -17,6 +17,7 @@ from curio.nav.obstacles import (
     BlockedDetector,
     ObstacleExtractor,
     ObstacleNode,
+    obstacle_points,
     travel_direction,
 )
 from curio.robot import RobotModel
@@ -168,3 +169,27 @@ async def test_node_publishes_obstacles_blocked_and_events(cfg: Config) -> None:
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
         await task
+
+
+def _points_one_by_one(obs: Obstacles, step_m: float = 0.05) -> np.ndarray:
+    """obstacle_points before it sampled every segment in one pass (verbatim)."""
+    rows = []
+    for (x1, y1), (x2, y2) in obs.segments:
+        n = max(2, int(math.hypot(x2 - x1, y2 - y1) / step_m) + 1)
+        t = np.linspace(0.0, 1.0, n)
+        rows.append(np.stack([x1 + t * (x2 - x1), y1 + t * (y2 - y1), np.zeros(n)], axis=1))
+    if obs.circles:
+        rows.append(np.asarray(obs.circles, dtype=np.float64).reshape(-1, 3))
+    if not rows:
+        return np.zeros((0, 3))
+    return np.vstack(rows)
+
+
+def test_obstacle_points_are_the_per_segment_samples() -> None:
+    rng = np.random.default_rng(4)
+    for k in range(50):
+        segs = tuple(((float(a), float(b)), (float(c), float(d)))
+                     for a, b, c, d in rng.uniform(-6, 6, (k % 7, 4)))
+        circles = tuple((float(x), float(y), float(r)) for x, y, r in rng.uniform(0, 1, (k % 3, 3)))
+        obs = Obstacles(0.0, segs, circles)
+        assert np.array_equal(obstacle_points(obs), _points_one_by_one(obs))

@@ -194,3 +194,20 @@ async def test_reset_forgets_the_plan_the_job_and_the_spots() -> None:
     rp.reset()
     assert not rp.has_plan(0) and rp.keep_out.spots == []
     assert rp.take_result(handle) is None
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.3])
+def test_cells_of_many_points_are_world_to_cell_of_each(yaw: float) -> None:
+    """The blocked check converts the plan ahead in one go: the same cells as the costmap's
+    per-point world_to_cell, on an unrotated and a rotated map origin."""
+    from curio.nav.navigator.replanner import _cells
+
+    data = np.zeros((120, 90), dtype=np.int8)
+    grid = OccupancyGrid(data, RES, Pose2D(-2.1, -1.3, yaw))
+    cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(-4.0, 6.0, 3000), rng.uniform(-4.0, 6.0, 3000)
+    x[:500] = np.round(x[:500] / RES) * RES  # on cell edges
+    rows, cols = _cells(cm, x, y)
+    expected = [cm.world_to_cell(float(a), float(b)) for a, b in zip(x, y, strict=True)]
+    assert list(zip(rows.tolist(), cols.tolist(), strict=True)) == expected

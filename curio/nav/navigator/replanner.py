@@ -122,6 +122,18 @@ class _PlanJob:
     reason: str
 
 
+def _cells(grid: CostGrid, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]
+           ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """``(rows, cols)`` of the cells holding the map points ``(x, y)`` (may lie outside the
+    grid): ``grid.world_to_cell`` for many points at once, with the same arithmetic."""
+    inv = grid.origin.inverse()
+    c, s = math.cos(inv.yaw), math.sin(inv.yaw)
+    lx = inv.x + c * x - s * y
+    ly = inv.y + s * x + c * y
+    res = grid.resolution_m
+    return np.floor(ly / res).astype(np.int64), np.floor(lx / res).astype(np.int64)
+
+
 class Replanner:
     """When to plan, and the plan jobs (see the module docstring).
 
@@ -260,10 +272,7 @@ class Replanner:
         i0 = self.follower.plan_index
         ahead = plan[i0:i0 + 60]
         costs = self.costmap.costs()
-        rows = np.empty(len(ahead), dtype=np.int64)
-        cols = np.empty(len(ahead), dtype=np.int64)
-        for k, (x, y, _) in enumerate(ahead):
-            rows[k], cols[k] = self.costmap.world_to_cell(float(x), float(y))
+        rows, cols = _cells(self.costmap, ahead[:, 0], ahead[:, 1])
         h, w = costs.shape
         ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
         if not ok.all():

@@ -1,0 +1,92 @@
+"""The compiled kernels' cache: found without registration, redirected by numba_cache_dir,
+reported cold or warm, preloaded; ``curio check`` says so and ``curio warmup`` fills it."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from curio import kernels
+from curio.commands import check, warmup
+from curio.core.config import REPO_ROOT, Config, load_config
+from curio.core.errors import SetupError
+
+
+@pytest.fixture
+def restore_cache_dir() -> Iterator[None]:
+    """Put numba's cache back where it was (next to the sources) after the test."""
+    before = os.environ.get("NUMBA_CACHE_DIR")
+    yield
+    if before is None:
+        os.environ.pop("NUMBA_CACHE_DIR", None)
+    else:
+        os.environ["NUMBA_CACHE_DIR"] = before
+    from numba.core import config as numba_config
+
+    numba_config.reload_config()
+    for disp in kernels.dispatchers().values():
+        disp.enable_caching()
+
+
+def _cfg(tmp: Path | None) -> Config:
+    sets = [] if tmp is None else [f'numba_cache_dir="{tmp}"']
+    return load_config(REPO_ROOT / "config.toml", sets)
+
+
+def test_every_cached_kernel_is_found() -> None:
+    found = kernels.dispatchers()
+    sources = [p.read_text(encoding="utf-8") for p in kernels.PACKAGE_DIR.rglob("*.py")
+               if p.name != "kernels.py"]
+    on_disk = sum(text.count(kernels.MARKER) for text in sources)
+    inline = sum(text.count('inline="always"') for text in sources)
+    assert len(found) == on_disk - inline
+    assert "curio.sim.raycast_kernel.cast_beams" in found
+    assert "curio.estimation.scan_matching_kernels._score" not in found  # inlined helper
+
+
+def test_the_cache_dir_moves_every_kernel_and_starts_cold(
+        tmp_path: Path, restore_cache_dir: None) -> None:
+    where = kernels.use_cache_dir(_cfg(tmp_path / "numba"))
+    assert where == tmp_path / "numba" and where.is_dir()
+    assert os.environ["NUMBA_CACHE_DIR"] == str(where)
+    assert all(k.cached == 0 for k in kernels.status())
+    from curio.safety.kernel import polygon_distances_into
+    from curio.safety.stop_zone import polygon_distances
+
+    assert Path(polygon_distances_into._cache.cache_path).is_relative_to(where)
+    polygon_distances(np.array([[0.5, 0.5]]), np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+    cached = {k.name: k.cached for k in kernels.status()}
+    assert cached["curio.safety.kernel.polygon_distances_into"] == 1
+    assert list(where.rglob("*.nbi")), "the index went into numba_cache_dir"
+    loaded, cold = kernels.preload()
+    assert loaded == 1 and "curio.safety.kernel.polygon_distances_into" not in cold
+
+
+def test_check_warns_about_a_cold_cache(tmp_path: Path, restore_cache_dir: None) -> None:
+    row = check.kernel_cache_row(_cfg(tmp_path / "empty"))
+    assert row.status == "warn" and "curio warmup" in row.fix
+    assert f"{len(kernels.dispatchers())} of {len(kernels.dispatchers())}" in row.detail
+
+
+def test_an_unwritable_cache_dir_is_one_clear_error(tmp_path: Path,
+                                                     restore_cache_dir: None) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    with pytest.raises(SetupError, match="numba_cache_dir"):
+        kernels.use_cache_dir(_cfg(blocker / "numba"))
+
+
+@pytest.mark.slow
+def test_warmup_compiles_every_kernel_and_check_then_says_ok(capsys: pytest.CaptureFixture[str]
+                                                              ) -> None:
+    """Into the default cache (next to the sources, warm after the scenario tests): every
+    kernel must have a compiled variant afterwards, i.e. the workload reaches them all."""
+    assert warmup.main([]) == 0
+    out = capsys.readouterr().out
+    n = len(kernels.dispatchers())
+    assert f"compiled kernels: {n} of {n} in the cache" in out
+    assert check.kernel_cache_row(_cfg(None)).status == "ok"
