@@ -34,7 +34,9 @@ reviews it against the tracked people (``/people``, ``map``) within
    (``YIELDING``: the progress checks pause, for up to ``yield_max_s``). After
    ``excuse_me_after_s`` it says ``excuse_me_text`` (every ``excuse_me_interval_s`` at most)
    and for ``assertive_s`` the comfortable distances shrink to ``min_distance_m``, so it
-   creeps past a person who does not move rather than freezing for ever.
+   creeps past a person who does not move rather than freezing for ever; meanwhile a track
+   that never walked (a pillar or a box the size of a person) is left to the costmap and
+   the safety stage, as any obstacle is.
 
 While it steers round someone the controller does not start turning in place back to its
 path (:meth:`PeopleStage.steering`): the stage's arcs take it back once they have passed.
@@ -256,6 +258,12 @@ class PeopleStage:
         if len(people) == 0:
             self._yield_since = None
             return None
+        if now_s < self._assertive_until_s:
+            # "Excuse me" did not move them: a track that never walked (a pillar, a box, a
+            # statue the size of a person) is an obstacle like any other from now on.
+            people = people[people[:, 4] > 0.5]
+            if len(people) == 0:
+                return None
         self.reviews += 1
         if self.stop_short and dist_goal_m <= self.cfg.stop_short_m and self._goal_taken(
                 controller, people):

@@ -3,11 +3,13 @@ reported cold or warm, preloaded; ``curio check`` says so and ``curio warmup`` f
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from curio import kernels
@@ -48,22 +50,40 @@ def test_every_cached_kernel_is_found() -> None:
     assert "curio.estimation.scan_matching_kernels._score" not in found  # inlined helper
 
 
-def test_the_cache_dir_moves_every_kernel_and_starts_cold(
-        tmp_path: Path, restore_cache_dir: None) -> None:
-    where = kernels.use_cache_dir(_cfg(tmp_path / "numba"))
-    assert where == tmp_path / "numba" and where.is_dir()
-    assert os.environ["NUMBA_CACHE_DIR"] == str(where)
-    assert all(k.cached == 0 for k in kernels.status())
-    from curio.safety.kernel import polygon_distances_into
-    from curio.safety.stop_zone import polygon_distances
+_COLD_START = """
+import json, sys
+from pathlib import Path
+import numpy as np
+from curio import kernels
+from curio.core.config import REPO_ROOT, load_config
+where = kernels.use_cache_dir(load_config(REPO_ROOT / "config.toml",
+                                          [f'numba_cache_dir="{sys.argv[1]}"']))
+cold = all(k.cached == 0 for k in kernels.status())
+from curio.safety.kernel import polygon_distances_into
+from curio.safety.stop_zone import polygon_distances
+inside = Path(polygon_distances_into._cache.cache_path).is_relative_to(where)
+polygon_distances(np.array([[0.5, 0.5]]), np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
+cached = {k.name: k.cached for k in kernels.status()}["curio.safety.kernel.polygon_distances_into"]
+loaded, still_cold = kernels.preload()
+print(json.dumps({"where": str(where), "cold": cold, "inside": inside, "cached": cached,
+                  "loaded": loaded,
+                  "still_cold": "curio.safety.kernel.polygon_distances_into" in still_cold}))
+"""
 
-    assert Path(polygon_distances_into._cache.cache_path).is_relative_to(where)
-    polygon_distances(np.array([[0.5, 0.5]]), np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]))
-    cached = {k.name: k.cached for k in kernels.status()}
-    assert cached["curio.safety.kernel.polygon_distances_into"] == 1
+
+def test_the_cache_dir_moves_every_kernel_and_starts_cold(tmp_path: Path) -> None:
+    """In a fresh interpreter (a kernel another test compiled in this one is already in memory,
+    and a kernel in memory is neither loaded from nor saved to the cache)."""
+    where = tmp_path / "numba"
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    out = subprocess.run([sys.executable, "-c", _COLD_START, str(where)], env=env,
+                         capture_output=True, text=True, timeout=300, check=True).stdout
+    got = json.loads(out.strip().splitlines()[-1])
+    assert got["where"] == str(where) and where.is_dir()
+    assert got["cold"] and got["inside"]
+    assert got["cached"] == 1
     assert list(where.rglob("*.nbi")), "the index went into numba_cache_dir"
-    loaded, cold = kernels.preload()
-    assert loaded == 1 and "curio.safety.kernel.polygon_distances_into" not in cold
+    assert got["loaded"] == 1 and not got["still_cold"]
 
 
 def test_check_warns_about_a_cold_cache(tmp_path: Path, restore_cache_dir: None) -> None:
