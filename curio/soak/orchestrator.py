@@ -285,7 +285,19 @@ class Orchestrator:
         """The end: stop the clients, ask about unanswered commands, stop the rover."""
         for client in self.clients:
             client.stopping = True
-        await WALL.sleep(FINAL_GRACE_S)
+        try:
+            await WALL.sleep(FINAL_GRACE_S)
+            await self._last_lookups()
+        except Exception:  # the rover must be stopped whatever happened here
+            log.exception("soak: the last lookups failed")
+            self.notes.append("the last lookups of unanswered commands failed (see the log)")
+        if proc.stdin is not None:
+            with contextlib.suppress(ConnectionError):
+                proc.stdin.write(b'{"t": "stop"}\n')
+                await proc.stdin.drain()
+
+    async def _last_lookups(self) -> None:
+        """Ask the rover about every command still without an answer."""
         for client in self.clients:
             for rec in self.ledger.pending(client.spec.label):
                 got = await client.lookup(rec.rid)
@@ -297,10 +309,6 @@ class Orchestrator:
                     self.ledger.answer(rec.rid, str(answer["kind"]),
                                        str(answer.get("message", "")),
                                        float(answer.get("stamp", 0.0)), "lookup")
-        if proc.stdin is not None:
-            with contextlib.suppress(ConnectionError):
-                proc.stdin.write(b'{"t": "stop"}\n')
-                await proc.stdin.drain()
 
     def _after_hello(self) -> None:
         w = self.obs.watch
