@@ -281,10 +281,26 @@ class PathManager:
         atomic_write_json(self._file, body)
         backup = self.backup
         assert backup is not None
-        atomic_write_json(backup, body)  # a second copy: a damaged file is replaced by it
+        try:
+            atomic_write_json(backup, body)  # a second copy: a damaged file is replaced by it
+        except OSError as exc:  # the edit is saved; only its second copy is behind
+            log.warning("could not update the paths backup %s: %s", backup, exc)
 
-    def _changed(self, what: str, path_id: int) -> None:
-        self._save()
+    def _snapshot(self) -> tuple[dict[int, NamedPath], int]:
+        return {pid: p.copy() for pid, p in self._paths.items()}, self._next_id
+
+    def _changed(self, what: str, path_id: int, before: tuple[dict[int, NamedPath], int]
+                 ) -> None:
+        """Save after an edit; when the file cannot be written (a full disk), undo the edit
+        (``before``: :meth:`_snapshot` taken before it) and say so: an edit the operator was
+        told failed must not reach the file with the next successful save."""
+        try:
+            self._save()
+        except OSError as exc:
+            self._paths, self._next_id = before
+            log.error("could not save the paths to %s: %s", self._file, exc)
+            raise PathError(f"Could not save the paths ({exc.strerror or exc}): nothing was "
+                            "changed. Free space on the rover's disk, then try again.") from exc
         for listener in list(self._listeners):
             try:
                 listener(what, path_id)
@@ -338,10 +354,11 @@ class PathManager:
         wps = [make_waypoint(w.x_m, w.y_m, w.yaw_rad) for w in waypoints]
         if len(wps) > MAX_WAYPOINTS:
             raise PathError(f"A path can have at most {MAX_WAYPOINTS} waypoints.")
+        before = self._snapshot()
         path = NamedPath(self._next_id, clean, wps)
         self._paths[path.id] = path
         self._next_id += 1
-        self._changed("created", path.id)
+        self._changed("created", path.id, before)
         return path.copy()
 
     def _editable(self, path_id: int) -> NamedPath:
@@ -356,8 +373,9 @@ class PathManager:
         if len(path.waypoints) >= MAX_WAYPOINTS:
             raise PathError(f"Path {path_id} already has {MAX_WAYPOINTS} waypoints, the most "
                             "a path can have.")
+        before = self._snapshot()
         path.waypoints.append(make_waypoint(x_m, y_m, yaw_rad))
-        self._changed("changed", path_id)
+        self._changed("changed", path_id, before)
         return path.copy()
 
     def remove_waypoint(self, path_id: int, index: int) -> NamedPath:
@@ -371,8 +389,9 @@ class PathManager:
                             f"there is no waypoint {index!r}.")
         if path_id == HOME_PATH_ID and n == 1:
             raise PathError("Home must keep its waypoint; add another before removing this one.")
+        before = self._snapshot()
         del path.waypoints[index]
-        self._changed("changed", path_id)
+        self._changed("changed", path_id, before)
         return path.copy()
 
     def replace_waypoints(self, path_id: int, waypoints: Sequence[Waypoint]) -> NamedPath:
@@ -384,8 +403,9 @@ class PathManager:
             raise PathError(f"A path can have at most {MAX_WAYPOINTS} waypoints.")
         if path_id == HOME_PATH_ID and not wps:
             raise PathError("Home must keep at least one waypoint.")
+        before = self._snapshot()
         path.waypoints = wps
-        self._changed("changed", path_id)
+        self._changed("changed", path_id, before)
         return path.copy()
 
     def set_home(self, x_m: float, y_m: float, yaw_rad: float | None) -> NamedPath:
@@ -402,8 +422,10 @@ class PathManager:
     def rename(self, path_id: int, name: str) -> NamedPath:
         """Rename path ``path_id``."""
         path = self._editable(path_id)
-        path.name = _check_name(name)
-        self._changed("renamed", path_id)
+        clean = _check_name(name)
+        before = self._snapshot()
+        path.name = clean
+        self._changed("renamed", path_id, before)
         return path.copy()
 
     def delete(self, path_id: int) -> None:
@@ -411,5 +433,6 @@ class PathManager:
         if path_id == HOME_PATH_ID:
             raise PathError("Home (path 0) cannot be deleted.")
         self._editable(path_id)
+        before = self._snapshot()
         del self._paths[path_id]
-        self._changed("deleted", path_id)
+        self._changed("deleted", path_id, before)

@@ -1,7 +1,8 @@
 """``curio soak``: days without a person (see :mod:`curio.soak`).
 
 ``curio soak [--hours H] [--clients N] [--faults N] [--seed N] [--report PATH]
-[--workdir DIR] [--disk auto|tmpfs|none] [--keep] [--config PATH] [--set KEY=VALUE]...``
+[--workdir DIR] [--disk auto|tmpfs|none] [--kinds K,K...] [--start HH:MM] [--keep]
+[--config PATH] [--set KEY=VALUE]...``
 
 Runs the whole rover in emulated mode on simulated time for ``--hours`` of the building's
 clock (default 24) with ``--clients`` scripted dashboard clients (default 10) and a campaign of
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import datetime as dt
 import math
 import sys
 from pathlib import Path
@@ -40,6 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--disk", choices=("auto", "tmpfs", "none"), default="auto",
                         help="the data filesystem: a size-limited tmpfs for the disk-full "
                              "faults (auto: when root can mount one)")
+    parser.add_argument("--kinds",
+                        help="only these fault kinds, comma-separated (default: all; see "
+                             "docs/reliability.md)")
+    parser.add_argument("--start", help="the building's local time at the start, HH:MM "
+                                        "(default 07:50, before the first tour)")
     parser.add_argument("--keep", action="store_true",
                         help="copy the rover's data directory out of the tmpfs at the end")
 
@@ -77,6 +84,32 @@ class Progress:
             sys.stderr.write("\n")
 
 
+def _kinds(text: str | None) -> list[str] | None:
+    """``--kinds``: known fault kinds, comma-separated."""
+    from curio.cli import UsageError
+    from curio.soak.plan import KINDS
+
+    if text is None:
+        return None
+    kinds = [k.strip() for k in text.split(",") if k.strip()]
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown or not kinds:
+        raise UsageError(f"--kinds takes fault kinds from {', '.join(KINDS)}, got {text!r}")
+    return kinds
+
+
+def _start(text: str | None) -> dt.time | None:
+    """``--start HH:MM``."""
+    from curio.cli import UsageError
+
+    if text is None:
+        return None
+    try:
+        return dt.time.fromisoformat(text)
+    except ValueError:
+        raise UsageError(f"--start takes a local time HH:MM, got {text!r}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``curio soak`` with parsed ``args``; return the exit code."""
     from curio.cli import UsageError
@@ -92,12 +125,14 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--faults takes a whole number >= 0, got {args.faults}")
     if args.seed < 0:
         raise UsageError(f"--seed takes a whole number >= 0, got {args.seed}")
+    kinds, start = _kinds(args.kinds), _start(args.start)
     cfg = load_config(args.config, args.overrides)
     workdir = args.workdir or cfg.resolve(cfg.data_dir) / "soak"
     progress = Progress(args.hours, sys.stderr.isatty())
     opts = SoakOptions(hours=args.hours, clients=args.clients, faults=args.faults,
                        seed=args.seed, config=args.config, overrides=list(args.overrides),
-                       workdir=Path(workdir), disk=args.disk, keep=args.keep,
+                       workdir=Path(workdir), disk=args.disk, keep=args.keep, kinds=kinds,
+                       start=start,
                        progress=progress)
     try:
         report = asyncio.run(Orchestrator(opts).run())

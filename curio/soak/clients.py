@@ -179,6 +179,7 @@ class SoakClient:
                 await self._session(ws)
                 if not self.stopping:
                     await WALL.sleep(float(self.rng.uniform(0.1, 2.0)))
+        self._http = None
 
     async def _session(self, ws: aiohttp.ClientWebSocketResponse) -> None:
         self._ws = ws
@@ -259,13 +260,20 @@ class SoakClient:
                                    float(answer.get("stamp", 0.0)), "lookup")
 
     async def lookup(self, rid: str) -> dict[str, Any] | None:
-        """``GET /api/commands/{rid}`` (None when the rover cannot be asked)."""
+        """``GET /api/commands/{rid}`` (None when the rover cannot be asked). Works after the
+        client stopped too (the soak's last questions): then with a session of its own."""
         url = self._url(f"/api/commands/{rid}")
-        if url is None or self._http is None:
+        if url is None:
             return None
+        if self._http is not None and not self._http.closed:
+            return await self._get_json(self._http, url)
+        async with aiohttp.ClientSession() as http:
+            return await self._get_json(http, url)
+
+    async def _get_json(self, http: aiohttp.ClientSession, url: str) -> dict[str, Any] | None:
         try:
-            async with self._http.get(url, headers=self._headers(),
-                                      timeout=aiohttp.ClientTimeout(total=5.0)) as resp:
+            async with http.get(url, headers=self._headers(),
+                                timeout=aiohttp.ClientTimeout(total=5.0)) as resp:
                 if resp.status != 200:
                     return {"state": f"http {resp.status}"}
                 data = await resp.json()

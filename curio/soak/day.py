@@ -10,8 +10,9 @@ later rover finds them on disk.
 
 **Time-lapse.** While the rover is parked (idle, no tour running or waiting to start, no help
 open, not moving) and no fault is being judged, the building's clock jumps
-(``SimClock.jump_wall``) to ``LEAD_S`` before the next thing that happens: a scheduled tour or
-the next fault of the campaign. Nothing that moves is skipped; the report says how much was
+(``SimClock.jump_wall``) to just before the next thing that happens: ``LEAD_S`` before a
+scheduled tour (the scheduler must see it come), ``SOON_LEAD_S`` before the next fault of the
+campaign or the soak's end. Nothing that moves is skipped; the report says how much was
 jumped. The control stack never reads the building's clock (schedules and logs do).
 
 **Hooks** (:class:`SoakHooks`) for the features being built beside this one: docking and the
@@ -40,6 +41,7 @@ OPEN = dt.time(8, 0)
 LAST_TOUR = dt.time(19, 30)
 TOUR_EVERY_MIN = 30
 LEAD_S = 30.0
+SOON_LEAD_S = 1.0
 MOVING_MPS = 0.01
 CHARGE_V_PER_H = 2.0
 HOME_M = 0.5
@@ -73,9 +75,11 @@ def schedule_times() -> list[list[str]]:
     return out
 
 
-def start_wall_s() -> float:
-    """The UNIX time the soak starts at (``START`` in ``TIMEZONE``)."""
-    return START.replace(tzinfo=ZoneInfo(TIMEZONE)).timestamp()
+def start_wall_s(at: dt.time | None = None) -> float:
+    """The UNIX time the soak starts at: ``START`` in ``TIMEZONE``, or that day at local time
+    ``at`` (``curio soak --start HH:MM``)."""
+    start = START if at is None else dt.datetime.combine(START.date(), at)
+    return start.replace(tzinfo=ZoneInfo(TIMEZONE)).timestamp()
 
 
 class SoakHooks:
@@ -151,15 +155,16 @@ class Building:
 
     def lapse(self, clock: Any, now_wall_s: float, nexts: list[float],
               on_jump: Callable[[float], None]) -> float:
-        """Jump the building's clock to ``LEAD_S`` before the earliest of ``nexts`` (and the
-        next scheduled tour) when that is more than ``LEAD_S + 5`` s away; return the jump."""
-        times = [t for t in nexts if math.isfinite(t)]
+        """Jump the building's clock to ``SOON_LEAD_S`` before the earliest of ``nexts`` (the
+        next fault, the end) or ``LEAD_S`` before the next scheduled tour, when that is more
+        than 5 s away; return the jump (seconds)."""
+        times = [t - SOON_LEAD_S for t in nexts if math.isfinite(t)]
         scheduled = self.next_scheduled(now_wall_s)
         if scheduled is not None:
-            times.append(scheduled)
+            times.append(scheduled - LEAD_S)
         if not times:
             return 0.0
-        gap = min(times) - LEAD_S - now_wall_s
+        gap = min(times) - now_wall_s
         if gap <= 5.0:
             return 0.0
         clock.jump_wall(gap)

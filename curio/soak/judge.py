@@ -14,6 +14,8 @@ judges it:
   again, the disk has room), every one of those parts reports ``ok`` again (and the fault's own
   condition holds: localised where the rover really is, ...), within the kind's deadline; the
   time to recover is counted from the end of the condition (and the outage from the injection);
+  while an operator's e-stop is engaged the drivers rightly stay disarmed, so that time is not
+  counted against the fault (the deadline waits, ``held_by_operator_s`` says how long);
 * otherwise, **stopped safely and asked for help** — at the deadline the rover stands still
   and a help request is open (``help.requested``, or the tree's ``needs_help``);
   anything else is **failed**.
@@ -34,7 +36,7 @@ from typing import Any
 from curio.core.bus import Subscription
 from curio.core.geometry import wrap_angle
 from curio.core.messages import DriverHealth, Event
-from curio.core.topics import EVENTS, HEALTH, LOCALIZATION, POSE, STATUS, TOUR
+from curio.core.topics import ESTOP, EVENTS, HEALTH, LOCALIZATION, POSE, STATUS, TOUR
 from curio.eventlog.store import LogQuery
 from curio.soak.faults import DEADLINES_S, Injection, Targets, inject
 from curio.soak.link import Link
@@ -72,6 +74,7 @@ class FaultRun:
     clearing: asyncio.Task[None] | None = None
     good_since_s: float | None = None
     next_log_s: float = 0.0
+    held_s: float = 0.0
 
     def result(self) -> dict[str, Any]:
         """The judged fault for the report."""
@@ -85,7 +88,8 @@ class FaultRun:
             "outcome": self.outcome, "detected_health_s": rel(self.health_s),
             "detected_log_s": rel(self.log_s), "cleared_s": rel(self.cleared_s),
             "recover_s": None if self.recovered_s is None else round(
-                self.recovered_s - cleared, 3),
+                max(0.0, self.recovered_s - cleared - self.held_s), 3),
+            "held_by_operator_s": round(self.held_s, 3),
             "outage_s": rel(self.recovered_s), "help_s": rel(self.help_s),
             "health_parts": list(self.inj.health), "note": self.inj.note, "notes": self.notes,
         }
@@ -256,9 +260,13 @@ class FaultRunner:
             run.next_log_s = now + LOG_POLL_S
             if self._logged(run):
                 run.log_s = now
-        if run.cleared_s is not None and run.recovered_s is None and self._recovered(run, now):
-            run.recovered_s = now
-        deadline = (run.cleared_s if run.cleared_s is not None else now) + run.inj.deadline_s
+        if run.cleared_s is not None and run.recovered_s is None:
+            if self._operator_estop():
+                run.held_s += POLL_S  # an operator holds the rover: the deadline waits too
+            elif self._recovered(run, now):
+                run.recovered_s = now
+        deadline = (run.cleared_s if run.cleared_s is not None else now) + run.inj.deadline_s \
+            + run.held_s
         settled = run.recovered_s is not None and run.log_s is not None
         if settled or (run.cleared_s is not None and now >= deadline):
             if run.recovered_s is not None:
@@ -270,6 +278,12 @@ class FaultRunner:
             self.link.send("fault", phase="result", **run.result())
             self.judged += 1
             self.current = None
+
+    def _operator_estop(self) -> bool:
+        """An operator's e-stop is engaged: the drivers rightly stay degraded (disarmed)
+        until it is released, which is not the fault's doing."""
+        estop = self.app.bus.latest(ESTOP)
+        return estop is not None and estop.engaged and estop.source.startswith("web:")
 
     def _recovered(self, run: FaultRun, now: float) -> bool:
         since = run.cleared_s if run.cleared_s is not None else run.injected_s

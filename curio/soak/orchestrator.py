@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import datetime as dt
 import json
 import logging
 import os
@@ -72,12 +73,13 @@ class SoakOptions:
     disk: str = "auto"
     disk_mb: int = 384
     keep: bool = False
+    kinds: list[str] | None = None
+    start: dt.time | None = None
     progress: Callable[[dict[str, Any]], None] | None = None
 
 
 def tour_starts(start_wall: float, end_wall: float) -> list[float]:
     """The scheduled tours' start times (building clock) between the soak's start and end."""
-    import datetime as dt
     from zoneinfo import ZoneInfo
 
     tz = ZoneInfo(TIMEZONE)
@@ -106,7 +108,7 @@ class Orchestrator:
         self.obs = Observations(self.ledger)
         self.expected = Expected()
         self.rng = np.random.default_rng([opts.seed, 7])
-        self.start_wall = start_wall_s()
+        self.start_wall = start_wall_s(opts.start)
         self.end_wall = self.start_wall + opts.hours * 3600.0
         self.plan: list[PlannedFault] = []
         self.boot = 0
@@ -133,7 +135,8 @@ class Orchestrator:
             f'tours.timezone="{TIMEZONE}"', "record.enabled=true", "record.max_total_mb=96",
             "record.max_file_mb=16", "foxglove.enabled=false",
         ]
-        return cfg_overrides + list(self.opts.overrides)
+        # the data directory is the soak's own (checked between runs): it comes last
+        return cfg_overrides + list(self.opts.overrides) + [f'data_dir="{self.data_dir}"']
 
     def prepare(self) -> None:
         """The work directory, the data filesystem, the tokens and the campaign."""
@@ -155,7 +158,8 @@ class Orchestrator:
                 tokens[f"op{i}"] = store.create(f"op{i}", "operator").token
         tokens["kiosk"] = store.create("kiosk", "kiosk").token
         self.expected.tokens = dict(tokens)
-        kinds = [k for k in KINDS if k != "disk_full" or self.disk.method == "tmpfs"]
+        kinds = [k for k in (self.opts.kinds or KINDS)
+                 if k != "disk_full" or self.disk.method == "tmpfs"]
         if self.disk.method != "tmpfs":
             self.notes.append(f"disk_full faults left out: {self.disk.reason}")
         self.plan = draw_campaign(self.opts.seed, self.start_wall, self.end_wall,
@@ -196,8 +200,8 @@ class Orchestrator:
                         battery_v=beat.get("battery_v"), lapsed_s=beat.get("lapsed_s", 0.0))
             truth = beat["truth"]
             spec["overrides"].append(f"sim.start=[{truth[0]!r}, {truth[1]!r}, {truth[2]!r}]")
-        done = restart["fault"]["id"] if restart else (
-            max(self.obs.faults) if self.obs.faults else 0)
+        done = max([restart["fault"]["id"] if restart else 0, *self.obs.faults,
+                    *self.obs.injected])
         spec["faults"] = [f.to_json() for f in self.plan if f.id > done]
         return spec
 
@@ -281,7 +285,19 @@ class Orchestrator:
         """The end: stop the clients, ask about unanswered commands, stop the rover."""
         for client in self.clients:
             client.stopping = True
-        await WALL.sleep(FINAL_GRACE_S)
+        try:
+            await WALL.sleep(FINAL_GRACE_S)
+            await self._last_lookups()
+        except Exception:  # the rover must be stopped whatever happened here
+            log.exception("soak: the last lookups failed")
+            self.notes.append("the last lookups of unanswered commands failed (see the log)")
+        if proc.stdin is not None:
+            with contextlib.suppress(ConnectionError):
+                proc.stdin.write(b'{"t": "stop"}\n')
+                await proc.stdin.drain()
+
+    async def _last_lookups(self) -> None:
+        """Ask the rover about every command still without an answer."""
         for client in self.clients:
             for rec in self.ledger.pending(client.spec.label):
                 got = await client.lookup(rec.rid)
@@ -293,10 +309,6 @@ class Orchestrator:
                     self.ledger.answer(rec.rid, str(answer["kind"]),
                                        str(answer.get("message", "")),
                                        float(answer.get("stamp", 0.0)), "lookup")
-        if proc.stdin is not None:
-            with contextlib.suppress(ConnectionError):
-                proc.stdin.write(b'{"t": "stop"}\n')
-                await proc.stdin.drain()
 
     def _after_hello(self) -> None:
         w = self.obs.watch
@@ -316,6 +328,7 @@ class Orchestrator:
         beat = self.obs.beat or {}
         req = self.kill_request if why == "killed" else None
         self.kill_request = None
+        self._lost_with_the_rover(why)
         checks = check_files(self.data_dir, self.expected, self._map_yaml())
         record: dict[str, Any] = {"boot": self.boot, "why": why,
                                   "checks": [c.__dict__ for c in checks]}
@@ -336,6 +349,18 @@ class Orchestrator:
         return {"fault": fault.to_json(), "killed_sim_s": watch.killed_sim_s,
                 "killed_wall_s": watch.killed_wall_s}
 
+    def _lost_with_the_rover(self, why: str) -> None:
+        """A fault injected but never judged because the rover died (crashed, hung) is a
+        failed fault, not a missing one."""
+        for fid, msg in self.obs.injected.items():
+            if fid not in self.obs.faults:
+                self.obs.faults[fid] = {
+                    "t": "fault", "phase": "result", "id": fid, "kind": msg.get("kind"),
+                    "params": msg.get("params"), "injected_s": msg.get("sim_s"),
+                    "outcome": "failed", "detected_health_s": None, "detected_log_s": None,
+                    "recover_s": None, "outage_s": None,
+                    "notes": [f"the rover {why} while this fault was judged"]}
+
     # --- the whole soak -------------------------------------------------------------------------
 
     async def run(self) -> dict[str, Any]:
@@ -351,7 +376,7 @@ class Orchestrator:
                 proc = await self._start(restart)
                 why = await self._supervise(proc)
                 self._child_cpu()
-                if why == "done":
+                if why == "done" or self._ended():
                     break
                 if why != "killed":
                     self.failures.append(f"rover run {self.boot} ended: {why}")
@@ -377,6 +402,11 @@ class Orchestrator:
             self.disk.unmount(self.dir / "data-copy" if self.opts.keep else None)
         report = build_report(self)
         return report
+
+    def _ended(self) -> bool:
+        """The building's clock reached the end: a rover that dies now is not restarted."""
+        beat = self.obs.beat
+        return beat is not None and float(beat["wall_s"]) >= self.end_wall
 
     def _child_cpu(self) -> None:
         """CPU seconds used by the rovers so far (every finished child process)."""

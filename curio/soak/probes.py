@@ -136,6 +136,7 @@ class RateWatch:
         self.steps = 0
         self.since_s: float | None = None
         self.excused: list[tuple[float, float]] = []
+        self.excused_s = 0.0
 
     def excuse(self, start_s: float, end_s: float) -> None:
         """Gaps inside ``[start_s, end_s]`` (an injected stall) are counted apart."""
@@ -150,7 +151,9 @@ class RateWatch:
             gap = t_s - self.last_s
             excused = any(self.last_s <= b + 1e-6 and t_s >= a - 1e-6
                           for a, b in self.excused)  # the gap overlaps an injected stall
-            if not excused:
+            if excused:  # the stall's time is not counted in the rate either
+                self.excused_s += max(0.0, gap - 1.0 / self.rate_hz)
+            else:
                 self.max_gap_s = max(self.max_gap_s, gap)
                 if gap > 2.0 / self.rate_hz + 1e-6:
                     self.gaps_over += 1
@@ -159,10 +162,13 @@ class RateWatch:
     def take(self, now_s: float) -> dict[str, Any]:
         """Rate and gaps since the last call (then start over)."""
         span = now_s - self.since_s if self.since_s is not None else 0.0
+        counted = span - self.excused_s
         out = {"steps": self.steps, "span_s": round(span, 3),
-               "rate_hz": round(self.steps / span, 3) if span > 0 else None,
+               "excused_s": round(self.excused_s, 3),
+               "rate_hz": round(self.steps / counted, 3) if counted > 0 else None,
                "max_gap_s": round(self.max_gap_s, 4), "gaps_over": self.gaps_over}
         self.steps, self.since_s, self.max_gap_s, self.gaps_over = 0, now_s, 0.0, 0
+        self.excused_s = 0.0
         self.excused = [(a, b) for a, b in self.excused if b + 1.0 >= now_s]
         return out
 

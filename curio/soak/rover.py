@@ -75,6 +75,10 @@ class Rover:
         self.safety_timer = CycleTimer(self.app.safety, "step", self.safety_rate.on_step,
                                        self.clock.now)
         self.runner.on_stall = self.safety_rate.excuse
+        # subscribed before the application starts: what it says while starting (an unclean
+        # restart, a restored data file, an interrupted tour) must reach the orchestrator too
+        self._ops = self.app.bus.subscribe(OPERATOR)
+        self._events = self.app.bus.subscribe(EVENTS)
         battery = spec.get("battery_v")
         if battery is not None and self.app.world is not None:
             self.app.world.set_battery_voltage(float(battery))
@@ -104,8 +108,7 @@ class Rover:
 
     async def forward(self) -> None:
         """Send the events and operator commands the orchestrator's ledger needs."""
-        ops = self.app.bus.subscribe(OPERATOR)
-        events = self.app.bus.subscribe(EVENTS)
+        ops, events = self._ops, self._events
 
         async def commands() -> None:
             async for cmd in ops:
@@ -129,10 +132,13 @@ class Rover:
     async def probe(self) -> None:
         """A resource and timing sample every ``RES_S`` (and a first one at once)."""
         async for now in self.clock.every(RES_S, immediate=True):
-            self.link.send("res", sim_s=now, wall_s=self.clock.wall_time(),
-                           **resources(self.app), nav=self.nav_timer.take(),
-                           safety=self.safety_timer.take(),
-                           safety_rate=self.safety_rate.take(now))
+            self.sample(now)
+
+    def sample(self, now: float) -> None:
+        """One resource and timing sample (simulated seconds ``now``)."""
+        self.link.send("res", sim_s=now, wall_s=self.clock.wall_time(),
+                       **resources(self.app), nav=self.nav_timer.take(),
+                       safety=self.safety_timer.take(), safety_rate=self.safety_rate.take(now))
 
     async def direct(self) -> None:
         """Say when the building's clock reaches ``end_wall_s`` (then keep running until the
@@ -144,6 +150,7 @@ class Rover:
             if wall >= self.end_wall_s:
                 if not self.done:
                     self.done = True
+                    self.runner.plan.clear()  # no fault after the end: the soak is closing
                     self.link.send("end", sim_s=self.clock.now(), wall_s=wall)
                 continue
             if not self.building.parked(self.runner.busy):
@@ -215,6 +222,8 @@ class Rover:
         listener = asyncio.create_task(self.listen(), name="soak.listen")
         await self.clock.run(stop=lambda: director.done() or bool(app.failed_parts()))
         crashed = app.failed_parts()
+        if not crashed:
+            self.sample(self.clock.now())  # the last window's timing, however short the run
         for task in (*tasks, listener):
             task.cancel()
         for task in (*tasks, listener):

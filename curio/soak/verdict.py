@@ -1,5 +1,6 @@
 """The soak's checks: what must hold for ``curio soak`` to pass (see the issue and
-:mod:`curio.soak.report` for the budgets). Each check is ``{name, ok, detail}``."""
+:mod:`curio.soak.report` for the budgets). Each check is ``{name, ok, detail}``; ``ok`` is
+None for a check the run was too short to judge (the memory slope), which fails nothing."""
 
 from __future__ import annotations
 
@@ -13,14 +14,25 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["checks_of"]
 
 
-def _check(name: str, ok: bool, detail: str) -> dict[str, Any]:
-    return {"name": name, "ok": bool(ok), "detail": detail}
+def _check(name: str, ok: bool | None, detail: str) -> dict[str, Any]:
+    """One check; ``ok`` None: not judged (the run was too short for it)."""
+    return {"name": name, "ok": None if ok is None else bool(ok), "detail": detail}
+
+
+def _memory_check(res: dict[str, Any]) -> dict[str, Any]:
+    growth, span = res["rss_growth_mb_per_h"], float(res.get("rss_span_h", 0.0))
+    name = f"memory flat after warm-up (≤ {r.RSS_BUDGET_MB_PER_H:g} MB per simulated hour)"
+    detail = f"{growth} MB/h over {span:g} h after warm-up in {len(res['rss_runs'])} run(s)"
+    if growth is None or span < r.RSS_MIN_SPAN_H:
+        return _check(name, None, f"not judged: {detail} (needs {r.RSS_MIN_SPAN_H:g} h)")
+    return _check(name, growth <= r.RSS_BUDGET_MB_PER_H, detail)
 
 
 def _fault_checks(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
     results = rep["faults"]["list"]
     judged = {int(x["id"]) for x in results}
-    missing = [f.id for f in o.plan if f.id not in judged]
+    missing = [f"{f.id}:{f.kind}" + ("" if f.id in o.obs.injected else " (not reached)")
+               for f in o.plan if f.id not in judged]
     not_health = [f"{x['id']}:{x['kind']}" for x in results if x.get("detected_health_s") is None]
     not_log = [f"{x['id']}:{x['kind']}" for x in results if x.get("detected_log_s") is None]
     bad = [f"{x['id']}:{x['kind']}:{x.get('outcome')}" for x in results
@@ -88,7 +100,6 @@ def _restart_checks(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]
 
 def _resource_checks(rep: dict[str, Any]) -> list[dict[str, Any]]:
     res, tim = rep["resources"], rep["timing"]
-    growth = res["rss_growth_mb_per_h"]
     fd_runs, th_runs = res["fd_runs"], res["thread_runs"]
     fd_spread = max((v["max"] - v["min"] for v in fd_runs.values()), default=0)
     th_spread = max((v["max"] - v["min"] for v in th_runs.values()), default=0)
@@ -96,9 +107,7 @@ def _resource_checks(rep: dict[str, Any]) -> list[dict[str, Any]]:
     rate = tim["safety_rate_min_hz"]
     gap = tim["safety_max_gap_s"]
     return [
-        _check(f"memory flat after warm-up (≤ {r.RSS_BUDGET_MB_PER_H:g} MB per simulated hour)",
-               growth is not None and growth <= r.RSS_BUDGET_MB_PER_H,
-               f"{growth} MB/h over {len(res['rss_runs'])} run(s)"),
+        _memory_check(res),
         _check("file descriptors and threads constant after warm-up",
                fd_spread <= r.FD_SLACK and th_spread <= r.THREAD_SLACK,
                f"fds spread {fd_spread:g} (slope {res['fd_growth_per_h']}/h), threads spread "
@@ -112,6 +121,7 @@ def _resource_checks(rep: dict[str, Any]) -> list[dict[str, Any]]:
                f"p99 {tim['nav_cpu_p99_ms']} ms CPU ({tim['nav_wall_p99_ms']} ms wall), "
                f"max {tim['nav_cpu_max_ms']} ms, {tim['nav_cycles']} cycles"),
         _check("safety stage's rate within budget",
+               None if rate is None and tim["safety_steps"] == 0 else
                rate is not None and gap is not None
                and tim["safety_cpu_p99_ms"] <= r.SAFETY_P99_BUDGET_S * 1e3
                and rate >= r.RATE_FLOOR * 20.0 and tim["safety_gaps_over"] == 0,

@@ -315,3 +315,26 @@ async def test_a_frozen_output_is_detected_and_the_chip_reinitialised(tmp_path: 
     msgs = rig.imu.drain()
     assert msgs[-1].stamp > 7.9  # readings again, and they change
     assert msgs[-1].orientation_xyzw != msgs[-20].orientation_xyzw
+
+
+async def test_i2c_errors_while_configuring_end_the_session_not_the_driver(
+        tmp_path: Path) -> None:
+    # Found by curio soak (i2c_errors): a write that failed three times during the chip's
+    # configuration raised OSError out of the driver, which crashed the IMU part and the rover.
+    rig = Rig(tmp_path, mode="ndof")
+    rig.fake.faults.io_error_rate = 0.9
+    rig.bus.bind_loop(asyncio.get_running_loop())
+    task = asyncio.create_task(rig.driver.run())
+    try:
+        await rig.clock.advance(5.0)
+        assert not task.done(), task.exception() if task.done() else None
+        rig.fake.faults.io_error_rate = 0.0
+        await rig.clock.advance(5.0)
+        assert not task.done()
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+    assert rig.driver.counters["sessions"] >= 2
+    assert any(h.state == "error" for h in rig.healths())
+    assert rig.driver.state == "ok", rig.driver.message
+    assert rig.imu.drain()[-1].stamp > 9.0

@@ -244,7 +244,13 @@ class Bno055Driver(ReportsHealth):
             ) from exc
         except OSError as exc:
             raise ImuFault(f"cannot open I2C bus {self.cfg.i2c_bus}: {exc}") from exc
-        await self._init_chip()
+        try:
+            await self._init_chip()
+        except OSError as exc:  # a write failed 3 times: end the session, do not crash the part
+            raise ImuFault(
+                f"the BNO055 at {self._where()} stopped answering while being configured "
+                f"({exc}): retrying; if this repeats, check the wiring and {BAUD_FIX}"
+            ) from exc
         self.reporter.set_state("ok", self._running())
         await self._stream()
 

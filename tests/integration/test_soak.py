@@ -1,0 +1,63 @@
+"""``curio soak`` end to end, shortened: the CLI runs the orchestrator, the rover process
+(emulated drivers, simulated clock), three scripted dashboard clients and a three-fault
+campaign — a ``kill -9`` with a damaged data file at the restart, the lidar unplugged and
+replugged, the event loop blocked for 2 s — then the test reads the JSON report's verdicts.
+
+After the last scheduled tour (``--start 20:00``) the rover is parked, so the building's clock
+jumps between the faults and the run is ~85 simulated seconds (~20 s of wall time on a loaded
+2-core machine). The long soaks and their figures are in docs/reliability.md.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from curio.core.config import REPO_ROOT
+
+KINDS = ("corrupt_file", "lidar_unplug", "loop_stall")
+
+
+def _soak(tmp_path: Path) -> tuple[subprocess.CompletedProcess[str], dict[str, Any]]:
+    report = tmp_path / "soak.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "curio", "soak", "--hours", "0.2", "--start", "20:00",
+         "--clients", "3", "--faults", "3", "--kinds", ",".join(KINDS), "--seed", "2",
+         "--disk", "none", "--workdir", str(tmp_path / "work"), "--report", str(report),
+         "--set", f'data_dir="{tmp_path / "data"}"'],
+        cwd=REPO_ROOT, capture_output=True, text=True, timeout=240, check=False)
+    assert report.exists(), proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc, json.loads(report.read_text(encoding="utf-8"))
+
+
+def test_a_short_soak_with_a_kill_9_passes_every_check(tmp_path: Path) -> None:
+    proc, rep = _soak(tmp_path)
+    failed = [c for c in rep["checks"] if c["ok"] is False]
+    assert proc.returncode == 0 and rep["success"] and not failed, (failed, proc.stdout[-2000:])
+    names = {c["name"].split(" (")[0]: c for c in rep["checks"]}
+    # the memory slope needs an hour after warm-up: said, not passed silently
+    mem = next(c for n, c in names.items() if n.startswith("memory flat"))
+    assert mem["ok"] is None and "not judged" in mem["detail"]
+    assert all(c["ok"] is True for n, c in names.items() if not n.startswith("memory flat"))
+
+    results = {r["kind"]: r for r in rep["faults"]["list"]}
+    assert sorted(results) == sorted(KINDS)
+    for kind, r in results.items():
+        assert r["outcome"] == "recovered", (kind, r)
+        assert r["detected_health_s"] is not None and r["detected_log_s"] is not None, r
+    m = rep["metrics"]
+    assert m["restarts"] == 1 and m["collisions"] == 0 and m["commands_lost"] == 0
+    assert m["faults_planned"] == m["faults_recovered"] == 3
+
+    (restart,) = rep["restarts"]
+    assert restart["kind"] == "corrupt_file" and restart["unclean_reported"]
+    assert restart["corruption"] is not None and restart["moved_m"] <= 0.05
+    assert all(d["ok"] for d in restart["data_after"]), restart["data_after"]
+    # every persisted file checked while the rover was dead and at the end
+    assert [f["why"] for f in rep["files"]] == ["killed", "end"]
+    assert all(c["ok"] for f in rep["files"] for c in f["checks"])
+    assert rep["time"]["time_lapse_s"] > 600.0
+    assert "PASSED" in proc.stdout and "[FAIL]" not in proc.stdout
