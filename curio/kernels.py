@@ -33,7 +33,9 @@ from typing import Any
 from curio.core.config import Config
 from curio.core.errors import SetupError
 
-__all__ = ["KernelStatus", "cache_dir", "dispatchers", "preload", "status", "use_cache_dir"]
+__all__ = [
+    "KernelStatus", "cache_dir", "describe", "dispatchers", "preload", "status", "use_cache_dir",
+]
 
 log = logging.getLogger("curio.kernels")
 
@@ -85,6 +87,15 @@ def cache_dir(cfg: Config) -> Path | None:
     """The configured ``numba_cache_dir``, resolved (None: numba's default, next to the
     sources, or ``NUMBA_CACHE_DIR`` from the environment)."""
     return None if cfg.numba_cache_dir is None else cfg.resolve(cfg.numba_cache_dir)
+
+
+def describe(directory: Path | None) -> str:
+    """Where numba's cache is, for messages: ``directory`` (what :func:`use_cache_dir`
+    returned), else ``NUMBA_CACHE_DIR`` from the environment, else next to the sources."""
+    if directory is not None:
+        return str(directory)
+    env = os.environ.get("NUMBA_CACHE_DIR")
+    return f"NUMBA_CACHE_DIR={env}" if env else "next to the sources"
 
 
 def use_cache_dir(cfg: Config) -> Path | None:

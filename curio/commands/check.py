@@ -89,7 +89,7 @@ def kernel_cache_row(cfg: Config) -> CheckResult:
     """The compiled kernels' cache: ``ok`` when every kernel is cached for these sources."""
     from curio import kernels
 
-    where = kernels.use_cache_dir(cfg) or "next to the sources"
+    where = kernels.describe(kernels.use_cache_dir(cfg))
     found = kernels.status()
     cold = [k.name.rsplit(".", 1)[-1] for k in found if k.cached == 0]
     if not cold:

@@ -90,7 +90,7 @@ def prepare(cfg: Config, config_args: list[str]) -> None:
     watchdog allows on a Pi)."""
     import subprocess
 
-    where = kernels.use_cache_dir(cfg) or "next to the sources"
+    where = kernels.describe(kernels.use_cache_dir(cfg))
     t0 = wall_perf_counter()
     loaded, cold = kernels.preload()
     if cold:
@@ -121,7 +121,7 @@ def _body(args: argparse.Namespace, out: TextIO, err: TextIO) -> int:
     result = warm(cfg)
     total = len(result["compiled"]) + len(result["cold"])
     out.write(f"compiled kernels: {len(result['compiled'])} of {total} in the cache "
-              f"({where or 'next to the sources'}), {result['seconds']:.1f} s "
+              f"({kernels.describe(where)}), {result['seconds']:.1f} s "
               f"({result['cpu_s']:.1f} s CPU)\n")
     if result["cold"]:
         err.write("curio warmup: not compiled by the workload (they compile at their first "

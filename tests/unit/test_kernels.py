@@ -29,7 +29,7 @@ def restore_cache_dir() -> Iterator[None]:
         os.environ["NUMBA_CACHE_DIR"] = before
     from numba.core import config as numba_config
 
-    numba_config.reload_config()
+    numba_config.reload_config()  # type: ignore[no-untyped-call]
     for disp in kernels.dispatchers().values():
         disp.enable_caching()
 
@@ -90,6 +90,17 @@ def test_check_warns_about_a_cold_cache(tmp_path: Path, restore_cache_dir: None)
     row = check.kernel_cache_row(_cfg(tmp_path / "empty"))
     assert row.status == "warn" and "curio warmup" in row.fix
     assert f"{len(kernels.dispatchers())} of {len(kernels.dispatchers())}" in row.detail
+
+
+def test_messages_name_the_cache_numba_really_uses(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """With no numba_cache_dir, an inherited NUMBA_CACHE_DIR is where the kernels go: the
+    messages of ``curio check`` and ``curio warmup`` must say so, not "next to the sources"."""
+    assert kernels.describe(tmp_path) == str(tmp_path)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "env"))
+    assert kernels.describe(None) == f"NUMBA_CACHE_DIR={tmp_path / 'env'}"
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    assert kernels.describe(None) == "next to the sources"
 
 
 def test_an_unwritable_cache_dir_is_one_clear_error(tmp_path: Path,
