@@ -415,8 +415,10 @@ class PathManager:
         pose after a restart and where Go Home (and docking) ends.
         """
         path = self._paths[HOME_PATH_ID]
-        path.waypoints[-1] = make_waypoint(x_m, y_m, yaw_rad)
-        self._changed("changed", HOME_PATH_ID)
+        home = make_waypoint(x_m, y_m, yaw_rad)
+        before = self._snapshot()
+        path.waypoints[-1] = home
+        self._changed("changed", HOME_PATH_ID, before)
         return path.copy()
 
     def rename(self, path_id: int, name: str) -> NamedPath:
