@@ -76,7 +76,12 @@ class LostScenario(Scenario):
                                        "tour_stops": stops, "tour_loop": False})
         sim = cfg.sim.model_copy(update={"world": str(world)})
         loc = cfg.localization.model_copy(update={"map_yaml": str(original)})
-        return cfg.model_copy(update={"bt": bt, "sim": sim, "localization": loc})
+        # People awareness off: the moved benches look like people standing still to the
+        # tracker, the rover slows beside them and its localiser keeps up (seed 1: 1.9 cm
+        # worst error, no lost episode), so the scenario would not exercise lost and found.
+        people = cfg.people.model_copy(update={"aware": False})
+        return cfg.model_copy(update={"bt": bt, "sim": sim, "localization": loc,
+                                      "people": people})
 
     async def run(self, ctx: ScenarioContext) -> None:
         """Tour; answer help requests by setting the pose; score."""
