@@ -39,7 +39,7 @@ from curio.core.jsonable import to_json, to_jsonable
 from curio.core.messages import OperatorCommand, PoseWithCovariance
 from curio.core.topics import DOCK, HELP, HELP_BLOCKAGE, INITIAL_POSE, OPERATOR, POWER, ZONES
 from curio.web.inputs import CommandError, http_error, parse_json_object, parse_pose
-from curio.web.services import GATE, SERVICES, UnattendedServices
+from curio.web.services import GATE, ROVER, SERVICES, UnattendedServices
 
 __all__ = ["UNATTENDED_ROUTES", "UnattendedServices"]
 
@@ -149,13 +149,13 @@ def _std(body: dict[str, Any], key: str, default: float, low: float, high: float
 
 
 async def set_pose(request: web.Request) -> web.Response:
-    """Set the pose on the map with its spread."""
-    request.app[GATE].require(request, "initial_pose")
+    """Set the pose on the map with its spread (refused off the map; every page is told who
+    set it, as for ``/api/initial_pose``)."""
+    who = request.app[GATE].require(request, "initial_pose")
     body = await _body(request)
-    pose = parse_pose(body)
     std_xy = _std(body, "std_xy_m", 0.25, 0.01, 10.0)
     std_yaw = _std(body, "std_yaw_rad", 0.2, 0.01, math.pi)
-    _publish_pose(request, pose.x, pose.y, pose.yaw, std_xy, std_yaw)
+    pose = request.app[ROVER].initial_pose(body, who, (std_xy, std_yaw))
     return _json({"ok": True, "pose": [pose.x, pose.y, pose.yaw], "std_xy_m": std_xy,
                   "std_yaw_rad": std_yaw}, status=202)
 
