@@ -260,6 +260,8 @@ async def stream(request: web.Request) -> web.StreamResponse:
                 msgs = sub.drain()
                 if msgs:
                     await ws.send_str(to_json({"t": name, "msg": to_jsonable(msgs[-1], 6)}))
+    except ConnectionResetError:  # the page went away between two updates
+        pass
     finally:
         for sub in subs.values():
             sub.close()
