@@ -8,7 +8,7 @@
 (() => {
   const C = window.curio;
   const { $ } = C;
-  const P = { tracks: [], truth: [], rxTracks: 0, rxTruth: 0, frames: 0 };
+  const P = { tracks: [], truth: [], rxTracks: 0, rxTruth: 0, frames: 0, drawn: [] };
   C.P = P;
   const FRESH_MS = 3000;  // older frames are not drawn (the rover stopped tracking)
 
@@ -17,6 +17,7 @@
 
   const show = () => $("showPeople").checked;
   C.mapLayers.push((ctx, kit) => {
+    P.drawn = [];  // where the last drawing put each track (CSS px on the canvas)
     if (!show()) return;
     const now = Date.now(), scale = C.view.scale;
     if (now - P.rxTruth < FRESH_MS) {
@@ -31,6 +32,7 @@
     if (now - P.rxTracks >= FRESH_MS) return;
     for (const t of P.tracks) {
       const [sx, sy] = kit.toScreen(t.x, t.y);
+      P.drawn.push([sx, sy]);
       ctx.beginPath(); ctx.arc(sx, sy, Math.max(4, 0.2 * scale), 0, 2 * Math.PI);
       ctx.fillStyle = t.moving ? "rgba(234,88,12,.75)" : "rgba(234,88,12,.45)"; ctx.fill();
       ctx.strokeStyle = "#9a3412"; ctx.lineWidth = 1.5; ctx.stroke();
