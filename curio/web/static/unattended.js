@@ -56,13 +56,13 @@
     const p = U.power, el = $("batteryChip");
     if (!p) return;
     const stale = !U.connected || Date.now() - (U.rx.power || 0) > 15000;
-    const icon = p.charging ? "⚡" : "🔋";
+    const icon = p.charging ? "⚡" : "";  // (no emoji: a kiosk browser may lack the font)
     let long = "Battery " + pct(p.soc);
     if (p.charging) long += " · charging" + (p.time_to_full_s ? ", full in " + fmtDur(p.time_to_full_s) : "");
     else if (p.time_left_s) long += " · " + fmtDur(p.time_left_s) + " left";
     if (p.level !== "ok") long += " · " + p.level.toUpperCase();
     el.textContent = "";
-    for (const [text, c] of [[icon + " " + long, "long"], [icon + pct(p.soc).replace(" ", "") + (p.level !== "ok" ? "!" : ""), "short"]]) {
+    for (const [text, c] of [[(icon ? icon + " " : "") + long, "long"], [(icon || "Bat ") + pct(p.soc).replace(" ", "") + (p.level !== "ok" ? "!" : ""), "short"]]) {
       const span = document.createElement("span");
       span.className = c; span.textContent = text;
       el.appendChild(span);
@@ -118,7 +118,7 @@
       text = "HELP: " + ((h && h.message) || (hubHelp && hubHelp.message) || "the rover needs a person") + why +
         (waited !== null && isFinite(waited) ? " · waiting " + fmtDur(Math.max(0, waited)) : "") +
         (h && h.repeats ? " · asked " + (h.repeats + 1) + " times" : "");
-      cls = "help";
+      cls = "help";  // (data-kind; the class is u-help: .help is the HELP ME button's)
     } else if (lostNow()) {
       text = "Lost: the rover is looking around to find where it is. Relocalise, or set its position on the map.";
       cls = "lost";
@@ -127,7 +127,7 @@
       cls = "unsure";
     }
     bar.textContent = text;
-    bar.className = "uBar " + cls + (text ? "" : " hidden");
+    bar.className = "uBar" + (cls ? " u-" + cls : "") + (text ? "" : " hidden");
     bar.dataset.kind = cls;
   }
 
@@ -274,9 +274,9 @@
       ctx.beginPath(); ctx.arc(sx, sy, 16, 0, 2 * Math.PI); ctx.stroke();
       ctx.font = "bold 12px system-ui, sans-serif";
       const t = "blocked here", w = ctx.measureText(t).width;
-      const lx = sx + 20 + w > kit.width ? sx - 24 - w : sx + 20;
-      ctx.fillStyle = "#7f1d1d"; ctx.fillRect(lx - 4, sy + 8, w + 8, 18);
-      ctx.fillStyle = "#fff"; ctx.fillText(t, lx, sy + 21);
+      const lx = Math.max(4, Math.min(kit.width - w - 8, sx - w / 2));  // under the ring, on the canvas
+      ctx.fillStyle = "#7f1d1d"; ctx.fillRect(lx - 4, sy + 19, w + 8, 18);
+      ctx.fillStyle = "#fff"; ctx.fillText(t, lx, sy + 32);
     }
     const drag = kit.drag;
     if (drag && drag.kind === "arrow" && C.tool === "pose") {  // the spread you are about to send

@@ -237,7 +237,7 @@
         ctx.fillStyle = keep ? "rgba(220,38,38,.22)" : "rgba(234,179,8,.25)"; ctx.fill();
         ctx.strokeStyle = keep ? "#b91c1c" : "#a16207"; ctx.lineWidth = sel ? 4 : 2;
         ctx.setLineDash(keep ? [] : [8, 4]); ctx.stroke(); ctx.setLineDash([]);
-        label(ctx, kit, z.polygon, keep ? "⛔ " + z.name : "≤ " + Number(z.speed_limit_mps).toFixed(2) + " m/s", keep ? "#991b1b" : "#854d0e");
+        label(ctx, kit, z.polygon, keep ? "keep out: " + z.name : "≤ " + Number(z.speed_limit_mps).toFixed(2) + " m/s", keep ? "#991b1b" : "#854d0e");
       }
     }
     const d = Z.draft;
