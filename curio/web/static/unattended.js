@@ -41,6 +41,7 @@
   function fmtDur(s) {
     if (s === null || s === undefined || !isFinite(s)) return "";
     if (s < 60) return Math.max(0, Math.round(s)) + " s";
+    if (s < 600) return Math.floor(s / 60) + " min" + (Math.round(s % 60) ? " " + Math.round(s % 60) + " s" : "");
     if (s < 3600) return Math.round(s / 60) + " min";
     const h = Math.floor(s / 3600), m = Math.round((s - 3600 * h) / 60);
     return h + " h" + (m ? " " + m + " min" : "");
@@ -113,7 +114,7 @@
     const hubHelp = S.help && S.help.active ? S.help : null;
     let text = "", cls = "";
     if (h || hubHelp) {
-      const why = h && REASON_WORDS[h.reason] ? " — " + REASON_WORDS[h.reason] : "";
+      const why = h && !h.message && REASON_WORDS[h.reason] ? " — " + REASON_WORDS[h.reason] : "";
       const waited = h && h.since_s !== null && h.since_s !== undefined ? roverNow() - h.since_s : null;
       text = "HELP: " + ((h && h.message) || (hubHelp && hubHelp.message) || "the rover needs a person") + why +
         (waited !== null && isFinite(waited) ? " · waiting " + fmtDur(Math.max(0, waited)) : "") +
@@ -154,7 +155,8 @@
     $("uDock").dataset.state = d ? d.state : "";
     const docked = !!(d && d.state === "docked");
     const enabled = !!(info && info.enabled);
-    $("uDockBtn").disabled = !C.may("command") || !enabled || docked;
+    const busy = !!(d && !["idle", "failed", "docked"].includes(d.state));  // docking or undocking now
+    $("uDockBtn").disabled = !C.may("command") || !enabled || docked || busy;
     $("uUndockBtn").disabled = !C.may("command") || !enabled || !docked;
     const loc = S.loc;
     $("uLoc").textContent = loc ? "Position: " + ({ ok: "sure", uncertain: "uncertain", lost: "LOST", off: "odometry only" }[loc.state] || loc.state) +
@@ -286,6 +288,28 @@
       ctx.fillStyle = "rgba(124,58,237,.12)"; ctx.fill();
       ctx.setLineDash([5, 4]); ctx.strokeStyle = "#7c3aed"; ctx.lineWidth = 1.5; ctx.stroke(); ctx.setLineDash([]);
     }
+  });
+
+  // Events as sentences (the rover's own message when it has one).
+  const said = (cls, fallback) => (d) => [cls, d.message || fallback(d)];
+  Object.assign(C.EVENT_TEXT, {
+    "battery.critical": said("bad", (d) => "Battery critical" + (d.voltage_v ? " (" + Number(d.voltage_v).toFixed(2) + " V)" : "")),
+    "power.charging": (d) => (d.charging ? ["ok", "On the charger"] : ["", "Off the charger"]),
+    "dock.started": said("", () => "Going to the dock"),
+    "dock.staging_reached": said("", () => "In front of the dock: final approach"),
+    "dock.attempt": said("", (d) => "Docking, attempt " + d.attempt),
+    "dock.retry": said("warn", (d) => "Missed the dock" + (d.reason ? " (" + d.reason + ")" : "") + ": backing off to try again"),
+    "dock.docked": said("ok", (d) => "Docked" + (d.error_m !== undefined ? " (" + (100 * d.error_m).toFixed(1) + " cm off)" : "")),
+    "dock.failed": said("bad", () => "Docking failed"),
+    "dock.undocked": said("", () => "Left the dock"),
+    "dock.left": said("", () => "Off the dock"),
+    "localization.lost": said("bad", () => "Lost: looking around"),
+    "localization.jump": said("warn", (d) => "The position estimate jumped " + (d.distance_m ? Number(d.distance_m).toFixed(1) + " m" : "")),
+    "localization.found": said("ok", () => "Found: I know where I am again"),
+    "zones.changed": (d) => ["who", "Zone " + d.zone_id + " " + d.change + (d.actor ? " by " + d.actor : "")],
+    "notify.sent": (d) => ["ok", "Notification sent" + (d.channel ? " (" + d.channel + ")" : "")],
+    "notify.failed": (d) => ["bad", "Notification failed" + (d.channel ? " (" + d.channel + ")" : "") + (d.error ? ": " + d.error : "")],
+    "people.excuse_me": said("", () => "“Excuse me”: waiting for people to make way"),
   });
 
   // The legend: what this module draws.
