@@ -27,7 +27,11 @@ BAR_KIND = "document.querySelector('#uBar').dataset.kind"
 async def _next(clock: SimClock, sub: Subscription[PoseWithCovariance]) -> PoseWithCovariance:
     """The next initial pose the page sent (within 5 s of simulated time)."""
     got: list[PoseWithCovariance] = []
-    assert await clock.wait_until(lambda: bool(got.extend(sub.drain()) or got), timeout_s=5.0)
+    def arrived() -> bool:
+        got.extend(sub.drain())
+        return bool(got)
+
+    assert await clock.wait_until(arrived, timeout_s=5.0)
     return got[-1]
 
 
@@ -37,7 +41,8 @@ async def test_battery_and_dock(tmp_path: Path, viewport: str) -> None:
     shows charge and charging, then low and critical as the simulated pack runs down.
     Drives: simulator (dock, battery), power monitor, docker, behaviour tree, navigator."""
     cfg = kit.make_cfg(tmp_path / "data", "dock.enabled=true")
-    async with kit.running_app(cfg) as (app, clock), kit.browser_on(app.web_url or "", viewport) as b:
+    async with kit.running_app(cfg) as (app, _), \
+            kit.browser_on(app.web_url or "", viewport) as b:
         assert app.world is not None and app.docker is not None
         await b.wait_js("window.curio.U.power && window.curio.U.dockInfo && window.curio.U.dock")
         await b.wait_js("document.querySelector('#uDock').dataset.state === 'docked'")
@@ -125,7 +130,8 @@ async def test_help_bar_chime_and_blockage(tmp_path: Path, viewport: str) -> Non
     repeat, draws what blocks the rover; the test notification answers. Drives: hub, the
     unattended socket, the help desk (notification test)."""
     cfg = kit.make_cfg(tmp_path / "data")
-    async with kit.running_app(cfg) as (app, clock), kit.browser_on(app.web_url or "", viewport) as b:
+    async with kit.running_app(cfg) as (app, clock), \
+            kit.browser_on(app.web_url or "", viewport) as b:
         await b.wait_js("window.curio.S.pose && window.curio.U.power")
         await b.page.click("#mute")  # a gesture: the page may play sound now
         await b.page.click("#mute")
@@ -176,7 +182,8 @@ async def test_zone_drawn_saved_refused_deleted(tmp_path: Path, viewport: str) -
     the map; a keep-out zone over the rover is refused with the rover's sentence; the zone is
     chosen and deleted. Drives: the zone service (store, costmap), the page's editor."""
     cfg = kit.make_cfg(tmp_path / "data")
-    async with kit.running_app(cfg) as (app, clock), kit.browser_on(app.web_url or "", viewport) as b:
+    async with kit.running_app(cfg) as (app, _), \
+            kit.browser_on(app.web_url or "", viewport) as b:
         assert app.zones is not None
         await b.wait_js("window.curio.S.pose && window.curio.S.images.map")
         await b.page.click("#zonesCard > summary")
@@ -237,7 +244,8 @@ async def test_people_layer_in_a_crowd(tmp_path: Path, viewport: str) -> None:
     arrows) and the visitors' truth; the layer switch hides them. Drives: the crowd
     simulator, the people tracker, the hub's people frames."""
     cfg = kit.make_cfg(tmp_path / "data", "sim.crowd.visitors=10")
-    async with kit.running_app(cfg) as (app, clock), kit.browser_on(app.web_url or "", viewport) as b:
+    async with kit.running_app(cfg) as (app, _), \
+            kit.browser_on(app.web_url or "", viewport) as b:
         await b.wait_js("window.curio.P.truth.length >= 10")  # and the world's scripted walker
         await b.wait_js("window.curio.P.tracks.length > 0", timeout_s=40)
         # Zoomed in on a track (zoomed out, its disc hides under the laser's points).
