@@ -243,7 +243,22 @@ async def notify_test(request: web.Request) -> web.Response:
 
 
 async def stream(request: web.Request) -> web.StreamResponse:
-    """Push ``power``, ``dock``, ``help``, ``zones`` and ``blockage`` as they change."""
+    """Push ``power``, ``dock``, ``help``, ``zones`` and ``blockage`` as they change (the
+    dashboard itself reads them from the hub's socket: :mod:`curio.web.unattended_frames`)."""
+    gate = request.app[GATE]
+    viewer = gate.identify(request).role == "viewer"
+    remote = request.remote or "?"
+    if viewer:  # counted with the dashboard's sockets without a token (503 over the caps)
+        gate.open_viewer_socket(remote)
+    try:
+        return await _pump(request)
+    finally:
+        if viewer:
+            gate.close_viewer_socket(remote)
+
+
+async def _pump(request: web.Request) -> web.StreamResponse:
+    """The socket's loop: the latest of each topic every 0.5 s."""
     services = request.app[SERVICES]
     bus = services.bus
     ws = web.WebSocketResponse(heartbeat=30.0)

@@ -11,27 +11,20 @@
   const C = window.curio;
   const { $, S } = C;
   const U = { power: null, dock: null, dockInfo: null, help: null, zones: null, blockage: null,
-    connected: false, ws: null, backoff: 500, rx: {}, chimeKey: "", chimesAsked: 0, chimesPlayed: 0 };
+    rx: {}, chimeKey: "", chimesAsked: 0, chimesPlayed: 0 };
   C.U = U;
 
-  // ----- the socket -----------------------------------------------------------------------------------
-  function connect() {
-    let ws;
-    try { ws = new WebSocket((location.protocol === "https:" ? "wss:" : "ws:") + "//" + location.host + "/api/unattended/ws"); } catch (e) { retry(); return; }
-    U.ws = ws;
-    ws.onopen = () => { U.backoff = 500; U.connected = true; loadDock(); };
-    ws.onmessage = (ev) => {
-      const m = JSON.parse(ev.data);
-      U[m.t] = m.msg; U.rx[m.t] = Date.now();
-      for (const fn of C.listeners["u:" + m.t] || []) fn(m.msg);
-      if (m.t === "help") onHelp(m.msg);
-      if (m.t === "dock") loadDock();
+  // ----- the rover's messages (the hub's socket: "u:power", "u:dock", "u:help", "u:zones", "u:blockage") --
+  for (const t of ["power", "dock", "help", "zones", "blockage"]) {
+    C.on("u:" + t, (m) => {
+      U[t] = m.msg; U.rx[t] = Date.now();
+      if (t === "help") onHelp(m.msg);
+      if (t === "dock") loadDock();
       render();
       C.view.dirty = true;
-    };
-    ws.onclose = () => { if (U.ws === ws) { U.ws = null; U.connected = false; render(); retry(); } };
+    });
   }
-  function retry() { setTimeout(connect, U.backoff); U.backoff = Math.min(4000, U.backoff * 2); }
+  C.on("hello", () => loadDock());  // (re)connected: home and staging may have moved
   async function loadDock() {
     try { U.dockInfo = await C.api("GET", "/api/dock"); } catch (e) { U.dockInfo = null; }
     render(); C.view.dirty = true;
@@ -56,7 +49,7 @@
   function renderPowerChip() {
     const p = U.power, el = $("batteryChip");
     if (!p) return;
-    const stale = !U.connected || Date.now() - (U.rx.power || 0) > 15000;
+    const stale = !S.connected || Date.now() - (U.rx.power || 0) > 15000;
     const icon = p.charging ? "⚡" : "";  // (no emoji: a kiosk browser may lack the font)
     let long = "Battery " + pct(p.soc);
     if (p.charging) long += " · charging" + (p.time_to_full_s ? ", full in " + fmtDur(p.time_to_full_s) : "");
@@ -83,8 +76,8 @@
   function roverNow() {  // the rover's clock now, s (its stamps, as they arrive)
     return Math.max(S.pose ? S.pose.stamp : -Infinity, U.power ? U.power.stamp : -Infinity, U.help ? U.help.stamp : -Infinity);
   }
-  function onHelp(h) {
-    if (!h || !h.active || !h.sound) return;
+  function onHelp(h) {  // a new request or a repeat (the desk sets `sound` for both) chimes once
+    if (!h || !h.active) return;
     const key = h.since_s + ":" + h.repeats;
     if (key === U.chimeKey) return;
     U.chimeKey = key;
@@ -323,5 +316,4 @@
   buildCard();
   render();
   setInterval(render, 1000);  // the wait time counts on; stale battery readings grey out
-  connect();
 })();

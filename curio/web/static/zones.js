@@ -32,7 +32,7 @@
     if (Z.selected !== null && !Z.zones.some((z) => z.id === Z.selected)) Z.selected = null;
     renderList(); C.view.dirty = true;
   }
-  C.on("u:zones", (ev) => { if (ev && ev.detail) setData(ev.detail); });
+  C.on("u:zones", (m) => { if (m.msg && m.msg.detail) setData(m.msg.detail); });
 
   // ----- the card ---------------------------------------------------------------------------------------------
   function buildCard() {
