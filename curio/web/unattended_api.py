@@ -185,28 +185,28 @@ async def list_zones(request: web.Request) -> web.Response:
 
 async def add_zone(request: web.Request) -> web.Response:
     """Add a zone."""
-    request.app[GATE].require(request, "zones")
-    zone = _zones(request).add(await _body(request), actor="web")
+    who = request.app[GATE].require(request, "zones")
+    zone = _zones(request).add(await _body(request), actor=who.name)
     return _json(zone.to_json(), status=201)
 
 
 async def update_zone(request: web.Request) -> web.Response:
     """Change a zone."""
-    request.app[GATE].require(request, "zones")
-    zone = _zones(request).update(_zone_id(request), await _body(request), actor="web")
+    who = request.app[GATE].require(request, "zones")
+    zone = _zones(request).update(_zone_id(request), await _body(request), actor=who.name)
     return _json(zone.to_json())
 
 
 async def delete_zone(request: web.Request) -> web.Response:
     """Delete a zone."""
-    request.app[GATE].require(request, "zones")
+    who = request.app[GATE].require(request, "zones")
     rev = request.query.get("revision")
     try:
         revision = int(rev) if rev is not None else None
     except ValueError:
         raise CommandError(f"revision must be a whole number, got {rev!r}") from None
     zid = _zone_id(request)
-    _zones(request).delete(zid, revision, actor="web")
+    _zones(request).delete(zid, revision, actor=who.name)
     return _json({"deleted": zid})
 
 
