@@ -247,8 +247,10 @@
       ctx.fillStyle = "rgba(124,58,237,.55)"; ctx.fill();
       ctx.strokeStyle = "#5b21b6"; ctx.lineWidth = 2; ctx.stroke();
       if (C.view.scale > 45) {  // zoomed out, the label would sit on the rover's
-        const [lx, ly] = pt(front + 0.35, 0);
-        ctx.font = "bold 12px system-ui, sans-serif"; ctx.fillStyle = "#5b21b6"; ctx.fillText("dock", lx - 12, ly + 4);
+        const [lx, ly] = pt(front + 0.07, -0.62);  // past the plate's end: clear of the rover's arrow
+        ctx.font = "bold 12px system-ui, sans-serif";
+        ctx.fillStyle = "rgba(255,255,255,.85)"; ctx.fillRect(lx - 16, ly - 9, 32, 16);
+        ctx.fillStyle = "#5b21b6"; ctx.fillText("dock", lx - 13, ly + 4);
       }
       if (info.staging && C.view.scale > 25) {
         kit.drawHeading(info.staging[0], info.staging[1], info.staging[2], "rgba(124,58,237,.7)", 18);
