@@ -165,6 +165,44 @@ async def test_help_bar_chime_and_blockage(tmp_path: Path, viewport: str) -> Non
         assert b.errors == []
 
 
+async def test_help_bar_when_a_door_closes(tmp_path: Path, viewport: str) -> None:
+    """The real blocked-door situation: the library door closes in front of the rover on a
+    path; the help desk's request shows in the red bar (its own words, the wait), chimes, and
+    the clearance probe's blocking points are drawn; the door reopens: the bar goes. Drives:
+    sim world (doors), navigation, behaviour tree, help desk, clearance probe. (Setup as in
+    test_browser.py's blocked-door test: recovery cut to ``wait`` so help comes first.)"""
+    cfg = kit.make_cfg(tmp_path / "data", "sim.start=[1.55, 7.9, 1.5708]",
+                       "nav.blocked.no_progress_s=2", 'nav.recovery.ladder=["wait"]',
+                       "nav.recovery.wait_s=10")
+    async with kit.running_app(cfg) as (app, clock), \
+            kit.browser_on(app.web_url or "", viewport) as b:
+        pid = app.paths.create("Library").id
+        app.paths.add_waypoint(pid, 1.2, 11.5)
+        await b.wait_js(f"window.curio.S.paths.some(p => p.id === {pid}) && window.curio.S.pose")
+        await b.page.fill("#pathInput", str(pid))
+        await b.page.press("#pathInput", "Enter")
+        await b.wait_js("window.curio.S.status.state === 'moving'")
+        assert await clock.wait_until(lambda: kit.truth_xy(app)[1] > 8.1, timeout_s=20.0)
+        app.world.set_door("library", False)
+        await b.wait_js(f"{BAR_KIND} === 'help' && window.curio.U.help &&"
+                        " window.curio.U.help.active", timeout_s=60)
+        bar = await b.text("#uBar")
+        said = await b.state("window.curio.U.help.message")
+        assert await b.state("window.curio.U.help.reason") == "blocked"
+        assert said and said in bar and "waiting" in bar, bar  # the request in its own words
+        assert await b.state("window.curio.U.chimesAsked") >= 1
+        await b.wait_js("window.curio.U.blockage && window.curio.U.blockage.circles.length > 0",
+                        timeout_s=20)
+        door_y = await b.state("Math.min(...window.curio.U.blockage.circles.map(c => c[1]))")
+        assert door_y > kit.truth_xy(app)[1]  # what blocks it is ahead, in the doorway
+        await b.look_at(1.4, 9.0, 70.0)
+        await b.page.evaluate("() => window.scrollTo(0, 0)")
+        await b.shot("help-door")
+        app.world.set_door("library", True)
+        await b.wait_js(f"{BAR_KIND} !== 'help'", timeout_s=60)
+        assert b.errors == []
+
+
 ZONE = [(1.5, 2.0), (2.5, 2.0), (2.5, 3.0), (1.5, 3.0)]
 
 

@@ -37,16 +37,7 @@
       ctx.fillStyle = t.moving ? "rgba(234,88,12,.75)" : "rgba(234,88,12,.45)"; ctx.fill();
       ctx.strokeStyle = "#9a3412"; ctx.lineWidth = 1.5; ctx.stroke();
       const speed = Math.hypot(t.vx, t.vy);
-      if (speed > 0.1) {  // where it will be in a second
-        const [ex, ey] = kit.toScreen(t.x + t.vx, t.y + t.vy);
-        ctx.strokeStyle = "#c2410c"; ctx.fillStyle = "#c2410c"; ctx.lineWidth = 2.5;
-        ctx.beginPath(); ctx.moveTo(sx, sy); ctx.lineTo(ex, ey); ctx.stroke();
-        const a = Math.atan2(ey - sy, ex - sx);
-        ctx.beginPath(); ctx.moveTo(ex, ey);
-        ctx.lineTo(ex - 8 * Math.cos(a - 0.45), ey - 8 * Math.sin(a - 0.45));
-        ctx.lineTo(ex - 8 * Math.cos(a + 0.45), ey - 8 * Math.sin(a + 0.45));
-        ctx.closePath(); ctx.fill();
-      }
+      if (speed > 0.1) kit.drawHeading(t.x, t.y, Math.atan2(t.vy, t.vx), "#c2410c", speed * scale);  // where it is in 1 s
       if (scale > 25) {
         ctx.font = "bold 10px system-ui, sans-serif"; ctx.fillStyle = "#7c2d12";
         ctx.fillText("P" + t.id, sx + 6, sy - 6);

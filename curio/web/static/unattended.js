@@ -83,21 +83,9 @@
     U.chimeKey = key;
     chime();
   }
-  function chime() {  // two soft rising tones (Web Audio: no file; only after a gesture on the page)
+  function chime() {  // three soft rising tones (drive.js's player: Web Audio, after a gesture, unless muted)
     U.chimesAsked += 1;
-    const ac = C.sound && C.sound.ctx;
-    if (!ac || ac.state !== "running" || (C.sound && C.sound.muted)) return;
-    U.chimesPlayed += 1;
-    const t0 = ac.currentTime;
-    for (const [f, dt] of [[523, 0], [784, 0.25], [1047, 0.5]]) {
-      const osc = ac.createOscillator(), gain = ac.createGain();
-      osc.frequency.value = f; osc.type = "sine";
-      gain.gain.setValueAtTime(0.0001, t0 + dt);
-      gain.gain.exponentialRampToValueAtTime(0.25, t0 + dt + 0.03);
-      gain.gain.exponentialRampToValueAtTime(0.0001, t0 + dt + 0.35);
-      osc.connect(gain).connect(ac.destination);
-      osc.start(t0 + dt); osc.stop(t0 + dt + 0.4);
-    }
+    if (C.playTones([[523, 0], [784, 0.25], [1047, 0.5]], "sine", 0.25, 0.35)) U.chimesPlayed += 1;
   }
   const lostNow = () => (S.loc && S.loc.state === "lost") || (S.status && /^lost\b/i.test(S.status.text || ""));
   const unsureNow = () => S.loc && S.loc.state === "uncertain";
@@ -109,7 +97,8 @@
     if (h || hubHelp) {
       const why = h && !h.message && REASON_WORDS[h.reason] ? " — " + REASON_WORDS[h.reason] : "";
       const waited = h && h.since_s !== null && h.since_s !== undefined ? roverNow() - h.since_s : null;
-      text = "HELP: " + ((h && h.message) || (hubHelp && hubHelp.message) || "the rover needs a person") + why +
+      const said = (h && h.message) || (hubHelp && hubHelp.message) || "the rover needs a person";
+      text = (/^help/i.test(said) ? "" : "HELP: ") + said + why +
         (waited !== null && isFinite(waited) ? " · waiting " + fmtDur(Math.max(0, waited)) : "") +
         (h && h.repeats ? " · asked " + (h.repeats + 1) + " times" : "");
       cls = "help";  // (data-kind; the class is u-help: .help is the HELP ME button's)
@@ -171,29 +160,30 @@
     } catch (e) { C.showMsg(el, e.message, "error", 20); return null; }
   }
 
+  // Small builders for the cards (zones.js uses them too): an element, a button, a row.
+  const el = (tag, id, cls, text) => {
+    const e = document.createElement(tag);
+    if (id) e.id = id; if (cls) e.className = cls; if (text) e.textContent = text;
+    return e;
+  };
+  const button = (id, text, title, cls) => {
+    const b = el("button", id, cls, text);
+    b.type = "button";
+    if (title) b.title = title;
+    return b;
+  };
+  const row = (...kids) => { const r = el("div", null, "row"); r.append(...kids); return r; };
+  C.uiKit = { el, button, row };
+
   function buildCard() {
     const card = $("careCard");
-    card.innerHTML = "";
-    const el = (tag, id, cls, text) => {
-      const e = document.createElement(tag);
-      if (id) e.id = id; if (cls) e.className = cls; if (text) e.textContent = text;
-      return e;
-    };
     const sum = el("summary", null, null, "Battery, dock and position ");
     sum.appendChild(el("span", "uSummary", "small"));
-    card.appendChild(sum);
-    card.append(el("div", "uBattery", "uLine"), el("div", "uDock", "uLine"));
-    const dockRow = el("div", null, "row");
-    const dock = el("button", "uDockBtn", null, "⚡ Dock now"), undock = el("button", "uUndockBtn", null, "Undock");
-    dock.type = undock.type = "button";
-    dock.title = "drive to the dock and dock (Go Home, with a dock)"; undock.title = "back out of the dock";
-    dockRow.append(dock, undock);
-    card.append(dockRow, el("div", "uLoc", "uLine"));
-    const locRow = el("div", null, "row");
-    const reloc = el("button", "uRelocalise", null, "⟳ Relocalise"), setp = el("button", "uSetPose", null, "Set position…");
-    reloc.type = setp.type = "button";
-    reloc.title = "forget the position and search the whole map (the rover turns in place to look)";
-    setp.title = "then press where the rover is on the map and drag the way it faces";
+    const dock = button("uDockBtn", "⚡ Dock now", "drive to the dock and dock (Go Home, with a dock)");
+    const undock = button("uUndockBtn", "Undock", "back out of the dock");
+    const reloc = button("uRelocalise", "⟳ Relocalise", "forget the position and search the whole map (the rover turns in place to look)");
+    const setp = button("uSetPose", "Set position…", "then press where the rover is on the map and drag the way it faces");
+    const notify = button("uNotify", "Send a test notification", "send a test message to every configured channel (webhook, ntfy)");
     const spread = el("select", "uSpread");
     spread.title = "how sure you are of the position you set";
     spread.setAttribute("aria-label", "spread of the position you set");
@@ -201,14 +191,8 @@
       const o = el("option", null, null, t); o.value = v; spread.appendChild(o);
     }
     spread.value = "0.25";
-    locRow.append(reloc, setp, spread);
-    card.appendChild(locRow);
-    const nRow = el("div", null, "row");
-    const notify = el("button", "uNotify", null, "Send a test notification");
-    notify.type = "button";
-    notify.title = "send a test message to every configured channel (webhook, ntfy)";
-    nRow.appendChild(notify);
-    card.append(nRow, el("div", "uMsg", "msg"));
+    card.append(sum, el("div", "uBattery", "uLine"), el("div", "uDock", "uLine"), row(dock, undock),
+      el("div", "uLoc", "uLine"), row(reloc, setp, spread), row(notify), el("div", "uMsg", "msg"));
     dock.addEventListener("click", () => post("/api/dock", () => "Going to the dock…"));
     undock.addEventListener("click", () => post("/api/undock", () => "Leaving the dock…"));
     reloc.addEventListener("click", () => post("/api/relocalise", (o) => (o && o.message) || "Searching the whole map."));

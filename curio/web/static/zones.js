@@ -12,11 +12,7 @@
   const Z = { map: null, revision: null, zones: [], draft: null, selected: null, off: "" };
   C.Z = Z;
 
-  const el = (tag, id, cls, text) => {
-    const e = document.createElement(tag);
-    if (id) e.id = id; if (cls) e.className = cls; if (text) e.textContent = text;
-    return e;
-  };
+  const { el, button, row } = C.uiKit;  // (unattended.js)
   const msg = (text, kind, s) => C.showMsg($("zMsg"), text, kind, s);
 
   // ----- data -----------------------------------------------------------------------------------------------
@@ -39,14 +35,8 @@
     const card = $("zonesCard");
     const sum = el("summary", null, null, "Zones ");
     sum.appendChild(el("span", "zSummary", "small"));
-    card.appendChild(sum);
-    card.appendChild(el("ul", "zList", "zList"));
-    const row = el("div", null, "row");
-    const draw = el("button", "zDraw", null, "✎ Draw a zone"), del = el("button", "zDelete", "danger", "Delete");
-    draw.type = del.type = "button";
-    draw.title = "then click the zone's corners on the map; click the first corner to close it";
-    row.append(draw, del);
-    card.appendChild(row);
+    const draw = button("zDraw", "✎ Draw a zone", "then click the zone's corners on the map; click the first corner to close it");
+    const del = button("zDelete", "Delete", "delete the chosen zone", "danger");
     const form = el("div", "zForm", "zForm hidden");
     const grid = el("div", null, "grid2");
     const lName = el("label", null, null, "Name"), name = el("input", "zName");
@@ -58,19 +48,11 @@
     speed.type = "number"; speed.step = "0.05"; speed.min = "0.05"; speed.value = "0.2"; speed.inputMode = "decimal";
     lSpeed.appendChild(speed);
     grid.append(lName, lKind, lSpeed);
-    form.appendChild(grid);
-    const frow = el("div", null, "row");
-    const finish = el("button", "zFinish", null, "Finish shape"), undo = el("button", "zUndo", null, "Undo corner"),
-      save = el("button", "zSave", "primary", "Save zone"), cancel = el("button", "zCancel", null, "Cancel");
-    for (const b of [finish, undo, save, cancel]) { b.type = "button"; frow.appendChild(b); }
-    form.append(el("div", "zDraftText", "small"), frow);
-    card.appendChild(form);
-    const xrow = el("div", null, "row");
-    const exp = el("button", "zExport", null, "Export Nav2 masks");
-    exp.type = "button";
-    exp.title = "write the keep-out and speed filter masks (map_server YAML + PGM) beside the zone file";
-    xrow.appendChild(exp);
-    card.append(xrow, el("div", "zMsg", "msg"), el("div", "zFiles", "small mono"));
+    const finish = button("zFinish", "Finish shape"), undo = button("zUndo", "Undo corner"),
+      save = button("zSave", "Save zone", null, "primary"), cancel = button("zCancel", "Cancel");
+    form.append(grid, el("div", "zDraftText", "small"), row(finish, undo, save, cancel));
+    const exp = button("zExport", "Export Nav2 masks", "write the keep-out and speed filter masks (map_server YAML + PGM) beside the zone file");
+    card.append(sum, el("ul", "zList", "zList"), row(draw, del), form, row(exp), el("div", "zMsg", "msg"), el("div", "zFiles", "small mono"));
 
     kind.addEventListener("change", () => $("zSpeedLabel").classList.toggle("hidden", kind.value !== "speed"));
     draw.addEventListener("click", startDraft);
