@@ -97,8 +97,8 @@ async def test_relocalise_set_pose_and_lost(tmp_path: Path, viewport: str) -> No
         sent = await _next(clock, poses)
         assert sent.covariance[0] > 1e5, "relocalise must search the whole map"
         # The localiser has forgotten where it is: both pages say so while it searches.
-        await b.wait_js(f"{BAR_KIND} === 'lost' || {BAR_KIND} === 'help'", timeout_s=10)
-        assert "looking around" in await b.text("#uBar")
+        await b.wait_js(f"{BAR_KIND} === 'lost' && document.querySelector('#uBar')"
+                        ".textContent.includes('looking around')", timeout_s=10)
         await b.page.evaluate("() => window.scrollTo(0, 0)")
         await b.shot("lost")
         await kiosk.wait_js("!document.querySelector('#kLost').classList.contains('hidden')",
@@ -176,6 +176,7 @@ async def test_help_bar_when_a_door_closes(tmp_path: Path, viewport: str) -> Non
                        "nav.recovery.wait_s=10")
     async with kit.running_app(cfg) as (app, clock), \
             kit.browser_on(app.web_url or "", viewport) as b:
+        assert app.world is not None
         pid = app.paths.create("Library").id
         app.paths.add_waypoint(pid, 1.2, 11.5)
         await b.wait_js(f"window.curio.S.paths.some(p => p.id === {pid}) && window.curio.S.pose")
@@ -292,16 +293,12 @@ async def test_people_layer_in_a_crowd(tmp_path: Path, viewport: str) -> None:
         await b.page.wait_for_timeout(300)
         # The layer's last drawing holds the tracks' discs (read in one go with the canvas).
         await b.wait_js("window.curio.P.drawn.length > 0")
-        orange = await b.state(
+        # Some track's disc shows (not covered by the laser's points or the rover) in a drawing.
+        await b.wait_js(
             "(() => { const c = document.getElementById('map').getContext('2d'),"
-            " d = window.devicePixelRatio; return window.curio.P.drawn.filter(([x, y]) => {"
+            " d = window.devicePixelRatio; return window.curio.P.drawn.some(([x, y]) => {"
             " const [r, g, bl] = c.getImageData(x * d, y * d, 1, 1).data;"
-            " return r > 200 && g > 80 && g < 200 && r - bl > 60; }).length; })()")
-        assert orange > 0, await b.state(
-            "(() => { const c = document.getElementById('map').getContext('2d'),"
-            " d = window.devicePixelRatio; return JSON.stringify([d, window.curio.P.drawn,"
-            " window.curio.P.drawn.map(([x, y]) => Array.from(c.getImageData(x * d, y * d, 1, 1)"
-            ".data))]); })()")
+            " return r > 200 && g > 80 && g < 200 && r - bl > 60; }); })()", timeout_s=15)
         await b.page.evaluate("() => window.scrollTo(0, 0)")
         await b.shot("people")
         await b.page.evaluate("() => window.curio.fitView()")
