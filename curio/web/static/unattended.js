@@ -131,7 +131,7 @@
       dockText = "Dock: " + (DOCK_WORDS[st] || st) + (d && d.attempt > 1 && st !== "docked" ? " (attempt " + d.attempt + ")" : "") +
         (d && d.charging ? ", charging" : "") + (d && d.error_m !== null && d.error_m !== undefined ?
         " · last docking " + (100 * d.error_m).toFixed(1) + " cm, " + Number(d.error_deg).toFixed(1) + "° off" : "") +
-        (d && d.detail ? " — " + d.detail : "");
+        (d && d.detail && !["docked", "idle"].includes(d.state) ? " — " + d.detail : "");
     }
     $("uDock").textContent = dockText;
     $("uDock").dataset.state = d ? d.state : "";
@@ -272,6 +272,7 @@
   // Events as sentences (the rover's own message when it has one).
   const said = (cls, fallback) => (d) => [cls, d.message || fallback(d)];
   Object.assign(C.EVENT_TEXT, {
+    "battery.low": said("bad", () => "Battery low"),
     "battery.critical": said("bad", (d) => "Battery critical" + (d.voltage_v ? " (" + Number(d.voltage_v).toFixed(2) + " V)" : "")),
     "power.charging": (d) => (d.charging ? ["ok", "On the charger"] : ["", "Off the charger"]),
     "dock.started": said("", () => "Going to the dock"),
