@@ -25,6 +25,11 @@
     });
   }
   C.on("hello", () => loadDock());  // (re)connected: home and staging may have moved
+  // The position line and the lost bar follow the hub's own messages (after app.js stored them).
+  let soon = null;
+  for (const t of ["localization", "status", "state", "event"]) {
+    C.on(t, () => { if (!soon) soon = setTimeout(() => { soon = null; render(); }, 100); });
+  }
   async function loadDock() {
     try { U.dockInfo = await C.api("GET", "/api/dock"); } catch (e) { U.dockInfo = null; }
     render(); C.view.dirty = true;
