@@ -423,6 +423,8 @@ class Relocalise(CurioBehaviour):
         self.asked = False
         if found and self.held and ctx.follower.phase == "held":
             ctx.follower.resume()
+        elif found:  # nothing to resume: the status must not keep saying "Lost"
+            ctx.sink.status("I know where I am again.", "idle")
         self.held = False
 
 

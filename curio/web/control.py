@@ -209,8 +209,11 @@ class RoverControl:
             self.activity(who, "command", describe(cmd), **detail)
         return True
 
-    def initial_pose(self, body: dict[str, Any], who: Identity) -> Pose2D:
-        """Validate ``{x_m, y_m, yaw_rad?}`` (map) and publish it as the initial pose.
+    def initial_pose(self, body: dict[str, Any], who: Identity,
+                     spread: tuple[float, float] | None = None) -> Pose2D:
+        """Validate ``{x_m, y_m, yaw_rad?}`` (map) and publish it as the initial pose, with
+        ``spread`` (standard deviations: metres in x and y, radians in yaw) or the default
+        covariance.
 
         Raises:
             CommandError: a coordinate is missing, not a finite number, or off the map.
@@ -219,10 +222,17 @@ class RoverControl:
         bounds = map_bounds(self.bus)
         if bounds is not None:
             bounds.require(pose.x, pose.y, "the position")
-        self.bus.publish(INITIAL_POSE, PoseWithCovariance(self.clock.now(), pose))
+        if spread is None:
+            msg = PoseWithCovariance(self.clock.now(), pose)
+        else:
+            sxy, syaw = spread[0] ** 2, spread[1] ** 2
+            msg = PoseWithCovariance(self.clock.now(), pose, (sxy, 0.0, 0.0, 0.0, sxy, 0.0,
+                                                              0.0, 0.0, syaw))
+        self.bus.publish(INITIAL_POSE, msg)
         self.activity(who, "initial_pose",
                       f"set the rover's position to ({pose.x:.2f}, {pose.y:.2f}), "
-                      f"facing {math.degrees(pose.yaw):.0f}°",
+                      f"facing {math.degrees(pose.yaw):.0f}°"
+                      + (f" (± {spread[0]:.2f} m)" if spread is not None else ""),
                       pose=[round(pose.x, 3), round(pose.y, 3), round(pose.yaw, 4)])
         return pose
 

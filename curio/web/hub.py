@@ -108,6 +108,7 @@ from curio.web.liveness import GOAL_OVER, Liveness
 from curio.web.people import people_frame, truth_frame
 from curio.web.session import ClientSession
 from curio.web.tokens import Identity
+from curio.web.unattended_frames import UNATTENDED_FRAMES, unattended_frame
 
 __all__ = ["GRID_TOPICS", "Hub"]
 
@@ -226,8 +227,14 @@ class Hub:
         self._sub(TOUR, self._on_tour)
         self._sub(PEOPLE, lambda m: self._stream("people", lambda: people_frame(m)))
         self._sub(PEOPLE_TRUTH, lambda m: self._stream("people_truth", lambda: truth_frame(m)))
+        for key, topic in UNATTENDED_FRAMES.items():  # battery, dock, help, zones (issue 11)
+            self._sub(topic, self._unattended(key))
         for name, topic in GRID_TOPICS.items():
             self._sub(topic, self._grid_handler(name))
+
+    def _unattended(self, key: str) -> Callable[[Any], None]:
+        """A handler offering each message as the ``key`` frame (curio.web.unattended_frames)."""
+        return lambda msg: self._stream(key, lambda: unattended_frame(key, msg))
 
     def _sub(self, topic: Topic[Any], handler: Callable[[Any], None],
              maxsize: int | None = None) -> None:

@@ -39,7 +39,7 @@ from curio.core.jsonable import to_json, to_jsonable
 from curio.core.messages import OperatorCommand, PoseWithCovariance
 from curio.core.topics import DOCK, HELP, HELP_BLOCKAGE, INITIAL_POSE, OPERATOR, POWER, ZONES
 from curio.web.inputs import CommandError, http_error, parse_json_object, parse_pose
-from curio.web.services import GATE, SERVICES, UnattendedServices
+from curio.web.services import GATE, ROVER, SERVICES, UnattendedServices
 
 __all__ = ["UNATTENDED_ROUTES", "UnattendedServices"]
 
@@ -149,13 +149,13 @@ def _std(body: dict[str, Any], key: str, default: float, low: float, high: float
 
 
 async def set_pose(request: web.Request) -> web.Response:
-    """Set the pose on the map with its spread."""
-    request.app[GATE].require(request, "initial_pose")
+    """Set the pose on the map with its spread (refused off the map; every page is told who
+    set it, as for ``/api/initial_pose``)."""
+    who = request.app[GATE].require(request, "initial_pose")
     body = await _body(request)
-    pose = parse_pose(body)
     std_xy = _std(body, "std_xy_m", 0.25, 0.01, 10.0)
     std_yaw = _std(body, "std_yaw_rad", 0.2, 0.01, math.pi)
-    _publish_pose(request, pose.x, pose.y, pose.yaw, std_xy, std_yaw)
+    pose = request.app[ROVER].initial_pose(body, who, (std_xy, std_yaw))
     return _json({"ok": True, "pose": [pose.x, pose.y, pose.yaw], "std_xy_m": std_xy,
                   "std_yaw_rad": std_yaw}, status=202)
 
@@ -185,28 +185,28 @@ async def list_zones(request: web.Request) -> web.Response:
 
 async def add_zone(request: web.Request) -> web.Response:
     """Add a zone."""
-    request.app[GATE].require(request, "zones")
-    zone = _zones(request).add(await _body(request), actor="web")
+    who = request.app[GATE].require(request, "zones")
+    zone = _zones(request).add(await _body(request), actor=who.name)
     return _json(zone.to_json(), status=201)
 
 
 async def update_zone(request: web.Request) -> web.Response:
     """Change a zone."""
-    request.app[GATE].require(request, "zones")
-    zone = _zones(request).update(_zone_id(request), await _body(request), actor="web")
+    who = request.app[GATE].require(request, "zones")
+    zone = _zones(request).update(_zone_id(request), await _body(request), actor=who.name)
     return _json(zone.to_json())
 
 
 async def delete_zone(request: web.Request) -> web.Response:
     """Delete a zone."""
-    request.app[GATE].require(request, "zones")
+    who = request.app[GATE].require(request, "zones")
     rev = request.query.get("revision")
     try:
         revision = int(rev) if rev is not None else None
     except ValueError:
         raise CommandError(f"revision must be a whole number, got {rev!r}") from None
     zid = _zone_id(request)
-    _zones(request).delete(zid, revision, actor="web")
+    _zones(request).delete(zid, revision, actor=who.name)
     return _json({"deleted": zid})
 
 
@@ -243,7 +243,22 @@ async def notify_test(request: web.Request) -> web.Response:
 
 
 async def stream(request: web.Request) -> web.StreamResponse:
-    """Push ``power``, ``dock``, ``help``, ``zones`` and ``blockage`` as they change."""
+    """Push ``power``, ``dock``, ``help``, ``zones`` and ``blockage`` as they change (the
+    dashboard itself reads them from the hub's socket: :mod:`curio.web.unattended_frames`)."""
+    gate = request.app[GATE]
+    viewer = gate.identify(request).role == "viewer"
+    remote = request.remote or "?"
+    if viewer:  # counted with the dashboard's sockets without a token (503 over the caps)
+        gate.open_viewer_socket(remote)
+    try:
+        return await _pump(request)
+    finally:
+        if viewer:
+            gate.close_viewer_socket(remote)
+
+
+async def _pump(request: web.Request) -> web.StreamResponse:
+    """The socket's loop: the latest of each topic every 0.5 s."""
     services = request.app[SERVICES]
     bus = services.bus
     ws = web.WebSocketResponse(heartbeat=30.0)
@@ -260,6 +275,8 @@ async def stream(request: web.Request) -> web.StreamResponse:
                 msgs = sub.drain()
                 if msgs:
                     await ws.send_str(to_json({"t": name, "msg": to_jsonable(msgs[-1], 6)}))
+    except ConnectionResetError:  # the page went away between two updates
+        pass
     finally:
         for sub in subs.values():
             sub.close()

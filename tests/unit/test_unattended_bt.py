@@ -227,6 +227,20 @@ def test_lost_stops_relocalises_then_asks_and_resumes_when_found() -> None:
     assert h.nav.active is not None and h.nav.target() == (1.0, 1.0)  # the same waypoint
 
 
+def test_found_with_nothing_to_resume_says_so() -> None:
+    """An idle rover that was lost and is found again must not keep saying "Lost"."""
+    h = harness(relocalise_timeout_s=5.0, lost_confirm_s=1.0, found_confirm_s=1.0)
+    localization(h, "ok")
+    h.tick()
+    localization(h, "lost", 2.0)
+    h.tick(3)
+    assert h.bb("lost") and h.status.state == "lost"
+    localization(h, "ok")
+    h.tick(3)
+    assert h.of("localization.found") and h.nav.active is None
+    assert (h.status.state, h.status.text) == ("idle", "I know where I am again.")
+
+
 def test_uncertain_with_a_wide_spread_for_long_counts_as_lost() -> None:
     h = harness(lost_uncertain_s=5.0)
     drive(h)

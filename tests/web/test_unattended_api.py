@@ -32,7 +32,7 @@ from curio.zones.service import ZoneService
 from curio.zones.store import ZoneStore
 from tests.unit.test_help import Recorder
 from tests.unit.test_unattended_bt import FakeDocker
-from tests.web.conftest import TOKEN
+from tests.web.conftest import TOKEN, make_tokens
 
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 SQUARE = [[1.0, 1.0], [2.0, 1.0], [2.0, 2.0], [1.0, 2.0]]
@@ -63,7 +63,8 @@ async def _rig(aiohttp_client: Any, cfg: Config, bus: Bus, tmp_path: Path,
         return "it is outside the map" if x > 5.0 else ""
 
     extra = UnattendedServices(home, docker, zones, desk, placement)
-    app = create_app(WebServices(cfg=cfg, clock=clock, bus=bus, token=TOKEN, robot=robot,
+    app = create_app(WebServices(cfg=cfg, clock=clock, bus=bus,
+                                 tokens=make_tokens(tmp_path / "tokens.json"), robot=robot,
                                  unattended=extra))
     return Rig(await aiohttp_client(app), bus, home, docker, notes, clock)
 

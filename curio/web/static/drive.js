@@ -235,25 +235,33 @@
   }
   window.addEventListener("pointerdown", unlockAudio, { capture: true });
   window.addEventListener("keydown", unlockAudio, { capture: true });
+  // Play [frequency Hz, start s] tones of `lengthS` each; false when the page may not sound yet
+  // (no gesture on it so far) or is muted.
+  function playTones(tones, type, peak, lengthS) {
+    const ac = sound.ctx;
+    if (!ac || ac.state !== "running" || sound.muted) return false;
+    const t0 = ac.currentTime;
+    for (const [f, dt] of tones) {
+      const osc = ac.createOscillator(), gain = ac.createGain();
+      osc.frequency.value = f; osc.type = type;
+      gain.gain.setValueAtTime(0.0001, t0 + dt);
+      gain.gain.exponentialRampToValueAtTime(peak, t0 + dt + 0.02);
+      gain.gain.exponentialRampToValueAtTime(0.0001, t0 + dt + lengthS);
+      osc.connect(gain).connect(ac.destination);
+      osc.start(t0 + dt); osc.stop(t0 + dt + lengthS + 0.02);
+    }
+    return true;
+  }
   function beep() {
     sound.beeps += 1;
     const ac = sound.ctx;
     if (!ac || ac.state !== "running") return;
-    const t0 = ac.currentTime;
-    for (const [f, dt] of [[880, 0], [660, 0.22], [880, 0.44]]) {
-      const osc = ac.createOscillator(), gain = ac.createGain();
-      osc.frequency.value = f; osc.type = "square";
-      gain.gain.setValueAtTime(0.0001, t0 + dt);
-      gain.gain.exponentialRampToValueAtTime(0.15, t0 + dt + 0.02);
-      gain.gain.exponentialRampToValueAtTime(0.0001, t0 + dt + 0.18);
-      osc.connect(gain).connect(ac.destination);
-      osc.start(t0 + dt); osc.stop(t0 + dt + 0.2);
-    }
+    playTones([[880, 0], [660, 0.22], [880, 0.44]], "square", 0.15, 0.18);
   }
   setInterval(() => {
     sound.ticks += 1;
     if (S.help && S.help.active && S.connected && !sound.muted) beep();
   }, 2500);
 
-  Object.assign(C, { pressEstop, stopTeleop, onLease, onLeaseRefused, renderLease, sound, setMuted, setSpeed });
+  Object.assign(C, { pressEstop, stopTeleop, onLease, onLeaseRefused, renderLease, sound, setMuted, setSpeed, playTones });
 })();

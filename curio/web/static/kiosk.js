@@ -150,6 +150,7 @@
 
   function onJson(m) {
     if (m.t === "hello") { S.who = m.who; return; }
+    if (m.t === "localization" || m.t === "state" || m.t === "status") renderLost(m);
     if (m.t === "state") {
       K.status = m.status; K.estop = m.estop; K.help = m.help; setTour(m.tour);
       loadTours();
@@ -166,6 +167,13 @@
     render();
   }
   function setTour(t) { K.tour = t; K.tourAt = Date.now(); }
+  // Lost (the localiser says so, or the tree is looking around): say so in plain words.
+  function renderLost(m) {
+    if (m.localization) K.loc = m.localization;
+    if (m.status) K.status = m.status;
+    const lost = (K.loc && K.loc.state === "lost") || (K.status && /^lost\b/i.test(K.status.text || ""));
+    $("kLost").classList.toggle("hidden", !lost);
+  }
 
   setInterval(() => {
     if (S.connected && Date.now() - S.lastMsgAt > 2500) { const ws = K.ws; K.ws = null; S.connected = false; conn(); if (ws) ws.close(); retry(); }

@@ -335,7 +335,8 @@
     if (!C.may("initial_pose")) { C.toast(S.connected ? "Setting the position needs an operator token." : "Offline: nothing was sent.", true); return; }
     C.showMsg(el, "Position sent — waiting for the rover to take it…", "wait");
     try {
-      await C.api("POST", "/api/initial_pose", { x_m: x, y_m: y, yaw_rad: yaw });
+      // With its spread (unattended.js's choice) when the rover has /api/pose.
+      await C.api("POST", C.poseSpread ? "/api/pose" : "/api/initial_pose", Object.assign({ x_m: x, y_m: y, yaw_rad: yaw }, C.poseSpread ? C.poseSpread() : {}));
     } catch (e) { C.showMsg(el, e.message, "error", 20); return; }
     C.flashPose(x, y, yaw);
     clearTimeout(poseCheck && poseCheck.timer);
