@@ -1,0 +1,125 @@
+"""End-to-end: the ``/maps`` page on the real App rebuilt by ``curio run``'s host (a real-time
+SimClock), in Debian's Chromium on a desktop (1280×800) and a phone (390×844): the library
+grouped by floor, the cell editor (a wall painted with the real mouse, undo, redo, saved as a
+revision), switching the active map (the confirm box, the pose asked for, Relocalise), and a
+mapping run started and discarded from the page. Screenshots in ``artifacts/screenshots/``.
+Every wait is for a condition.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from curio.commands.host import MapHost
+from curio.core.clock import SimClock
+from curio.core.config import Config
+from tests.web import browser_kit as kit
+
+pytestmark = [pytest.mark.browser]
+
+
+@contextlib.asynccontextmanager
+async def _hosted(cfg: Config) -> AsyncIterator[tuple[MapHost, str]]:
+    clock = SimClock(speed=3.0, epoch_wall_s=1_700_000_000.0)
+    host = MapHost(cfg, clock, web=True)
+    app = await host.start()
+    runner = asyncio.create_task(clock.run())
+    stop = asyncio.Event()
+    serve = asyncio.create_task(host.serve(stop))
+    try:
+        yield host, (app.web_url or "").split("?")[0]
+    finally:
+        stop.set()
+        await serve
+        await host.stop()
+        runner.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await runner
+
+
+async def _until(cond: object, what: str, timeout_s: float = 30.0) -> None:
+    for _ in range(int(timeout_s / 0.1)):
+        if callable(cond) and cond():
+            return
+        await asyncio.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+async def test_maps_page(tmp_path: Path, viewport: str) -> None:
+    cfg = kit.make_cfg(tmp_path / "data", "record.enabled=false")
+    token = kit.add_token(cfg, "alice")
+    async with _hosted(cfg) as (host, base):
+        host.library.add("annex", host.library.grid("curio_building"), "First floor", "upload")
+        async with kit.chromium() as browser:
+            b = await kit.open_page(browser, base + f"maps?token={token}", viewport,
+                                    connected=False)
+            page = b.page
+            await b.wait_js("document.querySelectorAll('.mapCard').length === 2")
+            floors = await b.state("[...document.querySelectorAll('.floor h2')]"
+                                   ".map(h => h.textContent)")
+            assert floors == ["First floor", "Ground floor"]
+            assert "Active map: curio_building" in await b.text("#mapsState")
+            await b.wait_js("window.curio.mapsPage.state() !== null")
+            await b.shot("maps-library")
+
+            # The editor: a wall painted with the real mouse on the annex (not active).
+            await page.click(".mapCard[data-name=annex] >> text=Edit cells")
+            await b.wait_js("!document.getElementById('editor').classList.contains('hidden')"
+                            " && window.curio.mapsPage.editor.grid")
+            await page.click(".edTools .tool[data-tool='100']")
+            box = await page.locator("#edCanvas").bounding_box()
+            assert box is not None
+            x0, y = box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.5
+            await page.mouse.move(x0, y)
+            await page.mouse.down()
+            await page.mouse.move(x0 + box["width"] * 0.3, y, steps=8)
+            await page.mouse.up()
+            changed = await b.state("window.curio.mapsPage.editor.changedCount()")
+            assert changed > 20
+            await b.shot("maps-editor", "#editor")
+            await page.click("#edUndo")
+            assert await b.state("window.curio.mapsPage.editor.changedCount()") == 0
+            await page.click("#edRedo")
+            assert await b.state("window.curio.mapsPage.editor.changedCount()") == changed
+            await page.click("#edSave")
+            await b.wait_js("document.getElementById('edMsg').textContent.includes("
+                            "'revision 2')")
+            assert host.library.revisions("annex") == [1]
+            edited = host.library.grid("annex")
+            original = host.library.grid("curio_building")
+            assert int(np.count_nonzero(edited.data != original.data)) == changed
+            await page.click("#edClose")
+
+            # Switch the active map: the rover stops, the page asks for the pose.
+            await page.click(".mapCard[data-name=annex] >> text=Switch to")
+            await b.confirm("Switch the rover to annex", accept=True)
+            await _until(lambda: host.library.active == "annex" and host.generation == 2,
+                         "the switch")
+            await b.wait_js("!document.getElementById('poseNeeded').classList.contains("
+                            "'hidden')", timeout_s=30)
+            assert "Active map: annex" in await b.text("#mapsState")
+            await b.shot("maps-pose-needed")
+            await page.click("#relocalise")
+            await b.wait_js("document.getElementById('poseNeeded').classList.contains("
+                            "'hidden')")
+
+            # A mapping run from the page: the map grows in the live view; discarded.
+            await page.click("#mapStart")
+            await b.confirm("Start mapping", accept=True)
+            await _until(lambda: host.mapping and host.generation == 3, "the mapping run")
+            await b.wait_js("!document.getElementById('mappingLive').classList.contains("
+                            "'hidden')", timeout_s=30)
+            await b.wait_js("document.getElementById('liveMap').width > 0")
+            await b.shot("maps-mapping", "#mappingBox")
+            await page.click("#mapDiscard")
+            await b.confirm("Throw this map away", accept=True)
+            await _until(lambda: not host.mapping and host.generation == 4, "the discard")
+            await b.wait_js("document.getElementById('mappingLive').classList.contains("
+                            "'hidden')", timeout_s=30)
+            assert b.errors == [], b.errors
