@@ -104,6 +104,7 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
             await b.wait_js("!document.getElementById('poseNeeded').classList.contains("
                             "'hidden')", timeout_s=30)
             assert "Active map: annex" in await b.text("#mapsState")
+            await page.evaluate("() => window.scrollTo(0, 0)")
             await b.shot("maps-pose-needed")
             await page.click("#relocalise")
             await b.wait_js("document.getElementById('poseNeeded').classList.contains("

@@ -18,7 +18,10 @@
 
   function shade(v, out, j) {  // one cell's colour into an RGBA buffer
     if (v === UNKNOWN) { out[j] = 203; out[j + 1] = 213; out[j + 2] = 225; }
-    else { const g = Math.round(255 - Math.min(100, v) * 2.38); out[j] = g; out[j + 1] = g; out[j + 2] = g; }
+    else {  // as the rover reads it: free up to 19 (free_thresh), occupied from 65, grey between
+      const g = v <= 19 ? 255 - v : v >= 65 ? 40 - Math.round((v - 65) * 0.6) : 200 - Math.round((v - 20) * 1.6);
+      out[j] = g; out[j + 1] = g; out[j + 2] = g;
+    }
     out[j + 3] = 255;
   }
 
