@@ -94,6 +94,9 @@ class MapHost:
         self._wake: asyncio.Event | None = None
         self._port: int | None = None
         self.generation = 0  # Apps built so far
+        # Before the last swap: seconds until the safety stage commanded zero (None: it did
+        # not within maps.stop_timeout_s, and stopping the App halted the base).
+        self.stand_still_s: float | None = None
 
     # --- building ----------------------------------------------------------------------------
 
@@ -267,8 +270,10 @@ class MapHost:
                 out = bus.latest(CMD_VEL)
                 still = out is None or (out.linear_mps == 0.0 and out.angular_radps == 0.0)
                 if still and t >= start + 0.3:
+                    self.stand_still_s = t - start
                     break
                 if t >= deadline:
+                    self.stand_still_s = None
                     log.warning("maps: the rover was still commanded to move after %.1f s; "
                                 "stopping the App halts it", self.cfg.maps.stop_timeout_s)
                     break

@@ -20,7 +20,7 @@ from curio.commands.host import MapHost
 from curio.core.clock import SimClock
 from curio.core.config import REPO_ROOT, Config, load_config
 from curio.core.messages import Twist
-from curio.core.topics import CMD_VEL_TELEOP, TOUR
+from curio.core.topics import CMD_VEL, CMD_VEL_TELEOP, TOUR
 from curio.estimation.localization import LocalizerNode
 from curio.nav.costs import LETHAL
 from curio.web.tokens import TokenStore
@@ -209,13 +209,44 @@ async def test_switching_keeps_paths_tours_and_zones_with_their_map(tmp_path: Pa
         paths, tours, zones = await _things(rest)
         assert "path A" in paths and "path B" not in paths
         assert "tour A" in tours and "tour B" not in tours and zones == {"zone A"}
-        # The rover was stopped: the base was commanded zero before the swap.
-        assert host.app is not None and host.app.world is not None
 
     # The choice survives a restart.
     async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
         _, body = await Rest(s, base, token).call("GET", "/api/maps")
         assert body["active"] == "curio_building"
+
+
+async def test_switching_stops_the_rover_first(tmp_path: Path) -> None:
+    """Driven by teleop until the switch: the safety stage ramps the rover to a standstill
+    (zero on /cmd_vel) before the old App stops."""
+    cfg = _cfg(tmp_path)
+    token = _token(cfg)
+    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
+        rest = Rest(s, base, token)
+        await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
+        old = host.app
+        assert old is not None
+        seen: list[Twist] = []
+        sub = old.bus.subscribe(CMD_VEL, maxsize=1000)
+
+        async def record() -> None:
+            async for msg in sub:
+                seen.append(msg)
+
+        recorder = asyncio.create_task(record())
+        for _ in range(20):  # the joystick held forward for a while
+            old.bus.publish(CMD_VEL_TELEOP, Twist(old.clock.now(), 0.25, 0.0, source="web"))
+            await asyncio.sleep(0.05)
+        assert max(m.linear_mps for m in seen) > 0.1, "the rover never drove"
+        status, _ = await rest.call("POST", "/api/maps/active", {"name": "annex"})
+        assert status == 202
+        await rest.settled(host, 2)
+        recorder.cancel()
+        assert host.stand_still_s is not None and host.stand_still_s < 3.0
+        # The safety stage itself brought it to zero, before the App's halt (source "halt").
+        before_halt = seen[:next(i for i, m in enumerate(seen) if m.source == "halt")]
+        assert before_halt[-1].linear_mps == 0.0 and before_halt[-1].angular_radps == 0.0
+        assert before_halt[-1].source != "halt"
 
 
 async def test_switching_is_refused_while_a_tour_runs(tmp_path: Path) -> None:
