@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from curio.commands.host import MapHost
-from curio.core.clock import SimClock
+from curio.core.clock import Clock, SimClock
 from curio.core.config import Config
 from tests.web import browser_kit as kit
 
@@ -43,11 +43,12 @@ async def _hosted(cfg: Config) -> AsyncIterator[tuple[MapHost, str]]:
             await runner
 
 
-async def _until(cond: object, what: str, timeout_s: float = 30.0) -> None:
-    for _ in range(int(timeout_s / 0.1)):
-        if callable(cond) and cond():
+async def _until(clock: Clock, cond: Callable[[], bool], what: str) -> None:
+    """Wait for ``cond`` (at most 90 simulated seconds: 30 s of the wall clock)."""
+    for _ in range(300):
+        if cond():
             return
-        await asyncio.sleep(0.1)
+        await clock.sleep(0.3)
     raise AssertionError(f"timed out waiting for {what}")
 
 
@@ -99,8 +100,8 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
             # Switch the active map: the rover stops, the page asks for the pose.
             await page.click(".mapCard[data-name=annex] >> text=Switch to")
             await b.confirm("Switch the rover to annex", accept=True)
-            await _until(lambda: host.library.active == "annex" and host.generation == 2,
-                         "the switch")
+            await _until(host.clock, lambda: host.library.active == "annex"
+                         and host.generation == 2, "the switch")
             await b.wait_js("!document.getElementById('poseNeeded').classList.contains("
                             "'hidden')", timeout_s=30)
             assert "Active map: annex" in await b.text("#mapsState")
@@ -113,14 +114,16 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
             # A mapping run from the page: the map grows in the live view; discarded.
             await page.click("#mapStart")
             await b.confirm("Start mapping", accept=True)
-            await _until(lambda: host.mapping and host.generation == 3, "the mapping run")
+            await _until(host.clock, lambda: host.mapping and host.generation == 3,
+                         "the mapping run")
             await b.wait_js("!document.getElementById('mappingLive').classList.contains("
                             "'hidden')", timeout_s=30)
             await b.wait_js("document.getElementById('liveMap').width > 0")
             await b.shot("maps-mapping", "#mappingBox")
             await page.click("#mapDiscard")
             await b.confirm("Throw this map away", accept=True)
-            await _until(lambda: not host.mapping and host.generation == 4, "the discard")
+            await _until(host.clock, lambda: not host.mapping and host.generation == 4,
+                         "the discard")
             await b.wait_js("document.getElementById('mappingLive').classList.contains("
                             "'hidden')", timeout_s=30)
             assert b.errors == [], b.errors

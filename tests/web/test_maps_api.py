@@ -17,7 +17,7 @@ import aiohttp
 import numpy as np
 
 from curio.commands.host import MapHost
-from curio.core.clock import SimClock
+from curio.core.clock import Clock, SimClock
 from curio.core.config import REPO_ROOT, Config, load_config
 from curio.core.messages import Twist
 from curio.core.topics import CMD_VEL, CMD_VEL_TELEOP, TOUR
@@ -63,8 +63,10 @@ async def _hosted(cfg: Config, speed: float = 3.0) -> AsyncIterator[tuple[MapHos
 class Rest:
     """A client with the operator's token that waits for the rover across rebuilds."""
 
-    def __init__(self, session: aiohttp.ClientSession, base: str, token: str) -> None:
+    def __init__(self, session: aiohttp.ClientSession, base: str, token: str,
+                 clock: Clock) -> None:
         self.s, self.base, self.auth = session, base, {"Authorization": f"Bearer {token}"}
+        self.clock = clock  # waits in simulated time (3× the wall clock)
 
     async def call(self, method: str, path: str, body: Any = None, *, auth: bool = True,
                    data: Any = None) -> tuple[int, Any]:
@@ -74,7 +76,7 @@ class Rest:
                                           headers=self.auth if auth else {}) as r:
                     return r.status, await r.json()
             except aiohttp.ClientConnectionError:
-                await asyncio.sleep(0.1)
+                await self.clock.sleep(0.3)
         raise AssertionError(f"{method} {path}: the rover never answered")
 
     async def settled(self, host: MapHost, generation: int) -> None:
@@ -84,7 +86,7 @@ class Rest:
                 status, _ = await self.call("GET", "/api/maps")
                 if status == 200:
                     return
-            await asyncio.sleep(0.1)
+            await self.clock.sleep(0.3)
         raise AssertionError(f"the host never built App {generation}: {host.state()}")
 
 
@@ -103,8 +105,8 @@ def _upload(name: str, floor: str, yaml_text: str | None = None,
 async def test_library_list_upload_rename_floor_delete(tmp_path: Path) -> None:
     cfg = _cfg(tmp_path)
     token = _token(cfg)
-    async with _hosted(cfg) as (_host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token)
+    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
+        rest = Rest(s, base, token, host.clock)
         status, body = await rest.call("GET", "/api/maps", auth=False)
         assert status == 200 and body["active"] == "curio_building"
         [seed] = body["maps"]
@@ -174,7 +176,7 @@ async def test_switching_keeps_paths_tours_and_zones_with_their_map(tmp_path: Pa
     cfg = _cfg(tmp_path)
     token = _token(cfg)
     async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token)
+        rest = Rest(s, base, token, host.clock)
         status, _ = await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
         assert status == 201
         await _make_things(rest, "A")
@@ -196,7 +198,7 @@ async def test_switching_keeps_paths_tours_and_zones_with_their_map(tmp_path: Pa
             _, body = await rest.call("GET", "/api/maps")
             if not body["state"]["pose_needed"]:
                 break
-            await asyncio.sleep(0.05)
+            await host.clock.sleep(0.15)
         assert body["state"]["pose_needed"] is False
 
         status, body = await rest.call("POST", "/api/maps/active", {"name": "annex"})
@@ -212,7 +214,7 @@ async def test_switching_keeps_paths_tours_and_zones_with_their_map(tmp_path: Pa
 
     # The choice survives a restart.
     async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        _, body = await Rest(s, base, token).call("GET", "/api/maps")
+        _, body = await Rest(s, base, token, host.clock).call("GET", "/api/maps")
         assert body["active"] == "curio_building"
 
 
@@ -222,7 +224,7 @@ async def test_switching_stops_the_rover_first(tmp_path: Path) -> None:
     cfg = _cfg(tmp_path)
     token = _token(cfg)
     async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token)
+        rest = Rest(s, base, token, host.clock)
         await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
         old = host.app
         assert old is not None
@@ -236,7 +238,7 @@ async def test_switching_stops_the_rover_first(tmp_path: Path) -> None:
         recorder = asyncio.create_task(record())
         for _ in range(20):  # the joystick held forward for a while
             old.bus.publish(CMD_VEL_TELEOP, Twist(old.clock.now(), 0.25, 0.0, source="web"))
-            await asyncio.sleep(0.05)
+            await host.clock.sleep(0.15)
         assert max(m.linear_mps for m in seen) > 0.1, "the rover never drove"
         status, _ = await rest.call("POST", "/api/maps/active", {"name": "annex"})
         assert status == 202
@@ -253,7 +255,7 @@ async def test_switching_is_refused_while_a_tour_runs(tmp_path: Path) -> None:
     cfg = _cfg(tmp_path, 'bt.tree="tour"')
     token = _token(cfg)
     async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token)
+        rest = Rest(s, base, token, host.clock)
         await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
         _, tours = await rest.call("GET", "/api/tours")
         tour_id = tours["tours"][0]["id"]
@@ -264,7 +266,7 @@ async def test_switching_is_refused_while_a_tour_runs(tmp_path: Path) -> None:
             state = host.app.bus.latest(TOUR)
             if state is not None and state.tour_id is not None:
                 break
-            await asyncio.sleep(0.05)
+            await host.clock.sleep(0.15)
         status, body = await rest.call("POST", "/api/maps/active", {"name": "annex"})
         assert status == 409 and "is running: stop the tour first" in body["error"], body
         status, _ = await rest.call("POST", "/api/maps/mapping", {"action": "start"})
@@ -276,7 +278,7 @@ async def test_cell_edits_are_revisions_used_by_costmap_and_localiser(tmp_path: 
     cfg = _cfg(tmp_path)
     token = _token(cfg)
     async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token)
+        rest = Rest(s, base, token, host.clock)
         status, grid = await rest.call("GET", "/api/maps/curio_building/cells", auth=False)
         assert status == 200 and grid["revision"] == 1
         assert (grid["width"], grid["height"]) == (600, 400)
@@ -325,7 +327,7 @@ async def test_mapping_run_saved_as_a_new_map(tmp_path: Path) -> None:
     cfg = _cfg(tmp_path)
     token = _token(cfg)
     async with _hosted(cfg, speed=2.0) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token)
+        rest = Rest(s, base, token, host.clock)
         status, body = await rest.call("POST", "/api/maps/mapping",
                                        {"action": "save", "name": "new"})
         assert status == 409 and "no mapping run" in body["error"]
@@ -338,7 +340,7 @@ async def test_mapping_run_saved_as_a_new_map(tmp_path: Path) -> None:
         app = host.app
         for _ in range(40):
             app.bus.publish(CMD_VEL_TELEOP, Twist(app.clock.now(), 0.0, 0.6, source="web"))
-            await asyncio.sleep(0.05)
+            await host.clock.sleep(0.15)
         _, live = await rest.call("GET", "/api/maps/live")
         assert live["version"] > live0["version"], "the map did not grow"
         status, body = await rest.call("POST", "/api/maps/mapping",
