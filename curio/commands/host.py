@@ -83,8 +83,7 @@ class MapHost:
         self.web = web
         self.library = MapLibrary(cfg.data_path(cfg.maps.directory),
                                   cfg.data_path(cfg.zones.directory), clock.wall_time)
-        self.library.seed(Path(map_path(cfg)), cfg.resolve(cfg.data_dir),
-                          cfg.maps.default_floor)
+        self.library.seed(Path(map_path(cfg)), cfg.maps.default_floor)
         self.app: App | None = None
         self.mapping = False
         self.pose_needed = False

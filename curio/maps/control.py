@@ -60,7 +60,8 @@ class MapsAccess:
 def config_for(cfg: Config, library: MapLibrary, name: str, *, mapping: bool = False,
                web_port: int | None = None) -> Config:
     """``cfg`` for an App on map ``name``: its YAML, its simulated building (the map itself
-    when it has none), and its paths, tours and schedules inside the map's directory. With
+    when it has none), and its paths, tours and schedules inside the map's directory (the
+    first, seeded map keeps those of ``data_dir``: ``keeps_data_dir``). With
     ``mapping``: a mapping run (``localization.mode = "map"``) saving to the scratch map."""
     folder = f"{cfg.maps.directory}/{name}"
     world = library.world_yaml(name) or library.map_yaml(name)
@@ -70,10 +71,11 @@ def config_for(cfg: Config, library: MapLibrary, name: str, *, mapping: bool = F
     update: dict[str, Any] = {
         "localization": cfg.localization.model_copy(update=loc),
         "sim": cfg.sim.model_copy(update={"world": str(world)}),
-        "bt": cfg.bt.model_copy(update={"paths_file": f"{folder}/paths.json"}),
-        "tours": cfg.tours.model_copy(update={"file": f"{folder}/tours.json",
-                                              "schedules_file": f"{folder}/schedules.json"}),
     }
+    if not library.meta(name).get("keeps_data_dir"):  # the seeded map keeps data_dir's
+        update["bt"] = cfg.bt.model_copy(update={"paths_file": f"{folder}/paths.json"})
+        update["tours"] = cfg.tours.model_copy(update={
+            "file": f"{folder}/tours.json", "schedules_file": f"{folder}/schedules.json"})
     if web_port is not None:
         update["web"] = cfg.web.model_copy(update={"port": web_port})
     return cfg.model_copy(update=update)

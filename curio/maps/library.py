@@ -8,7 +8,8 @@ One directory per map, named after it::
     maps/<name>/<name>.yaml     the current revision (map_server YAML + PGM beside it)
     maps/<name>/revisions/r<N>.yaml|pgm   every earlier revision, kept
     maps/<name>/world/…         the simulated building (YAML, PGM, .world.toml), if any
-    maps/<name>/paths.json, tours.json, schedules.json   what belongs to the map (the App's)
+    maps/<name>/paths.json, tours.json, schedules.json   what belongs to the map (the App's;
+                                 the first, seeded map keeps the ones in data_dir)
 
 The zones of a map stay where issue 11 put them (``<data_dir>/<zones.directory>/<name>.json``);
 renaming a map moves them. Every refusal is a :class:`MapLibraryError` with one sentence
@@ -31,7 +32,6 @@ from curio.estimation.maps import MapError, OccupancyGrid, load_map, save_map
 __all__ = [
     "FLOOR_RULE",
     "NAME_RULE",
-    "PER_MAP_FILES",
     "MapEntry",
     "MapLibrary",
     "MapLibraryError",
@@ -41,8 +41,6 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,39}$")
 NAME_RULE = "1–40 letters, digits, '-' or '_', starting with a letter or digit"
 FLOOR_RULE = "up to 30 characters"
 FILE_VERSION = 1
-# What an App keeps per map (moved into the first map when the library is created).
-PER_MAP_FILES = ("paths.json", "tours.json", "schedules.json")
 MAX_CELLS = 4096 * 4096
 
 
@@ -186,22 +184,20 @@ class MapLibrary:
 
     # --- adding ------------------------------------------------------------------------------
 
-    def seed(self, map_yaml: Path, data_dir: Path, floor: str = "Ground floor") -> str:
+    def seed(self, map_yaml: Path, floor: str = "Ground floor") -> str:
         """The first start: add the configured map (with its simulated building) as the active
-        map and move the App's per-map files (paths, tours, schedules) of ``data_dir`` into it.
-        Later starts: nothing (return the active map)."""
+        map. Its paths, tours and schedules stay where they were (``data_dir/paths.json``, …:
+        nothing is moved, so an existing install keeps them and an older version still finds
+        them; ``keeps_data_dir`` in its ``map.json``). Later starts: nothing (return the active
+        map)."""
         active = self.active
         if active is not None:
             return active
         name = re.sub(r"[^A-Za-z0-9_-]", "_", map_yaml.stem)[:40] or "map"
         if not self.exists(name):
             grid = load_map(map_yaml)
-            self._write_new(name, grid, floor, "shipped", world_from=map_yaml)
-            for file in PER_MAP_FILES:
-                for suffix in ("", ".bak"):
-                    old = data_dir / (file + suffix)
-                    if old.is_file():
-                        shutil.copy2(old, self.root / name / (file + suffix))
+            self._write_new(name, grid, floor, "shipped", world_from=map_yaml,
+                            keeps_data_dir=True)
         self.set_active(name)
         return name
 
@@ -245,7 +241,7 @@ class MapLibrary:
         return self.add(name, grid, floor, "upload")
 
     def _write_new(self, name: str, grid: OccupancyGrid, floor: str, source: str,
-                   world_from: Path | None) -> None:
+                   world_from: Path | None, keeps_data_dir: bool = False) -> None:
         staging = self.root / f".new-{name}"
         shutil.rmtree(staging, ignore_errors=True)
         staging.mkdir(parents=True)
@@ -254,7 +250,8 @@ class MapLibrary:
             _copy_world(world_from, staging / "world")
         atomic_write_json(staging / "map.json", {
             "version": FILE_VERSION, "name": name, "floor": floor, "revision": 1,
-            "created_wall_s": float(self._wall_time()), "source": source})
+            "created_wall_s": float(self._wall_time()), "source": source,
+            "keeps_data_dir": keeps_data_dir})
         staging.rename(self.root / name)
 
     # --- changing ----------------------------------------------------------------------------
