@@ -83,7 +83,11 @@ class MapHost:
         self.web = web
         self.library = MapLibrary(cfg.data_path(cfg.maps.directory),
                                   cfg.data_path(cfg.zones.directory), clock.wall_time)
-        self.library.seed(Path(map_path(cfg)), cfg.maps.default_floor)
+        configured = Path(map_path(cfg))
+        self.library.seed(configured, cfg.maps.default_floor)
+        if configured.stem != self.active and not self.library.exists(configured.stem):
+            log.info("maps: the configured map %s is not in the library (the active map is %s);"
+                     " add it on the dashboard's Maps page to use it", configured, self.active)
         self.app: App | None = None
         self.mapping = False
         self.pose_needed = False
