@@ -97,6 +97,14 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
             assert int(np.count_nonzero(edited.data != original.data)) == changed
             await page.click("#edClose")
 
+            # The dashboard, open meanwhile, follows the switch: it reconnects by itself and
+            # loads the new map (a new grid version), not the old image.
+            dash = await kit.open_page(browser, base, viewport)
+            await dash.wait_js("window.curio.S.grids.map && window.curio.S.images.map")
+            old_version = await dash.state("window.curio.S.grids.map.version")
+            # While the App is rebuilt the server is down for a moment: a refused request.
+            b.allowed = dash.allowed = ["ERR_CONNECTION_REFUSED", "WebSocket connection"]
+
             # Switch the active map: the rover stops, the page asks for the pose.
             await page.click(".mapCard[data-name=annex] >> text=Switch to")
             await b.confirm("Switch the rover to annex", accept=True)
@@ -105,6 +113,10 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
             await b.wait_js("!document.getElementById('poseNeeded').classList.contains("
                             "'hidden')", timeout_s=30)
             assert "Active map: annex" in await b.text("#mapsState")
+            await dash.wait_js(f"window.curio.S.connected && window.curio.S.grids.map && "
+                               f"window.curio.S.grids.map.version !== {old_version} && "
+                               "window.curio.S.images.map", timeout_s=30)
+            assert dash.errors == [], dash.errors
             await page.evaluate("() => window.scrollTo(0, 0)")
             await b.shot("maps-pose-needed")
             await page.click("#relocalise")
