@@ -121,7 +121,8 @@ class MapHost:
 
     async def start(self) -> App:
         """Build and start the App of the active map."""
-        self._wake = asyncio.Event()
+        if self._wake is None:
+            self._wake = asyncio.Event()
         app = self.build()
         await app.start()
         self.app = app
@@ -163,7 +164,7 @@ class MapHost:
     def switch(self, name: str, actor: str) -> str:
         """Ask for a switch to ``name``."""
         self.library.map_yaml(check_name(name))  # refused when there is no such map
-        if name == self.active and not self.mapping:
+        if name == self.active:
             raise MapLibraryError(f"map {name!r} is already the active map")
         self._ask(_Change("switch", actor, name=name))
         return (f"Switching to {name}: the rover stops, then set its pose on the new map "
@@ -176,8 +177,6 @@ class MapHost:
 
     def start_mapping(self, actor: str) -> str:
         """Ask for a mapping run."""
-        if self.mapping:
-            raise MapsBusy("a mapping run is already under way: save or discard it first")
         self._ask(_Change("start_mapping", actor))
         return ("Mapping starts in a moment: drive the rover slowly with teleop (the "
                 "dashboard's joystick); the map grows here.")
@@ -200,9 +199,12 @@ class MapHost:
         return (f"Saving the map as {name}; the rover returns to {self.active}." if save else
                 f"Mapping discarded; the rover returns to {self.active}.")
 
-    def _busy(self) -> str | None:
+    def _busy(self, kind: str = "") -> str | None:
+        """Why a change of ``kind`` cannot be done now (None: it can)."""
         if self._pending is not None or self._working:
             return "another map change is under way; wait a moment"
+        if self.mapping and kind not in ("save_mapping", "discard_mapping"):
+            return "a mapping run is under way: save or discard it first"
         tour = self.app.bus.latest(TOUR) if self.app is not None else None
         if tour is not None and tour.tour_id is not None:
             return (f"the tour {tour.name!r} is running: stop the tour first (maps cannot "
@@ -210,7 +212,7 @@ class MapHost:
         return None
 
     def _ask(self, change: _Change) -> None:
-        busy = self._busy()
+        busy = self._busy(change.kind)
         if busy is not None:
             raise MapsBusy(busy)
         self._pending = change
@@ -227,8 +229,17 @@ class MapHost:
             assert old is not None
             await self._stand_still(old, change)
             await old.stop()
+            before = (self.active, self.mapping, self.pose_needed)
             self.message = self._change_library(change)
-            app = await self.start()
+            try:
+                app = await self.start()
+            except Exception as exc:  # the new map cannot run: back to the one that did
+                log.error("maps: %s failed: %s; back on %s", change.kind, exc, before[0])
+                self.library.set_active(before[0])
+                self.mapping, self.pose_needed = before[1], before[2]
+                self.message = (f"The change was NOT made: the rover cannot run on that map "
+                                f"({exc}); it is back on {before[0]}.")
+                app = await self.start()
             self._event(app, change)
         finally:
             self._working = False

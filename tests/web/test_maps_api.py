@@ -251,6 +251,24 @@ async def test_switching_stops_the_rover_first(tmp_path: Path) -> None:
         assert before_halt[-1].source != "halt"
 
 
+async def test_a_map_the_rover_cannot_run_on_leaves_it_on_its_map(tmp_path: Path) -> None:
+    """A switch to a map whose tours file is damaged: the new App cannot be built, so the
+    host starts the old map again and says why."""
+    cfg = _cfg(tmp_path)
+    token = _token(cfg)
+    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
+        rest = Rest(s, base, token, host.clock)
+        await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
+        (host.library.root / "annex" / "tours.json").write_text('{"version": 2, "tours": [')
+        status, _ = await rest.call("POST", "/api/maps/active", {"name": "annex"})
+        assert status == 202
+        await rest.settled(host, 2)
+        _, body = await rest.call("GET", "/api/maps")
+        assert body["active"] == "curio_building" and host.library.active == "curio_building"
+        assert "NOT made" in body["state"]["message"] and "tours" in body["state"]["message"]
+        assert body["state"]["pose_needed"] is False
+
+
 async def test_switching_is_refused_while_a_tour_runs(tmp_path: Path) -> None:
     cfg = _cfg(tmp_path, 'bt.tree="tour"')
     token = _token(cfg)
@@ -331,10 +349,17 @@ async def test_mapping_run_saved_as_a_new_map(tmp_path: Path) -> None:
         status, body = await rest.call("POST", "/api/maps/mapping",
                                        {"action": "save", "name": "new"})
         assert status == 409 and "no mapping run" in body["error"]
+        await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
         status, body = await rest.call("POST", "/api/maps/mapping", {"action": "start"})
         assert status == 202, body
         await rest.settled(host, 2)
         assert host.mapping and host.app is not None
+        # Nothing else changes maps during a run (it would be lost).
+        status, body = await rest.call("POST", "/api/maps/active", {"name": "annex"})
+        assert status == 409 and "mapping run is under way" in body["error"], body
+        status, body = await rest.call("POST", "/api/maps/curio_building/cells", {
+            "revision": 1, "changes": [[150, 300, 20, 100]]})
+        assert status == 400 and "mapping run is under way" in body["error"], body
         _, live0 = await rest.call("GET", "/api/maps/live")
         # Drive by teleop (as the dashboard's joystick does) for a few simulated seconds.
         app = host.app
