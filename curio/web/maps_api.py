@@ -181,46 +181,45 @@ async def cells(request: web.Request) -> web.Response:
 
 async def save_cells(request: web.Request) -> web.Response:
     """Save the editor's changes as a new revision (and use it now if the map is active)."""
-    who = request.app[GATE].require(request, "maps")
-    maps = _maps(request)
-    name = request.match_info["name"]
-    body = await read_body(request)
-    expect = whole_number(body.get("revision"), "revision", low=1, text=False)
-    active = name == maps.active
-    try:
-        if active and maps.control is not None:
-            busy = maps.control.state().get("busy")
-            if busy:
-                raise MapLibraryError(f"the edit was not saved: {busy}")
+    def edit(maps: MapsAccess, name: str, body: dict[str, Any]) -> tuple[int, dict[str, Any]]:
+        expect = whole_number(body.get("revision"), "revision", low=1, text=False)
         grid, changed = apply_runs(maps.library.grid(name), body.get("changes"))
         revision = maps.library.save_revision(name, grid, expect_revision=expect)
-    except MapLibraryError as exc:
-        raise _refused(exc) from None
-    _publish(request, "maps.edited", {"map": name, "revision": revision, "cells": changed,
-                                      "by": who.name})
-    text = f"Saved {name} revision {revision} ({changed} cells changed)."
-    return await _maybe_reload(maps, active, who.name, text, {"revision": revision,
-                                                             "changed_cells": changed})
+        return revision, {"changed_cells": changed}
+
+    return await _new_revision(request, "maps.edited", edit)
 
 
 async def restore(request: web.Request) -> web.Response:
     """Make a kept revision current again (as a new revision)."""
+    def back(maps: MapsAccess, name: str, body: dict[str, Any]) -> tuple[int, dict[str, Any]]:
+        wanted = whole_number(body.get("revision"), "revision", low=1, text=False)
+        return maps.library.restore(name, wanted), {"restored": wanted}
+
+    return await _new_revision(request, "maps.restored", back)
+
+
+async def _new_revision(request: web.Request, kind: str, make: Any) -> web.Response:
+    """A new revision of ``{name}`` made by ``make(maps, name, body) -> (revision, extra)``;
+    refused while the host is busy when the map is active (saving it rebuilds the App)."""
     who = request.app[GATE].require(request, "maps")
     maps = _maps(request)
     name = request.match_info["name"]
     body = await read_body(request)
-    wanted = whole_number(body.get("revision"), "revision", low=1, text=False)
     active = name == maps.active
     try:
-        if active and maps.control is not None and maps.control.state().get("busy"):
-            raise MapLibraryError(f"not restored: {maps.control.state()['busy']}")
-        revision = maps.library.restore(name, wanted)
+        busy = maps.control.state().get("busy") if active and maps.control else None
+        if busy:
+            raise MapLibraryError(f"not saved: {busy}")
+        revision, extra = make(maps, name, body)
     except MapLibraryError as exc:
         raise _refused(exc) from None
-    _publish(request, "maps.restored", {"map": name, "from": wanted, "revision": revision,
-                                        "by": who.name})
-    text = f"Revision {wanted} of {name} is current again (as revision {revision})."
-    return await _maybe_reload(maps, active, who.name, text, {"revision": revision})
+    _publish(request, kind, {"map": name, "revision": revision, "by": who.name, **extra})
+    if "restored" in extra:
+        text = f"Revision {extra['restored']} of {name} is current again (as revision {revision})."
+    else:
+        text = f"Saved {name} revision {revision} ({extra['changed_cells']} cells changed)."
+    return await _maybe_reload(maps, active, who.name, text, {"revision": revision, **extra})
 
 
 async def _maybe_reload(maps: MapsAccess, active: bool, actor: str, text: str,

@@ -8,39 +8,18 @@ Every wait is for a condition.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from curio.commands.host import MapHost
-from curio.core.clock import Clock, SimClock
-from curio.core.config import Config
+from curio.core.clock import Clock
 from tests.web import browser_kit as kit
+from tests.web.maps_kit import hosted
 
 pytestmark = [pytest.mark.browser]
-
-
-@contextlib.asynccontextmanager
-async def _hosted(cfg: Config) -> AsyncIterator[tuple[MapHost, str]]:
-    clock = SimClock(speed=3.0, epoch_wall_s=1_700_000_000.0)
-    host = MapHost(cfg, clock, web=True)
-    app = await host.start()
-    runner = asyncio.create_task(clock.run())
-    stop = asyncio.Event()
-    serve = asyncio.create_task(host.serve(stop))
-    try:
-        yield host, (app.web_url or "").split("?")[0]
-    finally:
-        stop.set()
-        await serve
-        await host.stop()
-        runner.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await runner
 
 
 async def _until(clock: Clock, cond: Callable[[], bool], what: str) -> None:
@@ -52,15 +31,20 @@ async def _until(clock: Clock, cond: Callable[[], bool], what: str) -> None:
     raise AssertionError(f"timed out waiting for {what}")
 
 
+def _shown(element_id: str, shown: bool = True) -> str:
+    """A condition: the element is shown (or hidden)."""
+    hidden = f"document.getElementById('{element_id}').classList.contains('hidden')"
+    return hidden if not shown else f"!{hidden}"
+
+
 async def test_maps_page(tmp_path: Path, viewport: str) -> None:
     cfg = kit.make_cfg(tmp_path / "data", "record.enabled=false")
     token = kit.add_token(cfg, "alice")
-    async with _hosted(cfg) as (host, base):
+    async with hosted(cfg) as (host, base):
         host.library.add("annex", host.library.grid("curio_building"), "First floor", "upload")
         async with kit.chromium() as browser:
-            b = await kit.open_page(browser, base + f"maps?token={token}", viewport,
+            b = await kit.open_page(browser, base + f"/maps?token={token}", viewport,
                                     connected=False)
-            page = b.page
             await b.wait_js("document.querySelectorAll('.mapCard').length === 2")
             floors = await b.state("[...document.querySelectorAll('.floor h2')]"
                                    ".map(h => h.textContent)")
@@ -68,74 +52,77 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
             assert "Active map: curio_building" in await b.text("#mapsState")
             await b.wait_js("window.curio.mapsPage.state() !== null")
             await b.shot("maps-library")
-
-            # The editor: a wall painted with the real mouse on the annex (not active).
-            await page.click(".mapCard[data-name=annex] >> text=Edit cells")
-            await b.wait_js("!document.getElementById('editor').classList.contains('hidden')"
-                            " && window.curio.mapsPage.editor.grid")
-            await page.click(".edTools .tool[data-tool='100']")
-            box = await page.locator("#edCanvas").bounding_box()
-            assert box is not None
-            x0, y = box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.5
-            await page.mouse.move(x0, y)
-            await page.mouse.down()
-            await page.mouse.move(x0 + box["width"] * 0.3, y, steps=8)
-            await page.mouse.up()
-            changed = await b.state("window.curio.mapsPage.editor.changedCount()")
-            assert changed > 20
-            await b.shot("maps-editor", "#editor")
-            await page.click("#edUndo")
-            assert await b.state("window.curio.mapsPage.editor.changedCount()") == 0
-            await page.click("#edRedo")
-            assert await b.state("window.curio.mapsPage.editor.changedCount()") == changed
-            await page.click("#edSave")
-            await b.wait_js("document.getElementById('edMsg').textContent.includes("
-                            "'revision 2')")
-            assert host.library.revisions("annex") == [1]
-            edited = host.library.grid("annex")
-            original = host.library.grid("curio_building")
-            assert int(np.count_nonzero(edited.data != original.data)) == changed
-            await page.click("#edClose")
-
+            await _edit_a_wall(b, host)
             # The dashboard, open meanwhile, follows the switch: it reconnects by itself and
             # loads the new map (a new grid version), not the old image.
-            dash = await kit.open_page(browser, base, viewport)
+            dash = await kit.open_page(browser, base + "/", viewport)
             await dash.wait_js("window.curio.S.grids.map && window.curio.S.images.map")
             old_version = await dash.state("window.curio.S.grids.map.version")
             # While the App is rebuilt the server is down for a moment: a refused request.
             b.allowed = dash.allowed = ["ERR_CONNECTION_REFUSED", "WebSocket connection"]
-
-            # Switch the active map: the rover stops, the page asks for the pose.
-            await page.click(".mapCard[data-name=annex] >> text=Switch to")
-            await b.confirm("Switch the rover to annex", accept=True)
-            await _until(host.clock, lambda: host.library.active == "annex"
-                         and host.generation == 2, "the switch")
-            await b.wait_js("!document.getElementById('poseNeeded').classList.contains("
-                            "'hidden')", timeout_s=30)
-            assert "Active map: annex" in await b.text("#mapsState")
+            await _switch(b, host)
             await dash.wait_js(f"window.curio.S.connected && window.curio.S.grids.map && "
                                f"window.curio.S.grids.map.version !== {old_version} && "
                                "window.curio.S.images.map", timeout_s=30)
             assert dash.errors == [], dash.errors
-            await page.evaluate("() => window.scrollTo(0, 0)")
-            await b.shot("maps-pose-needed")
-            await page.click("#relocalise")
-            await b.wait_js("document.getElementById('poseNeeded').classList.contains("
-                            "'hidden')")
-
-            # A mapping run from the page: the map grows in the live view; discarded.
-            await page.click("#mapStart")
-            await b.confirm("Start mapping", accept=True)
-            await _until(host.clock, lambda: host.mapping and host.generation == 3,
-                         "the mapping run")
-            await b.wait_js("!document.getElementById('mappingLive').classList.contains("
-                            "'hidden')", timeout_s=30)
-            await b.wait_js("document.getElementById('liveMap').width > 0")
-            await b.shot("maps-mapping", "#mappingBox")
-            await page.click("#mapDiscard")
-            await b.confirm("Throw this map away", accept=True)
-            await _until(host.clock, lambda: not host.mapping and host.generation == 4,
-                         "the discard")
-            await b.wait_js("document.getElementById('mappingLive').classList.contains("
-                            "'hidden')", timeout_s=30)
+            await _mapping_run(b, host)
             assert b.errors == [], b.errors
+
+
+async def _edit_a_wall(b: kit.Browser, host: MapHost) -> None:
+    """A wall painted with the real mouse on the annex (not the active map), undone, redone,
+    saved as revision 2."""
+    page = b.page
+    await page.click(".mapCard[data-name=annex] >> text=Edit cells")
+    await b.wait_js(_shown("editor") + " && window.curio.mapsPage.editor.grid")
+    await page.click(".edTools .tool[data-tool='100']")
+    box = await page.locator("#edCanvas").bounding_box()
+    assert box is not None
+    x0, y = box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.5
+    await page.mouse.move(x0, y)
+    await page.mouse.down()
+    await page.mouse.move(x0 + box["width"] * 0.3, y, steps=8)
+    await page.mouse.up()
+    count = "window.curio.mapsPage.editor.changedCount()"
+    changed = await b.state(count)
+    assert changed > 20
+    await b.shot("maps-editor", "#editor")
+    await page.click("#edUndo")
+    assert await b.state(count) == 0
+    await page.click("#edRedo")
+    assert await b.state(count) == changed
+    await page.click("#edSave")
+    await b.wait_js("document.getElementById('edMsg').textContent.includes('revision 2')")
+    assert host.library.revisions("annex") == [1]
+    edited = host.library.grid("annex")
+    original = host.library.grid("curio_building")
+    assert int(np.count_nonzero(edited.data != original.data)) == changed
+    await page.click("#edClose")
+
+
+async def _switch(b: kit.Browser, host: MapHost) -> None:
+    """Switch to the annex: the confirm box, the rover rebuilt, the pose asked for."""
+    await b.page.click(".mapCard[data-name=annex] >> text=Switch to")
+    await b.confirm("Switch the rover to annex", accept=True)
+    await _until(host.clock, lambda: host.library.active == "annex" and host.generation == 2,
+                 "the switch")
+    await b.wait_js(_shown("poseNeeded"), timeout_s=30)
+    assert "Active map: annex" in await b.text("#mapsState")
+    await b.page.evaluate("() => window.scrollTo(0, 0)")
+    await b.shot("maps-pose-needed")
+    await b.page.click("#relocalise")
+    await b.wait_js(_shown("poseNeeded", False))
+
+
+async def _mapping_run(b: kit.Browser, host: MapHost) -> None:
+    """A mapping run from the page: the live view drawn; discarded."""
+    await b.page.click("#mapStart")
+    await b.confirm("Start mapping", accept=True)
+    await _until(host.clock, lambda: host.mapping and host.generation == 3, "the mapping run")
+    await b.wait_js(_shown("mappingLive"), timeout_s=30)
+    await b.wait_js("document.getElementById('liveMap').width > 0")
+    await b.shot("maps-mapping", "#mappingBox")
+    await b.page.click("#mapDiscard")
+    await b.confirm("Throw this map away", accept=True)
+    await _until(host.clock, lambda: not host.mapping and host.generation == 4, "the discard")
+    await b.wait_js(_shown("mappingLive", False), timeout_s=30)

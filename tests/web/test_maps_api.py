@@ -17,13 +17,14 @@ import aiohttp
 import numpy as np
 
 from curio.commands.host import MapHost
-from curio.core.clock import Clock, SimClock
+from curio.core.clock import Clock
 from curio.core.config import REPO_ROOT, Config, load_config
 from curio.core.messages import Twist
 from curio.core.topics import CMD_VEL, CMD_VEL_TELEOP, TOUR
 from curio.estimation.localization import LocalizerNode
 from curio.nav.costs import LETHAL
 from curio.web.tokens import TokenStore
+from tests.web.maps_kit import hosted
 
 SHIPPED = REPO_ROOT / "maps" / "curio_building"
 
@@ -35,29 +36,10 @@ def _cfg(tmp_path: Path, *extra: str) -> Config:
 
 
 def _token(cfg: Config) -> str:
+    """A new operator token (a new name each time: a restarted host reuses the data dir)."""
     store = TokenStore(cfg.data_path(cfg.web.tokens_file), cfg.data_path(cfg.web.token_file))
     store.ensure_admin()
-    return store.create("alice", "operator").token
-
-
-@contextlib.asynccontextmanager
-async def _hosted(cfg: Config, speed: float = 3.0) -> AsyncIterator[tuple[MapHost, str]]:
-    clock = SimClock(speed=speed, epoch_wall_s=1_700_000_000.0)
-    host = MapHost(cfg, clock, web=True)
-    app = await host.start()
-    runner = asyncio.create_task(clock.run())
-    stop = asyncio.Event()
-    serve = asyncio.create_task(host.serve(stop))
-    try:
-        yield host, (app.web_url or "").split("?")[0].rstrip("/")
-        assert host.app is not None and host.app.failed_parts() == []
-    finally:
-        stop.set()
-        await serve
-        await host.stop()
-        runner.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await runner
+    return store.create(f"alice{len(store.entries())}", "operator").token
 
 
 class Rest:
@@ -90,6 +72,16 @@ class Rest:
         raise AssertionError(f"the host never built App {generation}: {host.state()}")
 
 
+@contextlib.asynccontextmanager
+async def _rover(tmp_path: Path, *extra: str, speed: float = 3.0
+                 ) -> AsyncIterator[tuple[MapHost, Rest]]:
+    """The host on a fresh data dir (or the same one again) and an operator's client."""
+    cfg = _cfg(tmp_path, *extra)
+    token = _token(cfg)
+    async with hosted(cfg, speed) as (host, base), aiohttp.ClientSession() as s:
+        yield host, Rest(s, base, token, host.clock)
+
+
 def _upload(name: str, floor: str, yaml_text: str | None = None,
             image: bytes | None = None) -> aiohttp.FormData:
     form = aiohttp.FormData()
@@ -103,10 +95,7 @@ def _upload(name: str, floor: str, yaml_text: str | None = None,
 
 
 async def test_library_list_upload_rename_floor_delete(tmp_path: Path) -> None:
-    cfg = _cfg(tmp_path)
-    token = _token(cfg)
-    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token, host.clock)
+    async with _rover(tmp_path) as (_host, rest):
         status, body = await rest.call("GET", "/api/maps", auth=False)
         assert status == 200 and body["active"] == "curio_building"
         [seed] = body["maps"]
@@ -173,10 +162,7 @@ async def _things(rest: Rest) -> tuple[set[str], set[str], set[str]]:
 
 
 async def test_switching_keeps_paths_tours_and_zones_with_their_map(tmp_path: Path) -> None:
-    cfg = _cfg(tmp_path)
-    token = _token(cfg)
-    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token, host.clock)
+    async with _rover(tmp_path) as (host, rest):
         status, _ = await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
         assert status == 201
         await _make_things(rest, "A")
@@ -212,19 +198,16 @@ async def test_switching_keeps_paths_tours_and_zones_with_their_map(tmp_path: Pa
         assert "path A" in paths and "path B" not in paths
         assert "tour A" in tours and "tour B" not in tours and zones == {"zone A"}
 
-    # The choice survives a restart.
-    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        _, body = await Rest(s, base, token, host.clock).call("GET", "/api/maps")
-        assert body["active"] == "curio_building"
+    # The choice survives a restart (a new host on the same data directory).
+    async with _rover(tmp_path) as (host, rest):
+        _, body = await rest.call("GET", "/api/maps")
+        assert body["active"] == "curio_building" and host.generation == 1
 
 
 async def test_switching_stops_the_rover_first(tmp_path: Path) -> None:
     """Driven by teleop until the switch: the safety stage ramps the rover to a standstill
     (zero on /cmd_vel) before the old App stops."""
-    cfg = _cfg(tmp_path)
-    token = _token(cfg)
-    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token, host.clock)
+    async with _rover(tmp_path) as (host, rest):
         await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
         old = host.app
         assert old is not None
@@ -254,10 +237,7 @@ async def test_switching_stops_the_rover_first(tmp_path: Path) -> None:
 async def test_a_map_the_rover_cannot_run_on_leaves_it_on_its_map(tmp_path: Path) -> None:
     """A switch to a map whose tours file is damaged: the new App cannot be built, so the
     host starts the old map again and says why."""
-    cfg = _cfg(tmp_path)
-    token = _token(cfg)
-    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token, host.clock)
+    async with _rover(tmp_path) as (host, rest):
         await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
         (host.library.root / "annex" / "tours.json").write_text('{"version": 2, "tours": [')
         status, _ = await rest.call("POST", "/api/maps/active", {"name": "annex"})
@@ -270,10 +250,7 @@ async def test_a_map_the_rover_cannot_run_on_leaves_it_on_its_map(tmp_path: Path
 
 
 async def test_switching_is_refused_while_a_tour_runs(tmp_path: Path) -> None:
-    cfg = _cfg(tmp_path, 'bt.tree="tour"')
-    token = _token(cfg)
-    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token, host.clock)
+    async with _rover(tmp_path, 'bt.tree="tour"') as (host, rest):
         await rest.call("POST", "/api/maps/import", data=_upload("annex", "1"))
         _, tours = await rest.call("GET", "/api/tours")
         tour_id = tours["tours"][0]["id"]
@@ -293,10 +270,7 @@ async def test_switching_is_refused_while_a_tour_runs(tmp_path: Path) -> None:
 
 
 async def test_cell_edits_are_revisions_used_by_costmap_and_localiser(tmp_path: Path) -> None:
-    cfg = _cfg(tmp_path)
-    token = _token(cfg)
-    async with _hosted(cfg) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token, host.clock)
+    async with _rover(tmp_path) as (host, rest):
         status, grid = await rest.call("GET", "/api/maps/curio_building/cells", auth=False)
         assert status == 200 and grid["revision"] == 1
         assert (grid["width"], grid["height"]) == (600, 400)
@@ -342,10 +316,7 @@ async def test_cell_edits_are_revisions_used_by_costmap_and_localiser(tmp_path: 
 
 
 async def test_mapping_run_saved_as_a_new_map(tmp_path: Path) -> None:
-    cfg = _cfg(tmp_path)
-    token = _token(cfg)
-    async with _hosted(cfg, speed=2.0) as (host, base), aiohttp.ClientSession() as s:
-        rest = Rest(s, base, token, host.clock)
+    async with _rover(tmp_path, speed=2.0) as (host, rest):
         status, body = await rest.call("POST", "/api/maps/mapping",
                                        {"action": "save", "name": "new"})
         assert status == 409 and "no mapping run" in body["error"]
