@@ -45,7 +45,7 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
         async with kit.chromium() as browser:
             b = await kit.open_page(browser, base + f"/maps?token={token}", viewport,
                                     connected=False)
-            await b.wait_js("document.querySelectorAll('.mapCard').length === 2")
+            await b.wait_js("document.querySelectorAll('.mapCard').length === 2", timeout_s=40)
             floors = await b.state("[...document.querySelectorAll('.floor h2')]"
                                    ".map(h => h.textContent)")
             assert floors == ["First floor", "Ground floor"]
@@ -63,7 +63,7 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
             await _switch(b, host)
             await dash.wait_js(f"window.curio.S.connected && window.curio.S.grids.map && "
                                f"window.curio.S.grids.map.version !== {old_version} && "
-                               "window.curio.S.images.map", timeout_s=30)
+                               "window.curio.S.images.map", timeout_s=40)
             assert dash.errors == [], dash.errors
             await _mapping_run(b, host)
             assert b.errors == [], b.errors
@@ -74,7 +74,7 @@ async def _edit_a_wall(b: kit.Browser, host: MapHost) -> None:
     saved as revision 2."""
     page = b.page
     await page.click(".mapCard[data-name=annex] >> text=Edit cells")
-    await b.wait_js(_shown("editor") + " && window.curio.mapsPage.editor.grid")
+    await b.wait_js(_shown("editor") + " && window.curio.mapsPage.editor.grid", timeout_s=40)
     await page.click(".edTools .tool[data-tool='100']")
     box = await page.locator("#edCanvas").bounding_box()
     assert box is not None
@@ -92,7 +92,8 @@ async def _edit_a_wall(b: kit.Browser, host: MapHost) -> None:
     await page.click("#edRedo")
     assert await b.state(count) == changed
     await page.click("#edSave")
-    await b.wait_js("document.getElementById('edMsg').textContent.includes('revision 2')")
+    await b.wait_js("document.getElementById('edMsg').textContent.includes('revision 2')",
+                    timeout_s=40)
     assert host.library.revisions("annex") == [1]
     edited = host.library.grid("annex")
     original = host.library.grid("curio_building")
@@ -111,7 +112,7 @@ async def _switch(b: kit.Browser, host: MapHost) -> None:
     await b.page.evaluate("() => window.scrollTo(0, 0)")
     await b.shot("maps-pose-needed")
     await b.page.click("#relocalise")
-    await b.wait_js(_shown("poseNeeded", False))
+    await b.wait_js(_shown("poseNeeded", False), timeout_s=40)
 
 
 async def _mapping_run(b: kit.Browser, host: MapHost) -> None:
