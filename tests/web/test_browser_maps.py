@@ -65,6 +65,7 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
                                f"window.curio.S.grids.map.version !== {old_version} && "
                                "window.curio.S.images.map", timeout_s=40)
             assert dash.errors == [], dash.errors
+            await _edit_the_active_map(b, host)
             await _mapping_run(b, host)
             assert b.errors == [], b.errors
 
@@ -115,15 +116,41 @@ async def _switch(b: kit.Browser, host: MapHost) -> None:
     await b.wait_js(_shown("poseNeeded", False), timeout_s=40)
 
 
+async def _edit_the_active_map(b: kit.Browser, host: MapHost) -> None:
+    """Erase cells of the active map: saved as revision 3, the rover rebuilt on it (the
+    localiser's map has the edit), the editor back on the new revision."""
+    page = b.page
+    await page.click(".mapCard[data-name=annex] >> text=Edit cells")
+    await b.wait_js(_shown("editor") + " && window.curio.mapsPage.editor.meta.revision === 2",
+                    timeout_s=40)
+    assert "saving stops the rover" in await b.text("#edMsg")
+    await page.click(".edTools .tool[data-tool='-1']")
+    box = await page.locator("#edCanvas").bounding_box()
+    assert box is not None
+    await page.mouse.click(box["x"] + box["width"] * 0.5, box["y"] + box["height"] * 0.3)
+    changed = await b.state("window.curio.mapsPage.editor.changedCount()")
+    assert changed > 0
+    generation = host.generation
+    await page.click("#edSave")
+    await b.wait_js("window.curio.mapsPage.editor.meta.revision === 3 && document."
+                    "getElementById('edMsg').textContent.includes('revision 3')", timeout_s=40)
+    assert host.generation == generation + 1 and host.library.active == "annex"
+    app = host.app
+    assert app is not None and app.localizer is not None
+    assert int((app.map_server.grid.data == -1).sum()) - int(
+        (host.library.grid("curio_building").data == -1).sum()) >= changed
+    await page.click("#edClose")
+
+
 async def _mapping_run(b: kit.Browser, host: MapHost) -> None:
     """A mapping run from the page: the live view drawn; discarded."""
     await b.page.click("#mapStart")
     await b.confirm("Start mapping", accept=True)
-    await _until(host.clock, lambda: host.mapping and host.generation == 3, "the mapping run")
+    await _until(host.clock, lambda: host.mapping and host.generation == 4, "the mapping run")
     await b.wait_js(_shown("mappingLive"), timeout_s=30)
     await b.wait_js("document.getElementById('liveMap').width > 0")
     await b.shot("maps-mapping", "#mappingBox")
     await b.page.click("#mapDiscard")
     await b.confirm("Throw this map away", accept=True)
-    await _until(host.clock, lambda: not host.mapping and host.generation == 4, "the discard")
+    await _until(host.clock, lambda: not host.mapping and host.generation == 5, "the discard")
     await b.wait_js(_shown("mappingLive", False), timeout_s=30)

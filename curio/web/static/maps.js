@@ -278,24 +278,36 @@
     if (k === "z" && !e.shiftKey) { e.preventDefault(); editor.undo(); }
     else if (k === "y" || (k === "z" && e.shiftKey)) { e.preventDefault(); editor.redo(); }
   });
+  async function backAgain() {  // after a change that rebuilds the rover: wait until it answers again
+    for (let i = 0; i < 75 && busyUntilGen !== null; i++) {
+      await new Promise((r) => setTimeout(r, 400));
+      await refresh();
+    }
+  }
+
   $("edSave").addEventListener("click", async () => {
     const name = editing, runs = editor.runs();
     C.showMsg($("edMsg"), "Saving…", "wait");
+    $("edSave").disabled = true;
     try {
       const r = await C.api("POST", "/api/maps/" + encodeURIComponent(name) + "/cells", { revision: editor.meta.revision, changes: runs });
-      C.showMsg($("edMsg"), r.message, "ok", 20);
-      if (r.reloading) busyUntilGen = ((data.state && data.state.generation) || 0) + 1;
+      C.showMsg($("edMsg"), r.message, r.reloading ? "wait" : "ok");
+      if (r.reloading) { busyUntilGen = ((data.state && data.state.generation) || 0) + 1; await backAgain(); }
       await refresh();
       await openEditor(name);
       C.showMsg($("edMsg"), r.message, "ok", 20);
-    } catch (e) { C.showMsg($("edMsg"), e.message, "error", 30); }
+    } catch (e) { C.showMsg($("edMsg"), e.message, "error", 30); editorChanged(); }
   });
   $("edRestore").addEventListener("click", async () => {
     const rev = Number($("edRevs").value);
     if (!await C.confirmBox("Make revision " + rev + " of " + editing + " current again? (The current one is kept.)", "Restore", "Cancel")) return;
     const name = editing;
     const r = await change("POST", "/api/maps/" + encodeURIComponent(name) + "/restore", { revision: rev });
-    if (r) { if (!r.reloading) busyUntilGen = null; await refresh(); await openEditor(name); C.showMsg($("edMsg"), r.message, "ok", 20); }
+    if (r) {
+      if (!r.reloading) busyUntilGen = null;
+      await backAgain();
+      await refresh(); await openEditor(name); C.showMsg($("edMsg"), r.message, "ok", 20);
+    }
   });
 
   C.mapsPage = { editor, refresh, state: () => data };
