@@ -251,6 +251,7 @@
       const sel = $("edRevs"); sel.textContent = "";
       for (const r of [...(m.revisions || [])].reverse()) { const o = document.createElement("option"); o.value = r; o.textContent = "revision " + r; sel.append(o); }
       $("edRestore").disabled = !m.revisions || !m.revisions.length || !mayEdit();
+      document.querySelector(".edRevs").classList.toggle("hidden", !m.revisions || !m.revisions.length);
       C.showMsg($("edMsg"), m.active ? "This is the active map: saving stops the rover for a moment while it loads the new revision." : "", "warn");
     } catch (e) { say(e.message, "error", 20); }
   }
