@@ -58,8 +58,10 @@ async def test_maps_page(tmp_path: Path, viewport: str) -> None:
             dash = await kit.open_page(browser, base + "/", viewport)
             await dash.wait_js("window.curio.S.grids.map && window.curio.S.images.map")
             old_version = await dash.state("window.curio.S.grids.map.version")
-            # While the App is rebuilt the server is down for a moment: a refused request.
-            b.allowed = dash.allowed = ["ERR_CONNECTION_REFUSED", "WebSocket connection"]
+            # While the App is rebuilt the server is down for a moment: a refused, reset or
+            # unanswered request (a network error, never an HTTP error status).
+            b.allowed = dash.allowed = ["Failed to load resource: net::ERR_",
+                                        "WebSocket connection"]
             await _switch(b, host)
             await dash.wait_js(f"window.curio.S.connected && window.curio.S.grids.map && "
                                f"window.curio.S.grids.map.version !== {old_version} && "
