@@ -61,6 +61,7 @@ from curio.fleet.wiring import Fleet, build_fleet
 from curio.help.desk import HelpDesk
 from curio.help.wiring import build_help
 from curio.kernels import use_cache_dir
+from curio.maps.control import MapsAccess
 from curio.nav.clearance import ClearanceProbe
 from curio.nav.controller import LocalController
 from curio.nav.costmap import Costmap
@@ -98,7 +99,8 @@ class App:
 
     def __init__(self, cfg: Config, clock: Clock, *, web: bool | None = None,
                  inputs: Callable[[Bus, Clock, Parts], None] | None = None,
-                 fleet_transport: Transport | None = None) -> None:
+                 fleet_transport: Transport | None = None,
+                 maps: MapsAccess | None = None) -> None:
         """Build every part.
 
         Args:
@@ -213,7 +215,7 @@ class App:
                                  unattended=UnattendedServices(
                                      self.home, self.docker, self.zones, self.help,
                                      self.tours.placement),
-                                 journal=self.journal)
+                                 journal=self.journal, maps=maps)
             self.web_url = self.web.control_url
 
     @property

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import math
 import sys
@@ -243,6 +244,7 @@ def _announce(mode: str, web_url: str | None) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from curio.app import App
+    from curio.commands.host import MapHost
     from curio.commands.signals import stop_on_signals
     from curio.core.clock import Clock, RealClock, SimClock
     from curio.drivers.modes import driver_mode
@@ -262,19 +264,29 @@ def _cmd_run(args: argparse.Namespace) -> int:
         clock = RealClock()
 
     async def main() -> int:
-        app = App(cfg, clock)
+        # With the map library (maps.enabled) the host builds the App on the active map and
+        # rebuilds it to switch maps (curio/commands/host.py, docs/maps.md).
+        host = MapHost(cfg, clock) if cfg.maps.enabled else None
+        app = await host.start() if host is not None else App(cfg, clock)
         stop = stop_on_signals()
-        await app.start()
+        if host is None:
+            await app.start()
         _announce(cfg.drivers.mode, app.web_url)
         runner = asyncio.create_task(sim_clock.run(stop=stop.is_set)) if sim_clock else None
         waiter = asyncio.create_task(stop.wait())
+        changes = asyncio.create_task(host.serve(stop)) if host is not None else None
         while not stop.is_set():
             await asyncio.wait({waiter}, timeout=0.5)
+            app = host.app if host is not None and host.app is not None else app
             if app.failed_parts():
                 name, exc = app.failed_parts()[0]
                 log.error("stopping: %s failed: %s", name, exc)
                 stop.set()
         log.info("stopping the rover")
+        if changes is not None:
+            with contextlib.suppress(Exception):
+                await changes
+            app = host.app if host is not None and host.app is not None else app
         await app.stop()
         if runner is not None:
             runner.cancel()

@@ -829,6 +829,20 @@ class ZonesConfig(Section):
                                   "before the footprint reaches a speed zone")
 
 
+class MapsConfig(Section):
+    """The map library: maps made, switched and edited from the dashboard (curio/maps)."""
+
+    enabled: bool = Field(True, description="curio run keeps its maps in the library and "
+                          "serves the /maps page (false: the configured map only)")
+    directory: str = Field("maps", description="in data_dir: one directory per map")
+    default_floor: str = Field("Ground floor", max_length=30,
+                               description="the floor label of the first (seeded) map")
+    max_upload_bytes: int = Field(16_000_000, ge=65536, le=256_000_000,
+                                  description="largest map upload (YAML + image), bytes")
+    stop_timeout_s: float = Field(3.0, gt=0.0, le=30.0, description="switching maps: how "
+                                  "long to wait for the rover to stand still before the swap")
+
+
 class ToursConfig(Section):
     """Tours as data, their schedules and the tour guide's product behaviour (curio/tours)."""
 
@@ -1118,6 +1132,7 @@ class Config(Section):
     dock: DockConfig = Field(default_factory=DockConfig)
     help: HelpConfig = Field(default_factory=HelpConfig)
     zones: ZonesConfig = Field(default_factory=ZonesConfig)
+    maps: MapsConfig = Field(default_factory=MapsConfig)
     people: PeopleConfig = Field(default_factory=PeopleConfig)
     fleet: FleetConfig = Field(default_factory=FleetConfig)
 

@@ -176,7 +176,9 @@ class Hub:
                                       "resolved_at": None}
         self.events: deque[dict[str, Any]] = deque(maxlen=RECENT_EVENTS)
         self.grids: dict[str, _Grid] = {}
-        self._grid_serial = itertools.count(1)
+        # Grid versions start at this hub's start time (ms): a page that reconnects to the App
+        # rebuilt on another map (curio/commands/host.py) never takes its grids for the old ones.
+        self._grid_serial = itertools.count(int(clock.wall_time() * 1000.0) % 2**40 + 1)
         self._pose_msg: PoseWithCovariance | None = None
         self._pose_stamp_s = -math.inf
         self._odom: Odometry | None = None

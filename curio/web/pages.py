@@ -7,6 +7,7 @@ scripts and styles carry the static files' version in their URLs, like the main 
 * ``/events`` — the event log with filters and CSV export.
 * ``/report`` — the daily report as a table, and plots of tours and help waits per day.
 * ``/recordings`` — the flight recorder's files: download, and how to replay one.
+* ``/maps`` — the map library: floors, switching, a mapping run, the cell editor (docs/maps.md).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from curio.web.services import STATIC_VERSION
 __all__ = ["PAGES", "ROUTES", "page"]
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-PAGES = ("kiosk", "events", "report", "recordings")
+PAGES = ("kiosk", "events", "report", "recordings", "maps")
 
 
 # What every page's <head> holds ({{HEAD}} in the files): no referrer, no favicon request, the

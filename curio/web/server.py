@@ -9,9 +9,9 @@ Routes: ``/`` (the page), ``/static/...`` (hand-written JS and CSS, no CDN), ``/
 WebSocket; a token as the subprotocol ``curio.token.<token>`` (next to ``curio.v1``), a header
 or ``?token=`` names the operator; the messages are described in :mod:`curio.web.session`),
 ``/api/...`` (REST, see :mod:`curio.web.api`, :mod:`curio.web.tours_api`,
-:mod:`curio.web.log_api`, :mod:`curio.web.records_api`), ``/kiosk``, ``/events``, ``/report``,
-``/recordings`` (:mod:`curio.web.pages`); ``/api/commands/{request_id}``
-(:mod:`curio.web.answers`).
+:mod:`curio.web.log_api`, :mod:`curio.web.records_api`, :mod:`curio.web.maps_api`), ``/kiosk``,
+``/events``, ``/report``, ``/recordings``, ``/maps`` (:mod:`curio.web.pages`);
+``/api/commands/{request_id}`` (:mod:`curio.web.answers`).
 
 Every response carries security headers (:data:`SECURITY_HEADERS`: a Content-Security-Policy
 with ``frame-ancestors 'none'``, ``nosniff``, ``Referrer-Policy: no-referrer``); every request
@@ -41,7 +41,7 @@ from pathlib import Path
 from aiohttp import web
 
 from curio.core.topics import HEALTH
-from curio.web import log_api, pages, records_api, tours_api
+from curio.web import log_api, maps_api, pages, records_api, tours_api
 from curio.web.answers import command_status
 from curio.web.api import ROUTES
 from curio.web.auth import WS_PROTOCOL, Gate, RedactTokens, check_origin, request_token
@@ -102,7 +102,8 @@ def create_app(services: WebServices) -> web.Application:
     app.router.add_get("/", index)
     app.router.add_get("/ws", websocket)
     app.router.add_routes(ROUTES)
-    for routes in (tours_api.ROUTES, log_api.ROUTES, records_api.ROUTES, pages.ROUTES):
+    for routes in (tours_api.ROUTES, log_api.ROUTES, records_api.ROUTES, maps_api.ROUTES,
+                   pages.ROUTES):
         app.router.add_routes(routes)
     app.router.add_get("/api/commands/{request_id}", command_status)
     app.router.add_static("/static", STATIC_DIR, append_version=False)
@@ -123,7 +124,8 @@ def install_redaction(redact: RedactTokens) -> None:
 async def json_errors(request: web.Request, handler: Handler) -> web.StreamResponse:
     """The Host check, then every refusal as JSON ``{"error", "status"}`` with a sentence.
 
-    A body over ``web.max_message_bytes`` is refused before the handler runs; aiohttp's own
+    A body over ``web.max_message_bytes`` is refused before the handler runs (a map upload
+    has its own limit, ``maps.max_upload_bytes``); aiohttp's own
     404/405/413 get a sentence; a ``ValueError`` from a handler (a
     :class:`~curio.web.inputs.CommandError` for invalid input, a path manager's ``PathError``)
     becomes its status (400 unless it says otherwise) with its message; anything unexpected is
@@ -132,7 +134,7 @@ async def json_errors(request: web.Request, handler: Handler) -> web.StreamRespo
     request.app[GATE].check_host(request)
     max_bytes = request.app[SERVICES].cfg.web.max_message_bytes
     length = request.content_length
-    if length is not None and length > max_bytes:
+    if length is not None and length > max_bytes and request.path != maps_api.IMPORT_PATH:
         raise http_error(
             web.HTTPRequestEntityTooLarge,
             f"request body of {length} bytes exceeds web.max_message_bytes={max_bytes}")

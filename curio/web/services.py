@@ -24,6 +24,7 @@ from curio.docking.home import HomeDock
 from curio.eventlog.commands import CommandJournal
 from curio.eventlog.store import EventLog
 from curio.help.desk import HelpDesk
+from curio.maps.control import MapsAccess
 from curio.record.timeline import ReplayTimeline
 from curio.robot import RobotModel
 from curio.tours.placement import MapPlacement
@@ -76,6 +77,7 @@ class WebServices:
         journal: the command journal (:class:`~curio.eventlog.commands.CommandJournal`):
             duplicates across restarts and ``GET /api/commands/{request_id}``; None: this
             run's duplicates only, and that endpoint answers ``unknown``.
+        maps: the map library and its host (:mod:`curio.web.maps_api`), or None.
     """
 
     cfg: Config
@@ -91,6 +93,7 @@ class WebServices:
     replay: ReplayTimeline | None = None
     unattended: UnattendedServices | None = None
     journal: CommandJournal | None = None
+    maps: MapsAccess | None = None
 
 
 SERVICES = web.AppKey("services", WebServices)

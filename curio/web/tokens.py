@@ -4,7 +4,8 @@ Roles (what each may do is :data:`PERMISSIONS`):
 
 * **viewer** — no token: watch everything, change nothing.
 * **kiosk** — start and stop tours only (a lobby screen; the ``/kiosk`` page uses it).
-* **operator** — drive, send goals and paths, edit paths, tours and schedules, set the pose,
+* **operator** — drive, send goals and paths, edit paths, tours and schedules, manage maps
+  (the library, switching, mapping runs, cell edits), set the pose,
   e-stop, download the event log and recordings; release an e-stop it set itself (or one the
   rover set).
 * **admin** — everything an operator may, and release anybody's e-stop.
@@ -65,9 +66,9 @@ PERMISSIONS: dict[str, frozenset[str]] = {
     "viewer": frozenset(),
     "kiosk": frozenset({"tour"}),
     "operator": frozenset({"tour", "estop", "command", "drive", "paths", "initial_pose",
-                           "tours", "zones", "data"}),
+                           "tours", "zones", "data", "maps"}),
     "admin": frozenset({"tour", "estop", "command", "drive", "paths", "initial_pose",
-                        "tours", "zones", "data", "release_any_estop"}),
+                        "tours", "zones", "data", "maps", "release_any_estop"}),
 }
 PERMISSION_WORDS = {
     "tour": "start and stop tours",
@@ -79,6 +80,7 @@ PERMISSION_WORDS = {
     "tours": "edit tours and schedules",
     "zones": "edit keep-out and speed zones",
     "data": "download the event log and recordings",
+    "maps": "manage, switch, make and edit maps",
     "release_any_estop": "release another operator's e-stop",
 }
 

@@ -25,6 +25,7 @@ from curio.core.errors import SetupError
 from curio.core.parts import Part, Parts
 from curio.eventlog.commands import CommandJournal
 from curio.eventlog.store import EventLog
+from curio.maps.control import MapsAccess
 from curio.robot import RobotModel
 from curio.tours.wiring import Tours
 from curio.web.hub import Hub
@@ -117,7 +118,8 @@ def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotMod
               tours: Tours | None = None, eventlog: EventLog | None = None,
               recordings_dir: Path | None = None,
               unattended: UnattendedServices | None = None,
-              journal: CommandJournal | None = None) -> WebServer:
+              journal: CommandJournal | None = None,
+              maps: MapsAccess | None = None) -> WebServer:
     """Construct the dashboard from ``cfg.web`` and register it as a part.
 
     Args:
@@ -128,11 +130,12 @@ def build_web(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotMod
         recordings_dir: the flight recorder's directory (the recordings list), or None.
         unattended: battery, dock, zones, help (``curio/web/unattended_api.py``), or None.
         journal: the command journal (:class:`~curio.eventlog.commands.CommandJournal`).
+        maps: the map library and its host (``/api/maps``, the ``/maps`` page), or None.
     """
     services = WebServices(cfg=cfg, clock=clock, bus=bus, tokens=tokens, robot=robot,
                            paths=paths, part_states=part_states, tours=tours,
                            eventlog=eventlog, recordings_dir=recordings_dir,
-                           unattended=unattended, journal=journal)
+                           unattended=unattended, journal=journal, maps=maps)
     server = WebServer(services)
     parts.add(Part("web", run=server.run, close=server.close))
     return server

@@ -7,7 +7,7 @@
 "use strict";
 
 (() => {
-  const PAGES = [["/", "Dashboard"], ["/events", "Event log"], ["/report", "Daily report"], ["/recordings", "Recordings"]];
+  const PAGES = [["/", "Dashboard"], ["/events", "Event log"], ["/report", "Daily report"], ["/recordings", "Recordings"], ["/maps", "Maps"]];
   const top = document.createElement("header");
   top.id = "top";
   top.className = "pageTop";
