@@ -6,8 +6,10 @@ Steps (all in ``map`` metres; the scan is placed with the laser's pose at its st
    ``static_margin_m`` from every occupied cell of the static map (a distance transform of
    the map, computed once per map). Returns outside the map are ignored.
 2. **Segments** — neighbouring returns in beam order (at most two beams apart) closer than
-   ``segment_gap_m`` + 1 % of the range form one segment. A segment wider than
-   ``max_width_m`` is not a person (a wall not on the map, a closed door).
+   ``segment_gap_m`` + 1 % of the range form one segment (in a full-circle scan the last
+   beam neighbours the first: a segment across that seam is one segment). A segment wider
+   than ``max_width_m`` is not a person (a wall not on the map, a closed door), nor is one
+   wider than a body whose points lie on a line (a flat panel: a door, a board).
 3. **Legs and bodies** — a low lidar sees legs: two segments up to ``leg_width_m`` wide whose
    centres are within ``leg_pair_m`` are paired (nearest pairs first) into one person; an
    unpaired leg (the other hidden) and a wider segment (a body, a bag) are a person each.
@@ -39,6 +41,10 @@ F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
 ARC_CENTRE = 2.0 / math.pi  # mean of a half circle's points, as a fraction of its radius
+# A segment wider than a body whose points lie on a line (RMS distance to it at most the
+# lidar's noise, a few cm) is a flat panel — a closed door, a board — not a person.
+FLAT_MIN_WIDTH_M = 0.45
+FLAT_RMS_M = 0.03
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,13 +112,25 @@ class Detector:
         idx, pts, r = self.foreground(scan, laser)
         if len(idx) == 0:
             return []
-        segments = self._segments(idx, pts, r)
+        n = len(scan.ranges_m)
+        circle = abs(n * scan.angle_increment_rad - 2.0 * math.pi) < 1.5 * abs(
+            scan.angle_increment_rad)
+        segments = self._segments(idx, pts, r, n if circle else 0)
         return self._people(segments, (laser.x, laser.y))
 
-    def _segments(self, idx: I64, pts: F64, r: F64) -> list[tuple[float, float, float, I64]]:
-        """``(x, y, width, beams)`` of each segment (centre: the mean of its points)."""
+    def _segments(self, idx: I64, pts: F64, r: F64,
+                  circle_beams: int = 0) -> list[tuple[float, float, float, I64]]:
+        """``(x, y, width, beams)`` of each segment (centre: the mean of its points).
+
+        ``circle_beams``: the scan's beam count when it covers the full circle (its last beam
+        neighbours its first: a segment across that seam is one segment, not two), else 0.
+        """
+        if circle_beams and len(idx) > 1:
+            idx, pts, r = _start_after_a_split(idx, pts, r, circle_beams,
+                                               self.cfg.segment_gap_m)
+        step = np.diff(idx) % circle_beams if circle_beams else np.diff(idx)
         gap = np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1]))
-        split = (gap > self.cfg.segment_gap_m + 0.01 * r[1:]) | (np.diff(idx) > 3)
+        split = (gap > self.cfg.segment_gap_m + 0.01 * r[1:]) | (step > 3)
         starts = np.concatenate([[0], np.flatnonzero(split) + 1])
         ends = np.concatenate([starts[1:], [len(idx)]])
         counts = ends - starts
@@ -121,7 +139,8 @@ class Detector:
         width = np.hypot(pts[ends - 1, 0] - pts[starts, 0], pts[ends - 1, 1] - pts[starts, 1])
         keep = (width <= self.cfg.max_width_m) & ((counts >= 2) | (r[starts] >= 3.0))
         return [(float(cx[k]), float(cy[k]), max(float(width[k]), 0.05),
-                 idx[starts[k]:ends[k]]) for k in np.flatnonzero(keep).tolist()]
+                 idx[starts[k]:ends[k]]) for k in np.flatnonzero(keep).tolist()
+                if width[k] <= FLAT_MIN_WIDTH_M or not _flat(pts[starts[k]:ends[k]])]
 
     def _people(self, segments: list[tuple[float, float, float, I64]],
                 sensor: tuple[float, float]) -> list[Detection]:
@@ -150,3 +169,28 @@ class Detector:
             if k not in used:
                 out.append(Detection(s[0], s[1], s[2], s[3]))
         return out
+
+
+def _start_after_a_split(idx: I64, pts: F64, r: F64, n: int,
+                         gap_m: float) -> tuple[I64, F64, F64]:
+    """The returns of a full-circle scan of ``n`` beams reordered (cyclically) to start just
+    after a split between segments, so no segment straddles the seam between the last beam and
+    the first; unchanged when the seam already is a split (or there is none at all)."""
+    step = (np.roll(idx, -1) - idx) % n
+    nxt = np.roll(pts, -1, axis=0)
+    gap = np.hypot(nxt[:, 0] - pts[:, 0], nxt[:, 1] - pts[:, 1])
+    split = (gap > gap_m + 0.01 * np.roll(r, -1)) | (step > 3)
+    if split[-1] or not split.any():
+        return idx, pts, r
+    k = int(np.flatnonzero(split)[-1]) + 1
+    return np.roll(idx, -k), np.roll(pts, -k, axis=0), np.roll(r, -k)
+
+
+def _flat(seg: F64, rms_m: float = FLAT_RMS_M) -> bool:
+    """Whether the points of ``seg`` (``(N, 2)``, m) lie on a line: the RMS distance to their
+    best-fitting line is at most ``rms_m`` (a body or a pair of legs is an arc, not a line)."""
+    if len(seg) < 5:
+        return False
+    c = seg - seg.mean(axis=0)
+    smallest = float(np.linalg.eigvalsh(c.T @ c / len(seg))[0])
+    return math.sqrt(max(smallest, 0.0)) <= rms_m

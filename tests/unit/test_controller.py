@@ -28,6 +28,17 @@ def straight_plan(x0: float, x1: float, y: float = 0.0, step: float = 0.05) -> n
     return np.stack([xs, np.full_like(xs, y), np.zeros_like(xs)], axis=1)
 
 
+def drive_arc(pose: Pose2D, v: float, w: float, dt: float) -> Pose2D:
+    """``pose`` (map) after driving ``v`` m/s at ``w`` rad/s for ``dt`` s (an exact arc)."""
+    if abs(w) < 1e-9:
+        return Pose2D(pose.x + v * dt * math.cos(pose.yaw), pose.y + v * dt * math.sin(pose.yaw),
+                      pose.yaw)
+    r = v / w
+    th = pose.yaw + w * dt
+    return Pose2D(pose.x + r * (math.sin(th) - math.sin(pose.yaw)),
+                  pose.y - r * (math.cos(th) - math.cos(pose.yaw)), wrap_angle(th))
+
+
 def drive(ctrl: LocalController, pose: Pose2D, seconds: float,
           stop_on_done: bool = True) -> tuple[Pose2D, list]:
     """Integrate unicycle kinematics under the controller; return the final pose and log."""
@@ -40,15 +51,7 @@ def drive(ctrl: LocalController, pose: Pose2D, seconds: float,
         if stop_on_done and out.status in (ControlStatus.GOAL_REACHED, ControlStatus.BLOCKED,
                                            ControlStatus.NO_PROGRESS):
             break
-        v, w = out.linear_mps, out.angular_radps
-        if abs(w) < 1e-9:
-            pose = Pose2D(pose.x + v * dt * math.cos(pose.yaw),
-                          pose.y + v * dt * math.sin(pose.yaw), pose.yaw)
-        else:
-            r = v / w
-            th = pose.yaw + w * dt
-            pose = Pose2D(pose.x + r * (math.sin(th) - math.sin(pose.yaw)),
-                          pose.y - r * (math.cos(th) - math.cos(pose.yaw)), wrap_angle(th))
+        pose = drive_arc(pose, out.linear_mps, out.angular_radps, dt)
         t += dt
     return pose, log
 

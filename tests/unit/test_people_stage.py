@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from curio.core.config import Config
-from curio.core.geometry import Pose2D, wrap_angle
+from curio.core.geometry import Pose2D
 from curio.core.messages import PeopleTracks, PersonTrack
 from curio.nav.controller import ControlStatus, LocalController
 from curio.nav.costmap import Costmap
 from curio.people.stage import PeopleStage
 from curio.robot import RobotModel
 from curio.safety.stop_zone import polygon_distances
-from tests.unit.test_controller import open_grid, straight_plan
+from tests.unit.test_controller import drive_arc, open_grid, straight_plan
 
 BODY_M = 0.2  # the walker's real body radius (the stage assumes people.person_radius_m)
 
@@ -63,15 +63,7 @@ def run(ctrl: LocalController, pose: Pose2D, walkers: list[Walker], seconds: flo
         closest = min(closest, float(d.min()))
         if out.status is ControlStatus.GOAL_REACHED:
             break
-        v, w = out.linear_mps, out.angular_radps
-        if abs(w) < 1e-9:
-            pose = Pose2D(pose.x + v * dt * math.cos(pose.yaw),
-                          pose.y + v * dt * math.sin(pose.yaw), pose.yaw)
-        else:
-            r = v / w
-            th = pose.yaw + w * dt
-            pose = Pose2D(pose.x + r * (math.sin(th) - math.sin(pose.yaw)),
-                          pose.y - r * (math.cos(th) - math.cos(pose.yaw)), wrap_angle(th))
+        pose = drive_arc(pose, out.linear_mps, out.angular_radps, dt)
         now["t"] = t + dt
     return pose, log, closest
 
