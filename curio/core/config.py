@@ -1043,6 +1043,12 @@ class FleetManagerConfig(Section):
     low_battery_v: float = Field(
         6.8, ge=0.0, description="a rover on a tour below this is sent home and its tour goes "
         "to another rover")
+    min_soc: float = Field(
+        0.3, ge=0.0, le=1.0, description="a rover whose power model reports a state of charge "
+        "(0..1) below this gets no tour")
+    low_soc: float = Field(
+        0.15, ge=0.0, le=1.0, description="a rover on a tour whose state of charge falls below "
+        "this docks and its tour goes to another rover")
     offline_after_s: float = Field(5.0, gt=0.0, description="no status for this long: offline")
     redispatch_after_s: float = Field(
         60.0, ge=0.0, description="a rover that stays offline this long during a tour loses it "
@@ -1081,6 +1087,10 @@ class FleetConfig(Section):
                                  "handed to the rover this often")
     share_sim_truth: bool = Field(False, description="simulator: publish the true pose so "
                                   "rovers in other processes appear in this one's world")
+    dashboard_url: str = Field(
+        "", max_length=200, pattern=r"^(https?://\S+)?$",
+        description="where operators reach this rover's own dashboard (e.g. "
+        "http://10.0.0.11:8080/), published in its status for the fleet page's link; '' = none")
     traffic: FleetTrafficConfig = Field(default_factory=FleetTrafficConfig)
     ros2: FleetRos2Config = Field(default_factory=FleetRos2Config)
     manager: FleetManagerConfig = Field(default_factory=FleetManagerConfig)

@@ -13,7 +13,9 @@ as ``bt.command_accepted`` / ``bt.command_rejected`` events with the command's r
 Actions: ``goto`` (``x``, ``y``, ``yaw`` (default 0) in ``map``), ``start_tour`` (``tour_id``, and
 ``tour``: a tour definition the rover keeps first — the fleet manager distributes its shared
 tours this way; it needs the ``command`` permission), ``stop_tour``, ``pause``, ``resume``,
-``go_home`` (``dock`` is the same until docking lands), ``cancel``, ``estop``,
+``go_home``, ``dock`` (on a rover with a dock fitted — ``dock.enabled`` — Go Home *is* docking:
+the tree's ``RequestDock`` drives the docker's staging, approach and retries; ``dock`` is refused
+on a rover without one, so the sender knows it will not charge), ``cancel``, ``estop``,
 ``release_estop`` (only by the key that set it or an ``admin`` key, as on the dashboard).
 A ``request_id`` (up to 64 characters) is echoed in the reply; a repeated one is acknowledged
 without running again.
@@ -40,6 +42,7 @@ __all__ = ["ACTIONS", "CommandExecutor", "Outcome"]
 
 ACTIONS: tuple[str, ...] = ("goto", "start_tour", "stop_tour", "pause", "resume", "go_home",
                             "dock", "cancel", "estop", "release_estop")
+# ``dock`` becomes Go Home: with a dock fitted the tree docks on it (curio/bt/unattended.py).
 _PLAIN: dict[str, OperatorAction] = {"pause": "pause", "resume": "resume", "go_home": "go_home",
                                      "dock": "go_home", "cancel": "cancel", "estop": "estop",
                                      "release_estop": "release_estop"}
@@ -63,14 +66,16 @@ class CommandExecutor:
         bus, clock: injected.
         service: the tour service (None: tours are not available on this rover).
         store: the tour store that distributed tours are kept in.
+        has_dock: a dock is fitted (``dock.enabled``): ``dock`` is accepted.
     """
 
     def __init__(self, bus: Bus, clock: Clock, service: TourService | None = None,
-                 store: TourStore | None = None) -> None:
+                 store: TourStore | None = None, *, has_dock: bool = False) -> None:
         self.bus = bus
         self.clock = clock
         self.service = service
         self.store = store
+        self.has_dock = has_dock
         self._recent: OrderedDict[str, Outcome] = OrderedDict()
         self.executed = 0
 
@@ -118,6 +123,9 @@ class CommandExecutor:
                 return Outcome(False, "this rover has no tour service", rid)
             self.service.stop_tour(source="fleet", actor=v.key)
             return Outcome(True, "", rid)
+        if action == "dock" and not self.has_dock:
+            return Outcome(False, "this rover has no dock (dock.enabled is off): send go_home "
+                                  "to drive it home", rid)
         if action == "release_estop":
             estop = self.bus.latest(ESTOP)
             setter = estop.source if estop is not None else ""

@@ -106,7 +106,8 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     keys = FleetKeyring(cfg.data_path(f.keys_file))
     sources: list[KeyLookup] = [keys] if tokens is None else [keys, TokenStoreKeys(tokens)]
     verifier = CommandVerifier(rover, ChainedKeys(sources), clock.wall_time, f.command_max_age_s)
-    executor = CommandExecutor(bus, clock, tours.service, tours.store)
+    executor = CommandExecutor(bus, clock, tours.service, tours.store,
+                               has_dock=cfg.dock.enabled)
 
     def goal_active() -> bool:
         return navigator.active is not None
