@@ -1015,6 +1015,10 @@ class FleetTrafficConfig(Section):
         "than this goes first (distance and turns, estimated); closer than that, the one whose "
         "name sorts first")
     rate_hz: float = Field(5.0, gt=0.0, le=50.0, description="right-of-way decisions per second")
+    predict_peers: bool = Field(
+        True, description="give the other rovers, predicted along their planned paths, to the "
+        "people-aware controller as moving obstacles (needs people.aware; "
+        "curio/fleet/intent.py)")
 
 
 class FleetRos2Config(Section):

@@ -7,7 +7,9 @@ run`` stops with one line), and registers:
 * ``fleet.bridge`` (publish loop, link check) and ``fleet.pump`` (received samples to the
   loop) — :class:`~curio.fleet.bridge.FleetBridge`;
 * ``fleet.traffic`` — :class:`~curio.fleet.traffic.TrafficNode`, whose hold is added to the
-  navigator's ``holds`` (``fleet.traffic.enabled``);
+  navigator's ``holds`` (``fleet.traffic.enabled``); with ``fleet.traffic.predict_peers`` and
+  the people-aware controller's stage, the other rovers reach that stage as moving obstacles
+  predicted along their plans (:class:`~curio.fleet.intent.RoverIntent`);
 * ``fleet.keys`` — re-reads the keyring (and the dashboard's tokens) when ``curio fleet key``
   (``curio token``) changed them; a command may be signed with either;
 * ``fleet.ros2`` — :class:`~curio.fleet.ros2.publisher.Ros2Publisher` (``fleet.ros2.enabled``);
@@ -40,6 +42,7 @@ from curio.fleet.auth import (
 )
 from curio.fleet.bridge import FleetBridge
 from curio.fleet.commands import CommandExecutor
+from curio.fleet.intent import RoverIntent
 from curio.fleet.keys import check_rover_name
 from curio.fleet.simworld import PeerBodies
 from curio.fleet.traffic import PassageFinder, TrafficNode
@@ -89,11 +92,13 @@ def zenoh_settings(cfg: Config) -> ZenohSettings:
 def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel, *,
                 navigator: NavigatorNode, grid: Callable[[], OccupancyGrid], tours: Tours,
                 paths: Any = None, world: World | None = None, tokens: Any = None,
-                transport: Transport | None = None) -> Fleet | None:
+                transport: Transport | None = None, people_stage: Any = None) -> Fleet | None:
     """Construct and register the rover's fleet parts (None when ``fleet.enabled`` is off).
 
     ``tokens`` is the dashboard's token store (``curio.web.tokens.TokenStore``): its named
     tokens sign fleet commands too, with their roles, after the fleet's own keyring.
+    ``people_stage`` is the people-aware controller's stage (``PeopleStage``, None without
+    ``people.aware``): it gets the other rovers as movers with known intent.
     """
     f = cfg.fleet
     if not f.enabled:
@@ -120,6 +125,9 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
                               robot.circumscribed_radius_m, goal_active)
         navigator.holds.append(traffic.hold)
         parts.add(Part("fleet.traffic", run=traffic.run))
+        if f.traffic.predict_peers and people_stage is not None:
+            people_stage.movers = RoverIntent(traffic.peers, clock.wall_time,
+                                              f.traffic.peer_timeout_s)
     snapshots: dict[str, Callable[[], Any]] = {"tours": lambda: [
         t.to_json() for t in tours.store.list_tours()]}
     if paths is not None:
