@@ -1065,6 +1065,9 @@ class FleetManagerConfig(Section):
                                   "dropped after waiting this long")
     max_attempts: int = Field(3, ge=1, le=20, description="dispatches of one tour at most")
     check_period_s: float = Field(1.0, gt=0.0, le=60.0)
+    distribute_zones: bool = Field(
+        True, description="push the zones of the shared map (the manager's zone file, once it "
+        "exists) to every rover on that map (curio/fleet/zones_sync.py)")
 
 
 class FleetConfig(Section):

@@ -144,6 +144,8 @@ class FleetBridge:
         self.snapshots = QuerySnapshots(rover)
         self.snapshots_of = snapshots_of or {}
         self._peer_handlers: list[tuple[str, PeerHandler]] = []
+        # More fields of the status message, each a callable returning a dict (zones).
+        self.status_extras: list[Callable[[], dict[str, Any]]] = []
         self._event_seq = itertools.count(1)
         self._recent: deque[dict[str, Any]] = deque(maxlen=RECALL_EVENTS)
         self._ticks = 0
@@ -377,6 +379,7 @@ class FleetBridge:
             "map": self._last.get("map_sha", ""), "link": bool(self.link_up),
             "traffic": d.state if d else "off", "yield_to": d.yield_to if d else None,
             "dashboard": self.fcfg.dashboard_url, **self._power_status(),
+            **{k: v for extra in self.status_extras for k, v in extra().items()},
         }
 
     def _power_status(self) -> dict[str, Any]:

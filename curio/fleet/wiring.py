@@ -48,6 +48,7 @@ from curio.fleet.simworld import PeerBodies
 from curio.fleet.traffic import PassageFinder, TrafficNode
 from curio.fleet.transport import Transport
 from curio.fleet.zenoh_link import ZenohSettings, ZenohTransport, load_zenoh
+from curio.fleet.zones_sync import zones_status
 from curio.nav.navigator import NavigatorNode
 from curio.robot import RobotModel
 from curio.sim.world import World
@@ -92,13 +93,16 @@ def zenoh_settings(cfg: Config) -> ZenohSettings:
 def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel, *,
                 navigator: NavigatorNode, grid: Callable[[], OccupancyGrid], tours: Tours,
                 paths: Any = None, world: World | None = None, tokens: Any = None,
-                transport: Transport | None = None, people_stage: Any = None) -> Fleet | None:
+                transport: Transport | None = None, people_stage: Any = None,
+                zones: Any = None) -> Fleet | None:
     """Construct and register the rover's fleet parts (None when ``fleet.enabled`` is off).
 
     ``tokens`` is the dashboard's token store (``curio.web.tokens.TokenStore``): its named
     tokens sign fleet commands too, with their roles, after the fleet's own keyring.
     ``people_stage`` is the people-aware controller's stage (``PeopleStage``, None without
-    ``people.aware``): it gets the other rovers as movers with known intent.
+    ``people.aware``): it gets the other rovers as movers with known intent. ``zones`` is the
+    zone service (None: zones off): the fleet manager's ``set_zones`` goes to it, and its
+    map and digest go into the status.
     """
     f = cfg.fleet
     if not f.enabled:
@@ -112,7 +116,7 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     sources: list[KeyLookup] = [keys] if tokens is None else [keys, TokenStoreKeys(tokens)]
     verifier = CommandVerifier(rover, ChainedKeys(sources), clock.wall_time, f.command_max_age_s)
     executor = CommandExecutor(bus, clock, tours.service, tours.store,
-                               has_dock=cfg.dock.enabled)
+                               has_dock=cfg.dock.enabled, zones=zones)
 
     def goal_active() -> bool:
         return navigator.active is not None
@@ -134,6 +138,7 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
         snapshots["paths"] = lambda: [p.to_json() for p in paths.list_paths()]
     bridge = FleetBridge(cfg, rover, bus, clock, transport, robot, verifier, executor, traffic,
                          goal_active, snapshots)
+    bridge.status_extras.append(zones_status(zones))
     if traffic is not None:
         bridge.on_peer("traffic", traffic.on_peer)
     bodies = None
