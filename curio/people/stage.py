@@ -48,7 +48,8 @@ are ``min_distance_m``: stopping in a doorway helps nobody through it.
 (``curio/fleet/intent.py``) join the people as obstacles whose future is *known*: predicted
 along their planned path, not on a straight line, each with its own radius (a circle round its
 footprint) instead of ``person_radius_m``; one that stands asks only ``min_distance_m``. A
-person track on top of a mover (the tracker took the rover for a person) is dropped.
+person track on top of a mover (the tracker took the rover for a person) is dropped, and
+"Excuse me" is said only when a person is near (the assertive shrink happens all the same).
 
 With :attr:`PeopleStage.stop_short` (the guide sets it on the way to a tour stop) a goal
 with people standing on it counts as reached within ``stop_short_m``: the rover keeps its
@@ -127,6 +128,7 @@ class PeopleStage:
         self.last_costs: tuple[F64, ...] = ()  # the last review's numbers (for inspection)
         self.movers: Callable[[F64], Any] | None = None
         self._futures: F64 = np.zeros((0, len(self.times), 2))  # of the rows after the people
+        self._persons = 0  # people (not movers) in the last people_near
 
     # -- people ------------------------------------------------------------------------------
     def people_near(self, pose: Pose2D, now_s: float) -> F64:
@@ -159,6 +161,7 @@ class PeopleStage:
         """``people`` followed by the movers within reach (their futures kept for the
         review); a person track within a mover's radius is the mover."""
         self._futures = np.zeros((0, len(self.times), 2))
+        self._persons = len(people)
         known = self.movers(self.times) if self.movers is not None else None
         if known is None or len(known.now) == 0:
             return people
@@ -171,6 +174,7 @@ class PeopleStage:
         if len(people):
             d = np.hypot(people[:, None, 0] - now[None, :, 0], people[:, None, 1] - now[None, :, 1])
             people = people[(d > radius[None, :]).all(axis=1)]
+            self._persons = len(people)
         self._futures = np.ascontiguousarray(known.future[near])
         extra = np.maximum(radius - self.cfg.person_radius_m, 0.0)
         return np.vstack([people, np.column_stack([now[:, :5], extra])])
@@ -405,9 +409,10 @@ class PeopleStage:
                 cfg.excuse_me_interval_s:
             self._last_excuse_s = now_s
             self._assertive_until_s = now_s + cfg.assertive_s
-            self.excuse_me_count += 1
-            for listener in list(self.on_excuse_me):
-                listener(cfg.excuse_me_text)
+            if self._persons:  # nobody to say it to when only another rover waits
+                self.excuse_me_count += 1
+                for listener in list(self.on_excuse_me):
+                    listener(cfg.excuse_me_text)
         return waited
 
     def _command(self, ctl: LocalController, now_s: float, cand: F64,

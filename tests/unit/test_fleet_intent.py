@@ -115,3 +115,17 @@ def test_a_person_track_on_a_rover_counts_once_as_the_rover(
     assert rows.shape == (2, 6)
     assert rows[0, :2] == pytest.approx([3.0, 2.0]) and rows[0, 5] == 0.0
     assert rows[1, 5] == pytest.approx(0.45 - stage.cfg.person_radius_m)
+
+
+def test_excuse_me_is_not_said_to_a_rover(
+        controller: tuple[LocalController, PeopleStage]) -> None:
+    """A rover standing across the lane: the controller waits, turns assertive after
+    ``excuse_me_after_s``, but says nothing (nobody to say it to)."""
+    ctrl, stage = controller
+    said: list[str] = []
+    stage.on_excuse_me.append(said.append)
+    table = PeerTable("me")
+    table.update("a", {**TURNING, "x": 0.2, "y": 0.0, "v": 0.0, "goal": False, "plan": []})
+    stage.movers = RoverIntent(table, lambda: 100.0, 2.0)
+    _output_after(ctrl, stage.cfg.excuse_me_after_s + 3.0)
+    assert stage._assertive_until_s > 0 and said == [] and stage.excuse_me_count == 0
