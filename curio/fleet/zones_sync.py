@@ -83,6 +83,11 @@ class ZoneDistributor:
         self.pushes = 0
         self.reload()
 
+    @property
+    def has_file(self) -> bool:
+        """Whether the manager has a zone file for the map (else it pushes nothing)."""
+        return self._mtime is not None
+
     def reload(self) -> bool:
         """Read the zone file again when it changed; True when it did."""
         try:

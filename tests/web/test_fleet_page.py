@@ -2,9 +2,10 @@
 fleet manager serves the page built from the dashboard's page kit; three rovers speak to it
 over an in-process link exactly as their bridges do (status, pose, plan, events). The page
 shows every rover on the shared map with state, battery, tour and alerts and a link to each
-rover's dashboard; with the token, Pause reaches the rover as a signed command, a tour is
-dispatched to the best rover, and STOP ALL e-stops every rover. Screenshots in
-``artifacts/screenshots/`` (``<viewport>-fleet*.png``)."""
+rover's dashboard; the manager pushes its zones to a rover whose zones differ; with the
+token, Pause reaches the rover as a signed command, a tour is dispatched to the best rover,
+and STOP ALL e-stops every rover. Screenshots in ``artifacts/screenshots/``
+(``<viewport>-fleet*.png``)."""
 
 from __future__ import annotations
 
@@ -25,6 +26,8 @@ from curio.fleet.manager.service import FleetManager
 from curio.fleet.manager.web import FleetWeb
 from curio.fleet.transport import MemoryNetwork, MemoryTransport
 from curio.tours.model import tour_from_json
+from curio.zones.store import ZoneStore
+from curio.zones.wiring import zone_file
 from tests.web import browser_kit as kit
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(240)]
@@ -40,6 +43,7 @@ ROVERS: dict[str, dict[str, Any]] = {
            "plan": [[2.0, 1.0], [4.0, 1.0], [6.0, 2.5], [8.0, 2.5]]},
     "r2": {"state": "docked", "text": "Charging (63 %)", "ready": True, "battery_v": 7.5,
            "soc": 0.63, "charging": True, "power_level": "ok", "dock": DOCK,
+           "zones": {"map": "curio_building", "digest": "not-the-managers", "count": 0},
            "traffic": "clear", "pose": (-4.0, -2.0, 1.57), "plan": []},
     "r3": {"state": "idle", "text": "Idle", "ready": True, "battery_v": 6.9, "soc": 0.18,
            "power_level": "low", "dock": None, "traffic": "clear", "pose": (10.0, 8.0, 3.1),
@@ -101,6 +105,8 @@ async def fleet(tmp_path: Path) -> AsyncIterator[tuple[str, FleetManager, dict[s
     clock = RealClock()
     net = MemoryNetwork()
     link = MemoryTransport("manager", net)
+    ZoneStore(zone_file(cfg, "curio_building"), "curio_building", 0.5).add(
+        "Stairs", "keepout", [[10.0, 8.0], [11.0, 8.0], [11.0, 9.0], [10.0, 9.0]])
     manager = FleetManager(cfg, clock, link, KEY)
     manager.tours.upsert(tour_from_json(TOUR), actor="test")
     port = free_port()
@@ -140,6 +146,11 @@ async def test_the_fleet_view(tmp_path: Path, viewport: str) -> None:
         assert link == "http://r2.local:8080/"
         assert "low" in (await b.page.get_attribute(".rover[data-name=r3] .battery", "class")
                          or "")
+        # r2's zones differ from the manager's: the page says so and the zones are sent.
+        assert "zones being sent" in await b.text(".rover[data-name=r2] .roverTop")
+        rovers["r2"].link.pump()
+        assert [c["action"] for c in rovers["r2"].commands] == ["set_zones"]
+        assert rovers["r2"].commands[0]["zones"][0]["name"] == "Stairs"
         # View only without the token: nothing can be sent.
         assert await b.state("document.querySelector('.roverActions button').disabled")
         assert await b.state("document.getElementById('estop').disabled")

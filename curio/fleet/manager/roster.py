@@ -95,6 +95,7 @@ class RoverState:
                 "time_left_s": self.status.get("time_left_s"),
                 "dock": self.status.get("dock"), "loc": self.status.get("loc", "unknown"),
                 "dashboard": self.status.get("dashboard", ""),
+                "zones": self.status.get("zones"),
                 "alerts": self.alerts[-10:]}
 
 

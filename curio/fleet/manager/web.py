@@ -120,7 +120,9 @@ class FleetWeb:
             "rovers": m.rovers_json(), "jobs": [j.to_json() for j in m.dispatcher.jobs[-100:]],
             "tours": [{"id": t.id, "name": t.name, "stops": len(t.stops)}
                       for t in m.tours.list_tours()],
-            "summary": m.summary(), "map": m.map_sha})
+            "summary": m.summary(), "map": m.map_sha,
+            "zones": {"map": m.zones.map_name, "count": len(m.zones.zones),
+                      "digest": m.zones.digest if m.zones.has_file else None}})
 
     async def _map_meta(self, request: web.Request) -> web.Response:
         g = self.manager.grid

@@ -177,6 +177,10 @@
     if (r.estop) top.append(el("span", "pill estop", "E-STOP"));
     if (r.traffic === "yield" || r.traffic === "go") top.append(el("span", "pill " + r.traffic, r.traffic === "yield" ? "giving way" : "has the passage"));
     if (r.map && state.fleet.map && r.map !== state.fleet.map) top.append(el("span", "pill map", "other map"));
+    const zones = state.fleet.zones;
+    if (r.online && zones && zones.digest && r.zones && r.zones.map === zones.map && r.zones.digest !== zones.digest) {
+      top.append(el("span", "pill map", "zones being sent"));
+    }
     if (r.dashboard) {
       const a = el("a", "dash", "Dashboard ↗");
       a.href = r.dashboard; a.target = "_blank"; a.rel = "noopener";
