@@ -10,7 +10,7 @@ import pytest
 
 from curio.app import App
 from curio.core.clock import SimClock
-from curio.core.config import load_config
+from curio.core.config import Config, load_config
 from curio.fleet import codec
 from curio.fleet.auth import CommandSigner, FleetKeyring, KeyEntry
 from curio.fleet.transport import MemoryNetwork, MemoryTransport
@@ -20,14 +20,15 @@ pytestmark = [pytest.mark.timeout(300)]
 FLEET = KeyEntry("fleet", "operator", "f" * 32)
 
 
-async def _rover(tmp_path: Path, dock: bool) -> tuple[App, SimClock, MemoryTransport,
-                                                      list[dict[str, Any]], list[dict[str, Any]]]:
-    cfg = load_config(None, [f'data_dir="{tmp_path}"', "web.enabled=false",
-                             f"dock.enabled={'true' if dock else 'false'}",
-                             "sim.start=[-0.75, 0.12, 0.15]", "bt.speak=false",
-                             "fleet.enabled=true", 'fleet.rover="r1"',
-                             'fleet.dashboard_url="http://10.0.0.11:8080/"'])
-    FleetKeyring(cfg.data_path(cfg.fleet.keys_file)).add(FLEET.name, FLEET.role, FLEET.secret)
+Rover = tuple[App, SimClock, MemoryTransport, list[dict[str, Any]], list[dict[str, Any]]]
+
+
+async def started_rover(cfg: Config, keys: tuple[KeyEntry, ...] = (FLEET,)) -> Rover:
+    """Rover ``r1`` of ``cfg`` (fleet on) on an in-process link, its keyring holding ``keys``,
+    started and run 3 s; the other end of the link, and its statuses and replies as heard."""
+    ring = FleetKeyring(cfg.data_path(cfg.fleet.keys_file))
+    for k in keys:
+        ring.add(k.name, k.role, k.secret)
     net = MemoryNetwork()
     them = MemoryTransport("manager", net)
     clock = SimClock()
@@ -39,6 +40,16 @@ async def _rover(tmp_path: Path, dock: bool) -> tuple[App, SimClock, MemoryTrans
     them.open()
     await app.start()
     await clock.run(until_s=3.0)
+    return app, clock, them, statuses, replies
+
+
+async def _rover(tmp_path: Path, dock: bool) -> Rover:
+    cfg = load_config(None, [f'data_dir="{tmp_path}"', "web.enabled=false",
+                             f"dock.enabled={'true' if dock else 'false'}",
+                             "sim.start=[-0.75, 0.12, 0.15]", "bt.speak=false",
+                             "fleet.enabled=true", 'fleet.rover="r1"',
+                             'fleet.dashboard_url="http://10.0.0.11:8080/"'])
+    app, clock, them, statuses, replies = await started_rover(cfg)
     them.put("curio/r1/cmd", CommandSigner(FLEET, clock.wall_time).sign(
         "r1", {"action": "dock", "request_id": "d1"}))
     return app, clock, them, statuses, replies

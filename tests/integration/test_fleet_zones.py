@@ -8,18 +8,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from curio.app import App
-from curio.core.clock import SimClock
 from curio.core.config import REPO_ROOT, load_config
 from curio.core.topics import POSE
-from curio.fleet import codec
-from curio.fleet.auth import CommandSigner, FleetKeyring, KeyEntry
+from curio.fleet.auth import CommandSigner, KeyEntry
 from curio.fleet.manager.roster import Roster
-from curio.fleet.transport import MemoryNetwork, MemoryTransport
 from curio.fleet.zones_sync import ZoneDistributor, zones_digest
 from curio.zones.store import ZoneStore
+from tests.integration.test_fleet_dock import FLEET, started_rover
 
-FLEET = KeyEntry("fleet", "operator", "f" * 32)
 LOBBY = KeyEntry("lobby", "kiosk", "l" * 32)
 KEEPOUT = {"id": 4, "name": "Stairs", "kind": "keepout",
            "polygon": [[10.0, 8.0], [11.0, 8.0], [11.0, 9.0], [10.0, 9.0]],
@@ -33,22 +29,9 @@ async def test_a_rover_takes_the_managers_zones_and_refuses_bad_ones(tmp_path: P
     cfg = load_config(REPO_ROOT / "config.toml", [
         f'data_dir="{tmp_path}"', "web.enabled=false", "bt.speak=false",
         "fleet.enabled=true", 'fleet.rover="r1"'])
-    ring = FleetKeyring(cfg.data_path(cfg.fleet.keys_file))
-    for k in (FLEET, LOBBY):
-        ring.add(k.name, k.role, k.secret)
-    net = MemoryNetwork()
-    them = MemoryTransport("manager", net)
-    clock = SimClock()
-    app = App(cfg, clock, web=False, fleet_transport=MemoryTransport("r1", net))
+    app, clock, them, statuses, replies = await started_rover(cfg, (FLEET, LOBBY))
     assert app.zones is not None
     map_name = app.zones.store.map_name
-    replies: list[dict[str, Any]] = []
-    statuses: list[dict[str, Any]] = []
-    them.subscribe("curio/r1/reply", lambda s: replies.append(codec.loads(s.payload)))
-    them.subscribe("curio/r1/status", lambda s: statuses.append(codec.loads(s.payload)))
-    them.open()
-    await app.start()
-    await clock.run(until_s=2.0)
 
     def send(key: KeyEntry, rid: str, zones: list[dict[str, Any]], name: str = map_name
              ) -> None:

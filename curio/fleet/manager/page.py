@@ -22,22 +22,15 @@ from typing import Any
 
 from aiohttp import web
 
-import curio.web
+from curio.web.pages import HEAD, STATIC_DIR
 
 __all__ = ["FLEET_PERMISSIONS", "STATIC_FILES", "FleetPage"]
 
-STATIC_DIR = Path(curio.web.__file__).resolve().parent / "static"
 STATIC_FILES = ("style.css", "pages.css", "pagekit.js", "core.js", "fleet.js", "fleet.css")
 FLEET_PERMISSIONS = ("command", "tour", "estop")
 CONTENT_TYPES = {".css": "text/css", ".js": "text/javascript"}
 
-# The page's <head> ({{HEAD}} in fleet.html): as the dashboard's pages have it.
-HEAD = """<meta charset="utf-8">
-<meta name="viewport" content="width=device-width, initial-scale=1, viewport-fit=cover">
-<meta name="referrer" content="no-referrer">
-<link rel="icon" href="data:,">
-<link rel="stylesheet" href="/static/style.css?v={{VERSION}}">
-<link rel="stylesheet" href="/static/pages.css?v={{VERSION}}">"""
+
 
 
 def static_version() -> str:
@@ -79,6 +72,7 @@ class FleetPage:
 
     async def page(self, request: web.Request) -> web.Response:
         """The fleet view."""
+        # The dashboard pages' <head>, and the fleet view's own styles after it.
         html = (STATIC_DIR / "fleet.html").read_text(encoding="utf-8").replace("{{HEAD}}", HEAD)
         return web.Response(text=html.replace("{{VERSION}}", self.version),
                             content_type="text/html", headers={"Cache-Control": "no-cache"})
