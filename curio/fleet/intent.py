@@ -17,6 +17,10 @@ step of the stage's horizon — along its plan at its present speed, not on a st
   obstacle that does not walk (the stage then keeps only its minimum distance, not a
   walker's comfortable one): a rover waiting at a staging point is passed like a pillar.
 * Peers not heard within ``fleet.traffic.peer_timeout_s`` are left to the lidar.
+* A rover that gives way *to this one* at a passage is left out: the right-of-way rule has
+  settled that encounter (it holds at its staging point, this one goes), and predicting it
+  there only made the rover that has the passage linger beside it (``curio bench fleet``
+  seed 25 deadlocked that way).
 
 The right-of-way rule (:mod:`curio.fleet.traffic`) stays above the controller as it was: it
 decides who goes first through a narrow passage; this only makes the controller see where the
@@ -115,10 +119,10 @@ class RoverIntent:
         self.calls += 1
         now = self.wall_time()
         fresh = self.peers.fresh(now, self.timeout_s)
-        if not fresh:
-            return KnownMovers.empty(len(times))
         rows, futures, radii, names = [], [], [], []
         for p in fresh:
+            if p.state == "yield" and p.yield_to == self.peers.me:
+                continue  # the rule has settled it: it holds for us
             age = min(max(now - p.wall_s, 0.0), MAX_AGE_S)
             moving = self._moving(p)
             speed = abs(p.speed_mps) if moving else 0.0
@@ -130,6 +134,8 @@ class RoverIntent:
             futures.append(future)
             radii.append(p.radius_m)
             names.append(f"rover:{p.name}")
+        if not rows:
+            return KnownMovers.empty(len(times))
         return KnownMovers(np.array(rows, dtype=np.float64), np.stack(futures),
                            np.array(radii, dtype=np.float64), tuple(names))
 

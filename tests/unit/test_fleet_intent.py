@@ -44,7 +44,8 @@ def test_holding_stale_and_yielding_rovers() -> None:
     table.update("c", {**TURNING, "t": 95.0, "y": 6.0})               # not heard for 5 s
     table.update("d", {**TURNING, "t": 100.2, "y": -4.0, "state": "yield", "yield": "a",
                        "plan": [[3.0, -4.0]], "stop_in": 0.5})
-    known = intent(TIMES)
+    table.update("e", {**TURNING, "t": 100.2, "y": -6.0, "state": "yield", "yield": "me"})
+    known = intent(TIMES)  # e gives way to us: the right of way settled it, left out
     assert known.names == ("rover:a", "rover:b", "rover:d")
     a, b, d = known.future
     assert a[0] == pytest.approx([1.1, -1.6])                          # 0.2 s old at 0.5 m/s
