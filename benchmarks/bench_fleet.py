@@ -10,10 +10,10 @@ doorway between them, starts and start times jittered by the seed. ``--pairs N``
 
 * ``curio`` — the fleet's traffic layer on (right of way, staging holds) and the other rover
   given to the people-aware controller as a moving obstacle with known intent
-  (``curio/fleet/intent.py``);
+  (``fleet.traffic.predict_peers = true``, ``curio/fleet/intent.py``; off by default);
 * ``curio, no intent`` (``no-intent``) — the traffic layer without that prediction
-  (``fleet.traffic.predict_peers = false``: the controller sees the other rover only as the
-  lidar and the people tracker do — the behaviour before the prediction existed);
+  (``fleet.traffic.predict_peers = false``, the default: the controller sees the other rover
+  only as the lidar and the people tracker do);
 * ``lidar only`` — the same two rovers with ``fleet.traffic.enabled = false``: nothing but
   their lidars, costmaps and safety stages keep them apart (what two rovers without a fleet
   layer would do).

@@ -1016,9 +1016,10 @@ class FleetTrafficConfig(Section):
         "name sorts first")
     rate_hz: float = Field(5.0, gt=0.0, le=50.0, description="right-of-way decisions per second")
     predict_peers: bool = Field(
-        True, description="give the other rovers, predicted along their planned paths, to the "
+        False, description="give the other rovers, predicted along their planned paths, to the "
         "people-aware controller as moving obstacles (needs people.aware; "
-        "curio/fleet/intent.py)")
+        "curio/fleet/intent.py). Off by default: shorter holds in the doorway bench but one "
+        "deadlock in 50 seeds (docs/fleet.md)")
 
 
 class FleetRos2Config(Section):

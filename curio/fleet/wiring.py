@@ -7,7 +7,8 @@ run`` stops with one line), and registers:
 * ``fleet.bridge`` (publish loop, link check) and ``fleet.pump`` (received samples to the
   loop) — :class:`~curio.fleet.bridge.FleetBridge`;
 * ``fleet.traffic`` — :class:`~curio.fleet.traffic.TrafficNode`, whose hold is added to the
-  navigator's ``holds`` (``fleet.traffic.enabled``); with ``fleet.traffic.predict_peers`` and
+  navigator's ``holds`` (``fleet.traffic.enabled``); with ``fleet.traffic.predict_peers`` (off
+  by default) and
   the people-aware controller's stage, the other rovers reach that stage as moving obstacles
   predicted along their plans (:class:`~curio.fleet.intent.RoverIntent`);
 * ``fleet.keys`` — re-reads the keyring (and the dashboard's tokens) when ``curio fleet key``

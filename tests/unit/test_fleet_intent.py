@@ -4,15 +4,19 @@ people-aware controller reacting to where a rover *will* be, not where a straigh
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from curio.core.config import Config
+from curio.app import App
+from curio.core.clock import SimClock
+from curio.core.config import Config, load_config
 from curio.core.geometry import Pose2D
 from curio.core.messages import PeopleTracks, PersonTrack
 from curio.fleet.intent import RoverIntent, predict_along
 from curio.fleet.traffic import PeerTable
+from curio.fleet.transport import MemoryNetwork, MemoryTransport
 from curio.nav.controller import ControlOutput, ControlStatus, LocalController
 from curio.nav.costmap import Costmap
 from curio.people.stage import PeopleStage
@@ -130,3 +134,18 @@ def test_excuse_me_is_not_said_to_a_rover(
     stage.movers = RoverIntent(table, lambda: 100.0, 2.0)
     _output_after(ctrl, stage.cfg.excuse_me_after_s + 3.0)
     assert stage._assertive_until_s > 0 and said == [] and stage.excuse_me_count == 0
+
+
+@pytest.mark.parametrize("predict", [False, True])
+def test_the_wiring_feeds_the_people_stage_only_when_asked(tmp_path: Path, predict: bool
+                                                          ) -> None:
+    cfg = load_config(None, [f'data_dir="{tmp_path}"', "web.enabled=false",
+                             "fleet.enabled=true", 'fleet.rover="r1"',
+                             f"fleet.traffic.predict_peers={str(predict).lower()}"])
+    app = App(cfg, SimClock(), web=False,
+              fleet_transport=MemoryTransport("r1", MemoryNetwork()))
+    assert app.people is not None and app.people.stage is not None and app.fleet is not None
+    movers = app.people.stage.movers
+    assert isinstance(movers, RoverIntent) is predict
+    if isinstance(movers, RoverIntent):
+        assert app.fleet.traffic is not None and movers.peers is app.fleet.traffic.peers
