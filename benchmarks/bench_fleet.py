@@ -1,13 +1,19 @@
 """Fleet benchmark: two rovers meet in the default building's narrowest doorway, many seeds.
 
-``curio bench fleet [--pairs N] [--seed N] [--set transport=zenoh|memory] [--set procs=N]``
+``curio bench fleet [--pairs N] [--seed N] [--set transport=zenoh|memory] [--set procs=N]
+[--set subjects=curio,no-intent,lidar]``
 
 Each run is the fleet simulator's ``doorway`` scenario (``curio fleet sim --scenario doorway``):
 two whole applications on one simulated clock, each with its own link, the workshop's 0.9 m
 doorway between them, starts and start times jittered by the seed. ``--pairs N`` runs seeds
 ``seed .. seed+N-1`` (default 50) for each subject:
 
-* ``curio`` — the fleet's traffic layer on (right of way, staging holds);
+* ``curio`` — the fleet's traffic layer on (right of way, staging holds) and the other rover
+  given to the people-aware controller as a moving obstacle with known intent
+  (``fleet.traffic.predict_peers = true``, ``curio/fleet/intent.py``; off by default);
+* ``curio, no intent`` (``no-intent``) — the traffic layer without that prediction
+  (``fleet.traffic.predict_peers = false``, the default: the controller sees the other rover
+  only as the lidar and the people tracker do);
 * ``lidar only`` — the same two rovers with ``fleet.traffic.enabled = false``: nothing but
   their lidars, costmaps and safety stages keep them apart (what two rovers without a fleet
   layer would do).
@@ -17,7 +23,8 @@ Rows: ``runs``, ``success_rate`` (both goals reached in 180 s: no deadlock),
 decisions), ``longest_standoff_s`` (the longest a rover held for the other, any run),
 ``p95_standoff_s``, ``median_time_to_both_s``, ``link_bytes_per_s`` (mean per rover),
 ``wall_time_s``. Targets: success 100 %, zero collisions, longest standoff ≤ 10 s.
-Runs go through a process pool (one per core, ``--set procs=N`` to change); the transport is
+``--set subjects=`` picks some of them (default all three). Runs go through a process pool
+(one per core, ``--set procs=N`` to change); the transport is
 the in-process one unless ``--set transport=zenoh`` (the same runs, with sockets).
 """
 
@@ -34,14 +41,19 @@ from typing import Any
 from curio.commands.bench import BenchOptions
 from curio.core.config import load_config
 
+SUBJECTS = {"curio": ("curio", True, True), "no-intent": ("curio, no intent", True, False),
+            "lidar": ("lidar only", False, False)}
 
-def _run_job(job: tuple[str, int, bool, str, str]) -> dict[str, Any]:
-    subject, seed, traffic, transport, tmp = job
+
+def _run_job(job: tuple[str, int, bool, bool, str, str]) -> dict[str, Any]:
+    subject, seed, traffic, intent, transport, tmp = job
     from curio.scenarios.fleet import get_fleet_scenario
     from curio.scenarios.fleet.base import FleetArgs, run_fleet
 
-    cfg = load_config(None, [f'data_dir="{tmp}/{subject.replace(" ", "_")}-{seed}"',
-                             f"fleet.traffic.enabled={'true' if traffic else 'false'}"])
+    cfg = load_config(None, [f'data_dir="{tmp}/{subject.replace(" ", "_").replace(",", "")}'
+                             f'-{seed}"',
+                             f"fleet.traffic.enabled={'true' if traffic else 'false'}",
+                             f"fleet.traffic.predict_peers={'true' if intent else 'false'}"])
     report = asyncio.run(run_fleet(get_fleet_scenario("doorway"), cfg,
                                    FleetArgs(seed=seed, transport=transport)))  # type: ignore[arg-type]
     m = report["metrics"]
@@ -75,10 +87,16 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
     n = opts.pairs or 50
     transport = str(opts.extra.get("transport", "memory"))
     procs = int(opts.extra.get("procs", os.cpu_count() or 1))
+    wanted = str(opts.extra.get("subjects", ",".join(SUBJECTS))).split(",")
+    unknown = [w for w in wanted if w not in SUBJECTS]
+    if unknown:
+        raise ValueError(f"subjects: {', '.join(unknown)} unknown; allowed: "
+                         f"{', '.join(SUBJECTS)}")
     rows = []
     with tempfile.TemporaryDirectory(prefix="curio-bench-fleet-") as tmp:
-        for subject, traffic in (("curio", True), ("lidar only", False)):
-            jobs = [(subject, opts.seed + i, traffic, transport, tmp) for i in range(n)]
+        for key in wanted:
+            subject, traffic, intent = SUBJECTS[key]
+            jobs = [(subject, opts.seed + i, traffic, intent, transport, tmp) for i in range(n)]
             t0 = time.perf_counter()
             ctx = multiprocessing.get_context("fork")
             with ctx.Pool(procs) as pool:

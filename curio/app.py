@@ -204,7 +204,9 @@ class App:
         self.fleet: Fleet | None = build_fleet(
             cfg, self.bus, clock, reg, self.robot, navigator=nav.navigator,
             grid=lambda: est.map_server.grid, tours=self.tours, paths=self.paths,
-            world=self.world, tokens=self.tokens, transport=fleet_transport)
+            world=self.world, tokens=self.tokens, transport=fleet_transport,
+            people_stage=self.people.stage if self.people is not None else None,
+            zones=self.zones)
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:

@@ -1029,6 +1029,11 @@ class FleetTrafficConfig(Section):
         "than this goes first (distance and turns, estimated); closer than that, the one whose "
         "name sorts first")
     rate_hz: float = Field(5.0, gt=0.0, le=50.0, description="right-of-way decisions per second")
+    predict_peers: bool = Field(
+        False, description="give the other rovers, predicted along their planned paths, to the "
+        "people-aware controller as moving obstacles (needs people.aware; "
+        "curio/fleet/intent.py). Off by default: shorter holds in the doorway bench but one "
+        "deadlock in 50 seeds (docs/fleet.md)")
 
 
 class FleetRos2Config(Section):
@@ -1057,6 +1062,12 @@ class FleetManagerConfig(Section):
     low_battery_v: float = Field(
         6.8, ge=0.0, description="a rover on a tour below this is sent home and its tour goes "
         "to another rover")
+    min_soc: float = Field(
+        0.3, ge=0.0, le=1.0, description="a rover whose power model reports a state of charge "
+        "(0..1) below this gets no tour")
+    low_soc: float = Field(
+        0.15, ge=0.0, le=1.0, description="a rover on a tour whose state of charge falls below "
+        "this docks and its tour goes to another rover")
     offline_after_s: float = Field(5.0, gt=0.0, description="no status for this long: offline")
     redispatch_after_s: float = Field(
         60.0, ge=0.0, description="a rover that stays offline this long during a tour loses it "
@@ -1069,6 +1080,9 @@ class FleetManagerConfig(Section):
                                   "dropped after waiting this long")
     max_attempts: int = Field(3, ge=1, le=20, description="dispatches of one tour at most")
     check_period_s: float = Field(1.0, gt=0.0, le=60.0)
+    distribute_zones: bool = Field(
+        True, description="push the zones of the shared map (the manager's zone file, once it "
+        "exists) to every rover on that map (curio/fleet/zones_sync.py)")
 
 
 class FleetConfig(Section):
@@ -1095,6 +1109,10 @@ class FleetConfig(Section):
                                  "handed to the rover this often")
     share_sim_truth: bool = Field(False, description="simulator: publish the true pose so "
                                   "rovers in other processes appear in this one's world")
+    dashboard_url: str = Field(
+        "", max_length=200, pattern=r"^(https?://\S+)?$",
+        description="where operators reach this rover's own dashboard (e.g. "
+        "http://10.0.0.11:8080/), published in its status for the fleet page's link; '' = none")
     traffic: FleetTrafficConfig = Field(default_factory=FleetTrafficConfig)
     ros2: FleetRos2Config = Field(default_factory=FleetRos2Config)
     manager: FleetManagerConfig = Field(default_factory=FleetManagerConfig)

@@ -14,7 +14,8 @@ role may do the action. A refused command changes nothing; the bridge answers wi
 and logs ``fleet.command_refused``.
 
 **Roles** are the dashboard's (issue 20): ``kiosk`` may start and stop tours; ``operator`` may
-also send goals, pause, go home, use the e-stop and push tour definitions; ``admin`` may also
+also send goals, pause, go home, use the e-stop, push tour definitions and a map's zones;
+``admin`` may also
 release an e-stop that somebody else set. :data:`PERMISSIONS` and :func:`action_permission`
 mirror ``curio/web/tokens.py`` and ``curio/web/control.py`` on the dashboard branch and are kept
 here so that this module stands alone; a fleet command never gets more than the dashboard's
@@ -68,8 +69,8 @@ ROLES: tuple[str, ...] = ("kiosk", "operator", "admin")
 PERMISSIONS: dict[str, frozenset[str]] = {
     "viewer": frozenset(),
     "kiosk": frozenset({"tour"}),
-    "operator": frozenset({"tour", "estop", "command"}),
-    "admin": frozenset({"tour", "estop", "command", "release_any_estop"}),
+    "operator": frozenset({"tour", "estop", "command", "zones"}),
+    "admin": frozenset({"tour", "estop", "command", "zones", "release_any_estop"}),
 }
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9 ._@-]{0,31}$")
 _HEX16 = re.compile(r"^[0-9a-f]{16,64}$")
@@ -81,6 +82,8 @@ def action_permission(action: str) -> str:
         return "estop"
     if action in ("start_tour", "stop_tour"):
         return "tour"
+    if action == "set_zones":
+        return "zones"
     return "command"
 
 

@@ -6,7 +6,9 @@ Out, under ``curio/<rover>/`` (JSON unless said; :mod:`curio.fleet.codec`):
 * ``traffic`` — pose, speed, the plan ahead and the right-of-way state (``traffic.py``), at
   ``pose_rate_hz`` while the rover has a goal, 1/``IDLE_EVERY`` of that without;
 * ``status`` — state and text, e-stop, localisation, goal, tour, battery, ready (and why
-  not), home, the map's fingerprint, the link; every ``status_period_s``;
+  not), home, the map's fingerprint, the link; the power model's state of charge, level,
+  charging and time left (``/power``), the dock (``/dock``: None when no dock is fitted) and
+  the rover's dashboard address (``fleet.dashboard_url``); every ``status_period_s``;
 * ``battery``, ``plan`` (thinned to ``plan_step_m``), ``tour`` (the kiosk's state) — when
   they change;
 * ``events`` — every ``/events`` event, numbered, as it comes;
@@ -46,6 +48,7 @@ from curio.core.jsonable import to_jsonable
 from curio.core.messages import DriverHealth, Event
 from curio.core.topics import (
     BATTERY,
+    DOCK,
     ESTOP,
     EVENTS,
     GROUND_TRUTH,
@@ -55,6 +58,7 @@ from curio.core.topics import (
     ODOM,
     PLAN,
     POSE,
+    POWER,
     SCAN,
     STATUS,
     TOUR,
@@ -140,6 +144,8 @@ class FleetBridge:
         self.snapshots = QuerySnapshots(rover)
         self.snapshots_of = snapshots_of or {}
         self._peer_handlers: list[tuple[str, PeerHandler]] = []
+        # More fields of the status message, each a callable returning a dict (zones).
+        self.status_extras: list[Callable[[], dict[str, Any]]] = []
         self._event_seq = itertools.count(1)
         self._recent: deque[dict[str, Any]] = deque(maxlen=RECALL_EVENTS)
         self._ticks = 0
@@ -372,7 +378,29 @@ class FleetBridge:
             "ready": ready.ready, "why": ready.reason,
             "map": self._last.get("map_sha", ""), "link": bool(self.link_up),
             "traffic": d.state if d else "off", "yield_to": d.yield_to if d else None,
+            "dashboard": self.fcfg.dashboard_url, **self._power_status(),
+            **{k: v for extra in self.status_extras for k, v in extra().items()},
         }
+
+    def _power_status(self) -> dict[str, Any]:
+        """The power model (``/power``) and the dock (``/dock``) for the status message:
+        ``soc`` 0..1, ``power_level``, ``charging``, ``time_left_s``, ``time_to_full_s``
+        (None until ``/power`` has spoken) and ``dock`` (None: no dock fitted)."""
+        power = self.bus.latest(POWER)
+        dock = self.bus.latest(DOCK)
+        out: dict[str, Any] = {
+            "soc": round(power.soc, 3) if power else None,
+            "power_level": power.level if power else None,
+            "charging": bool(power.charging) if power else False,
+            "time_left_s": _rounded(power.time_left_s) if power else None,
+            "time_to_full_s": _rounded(power.time_to_full_s) if power else None,
+            "dock": None}
+        if self.cfg.dock.enabled:
+            out["dock"] = {"state": dock.state if dock else "idle",
+                           "charging": bool(dock.charging) if dock else False,
+                           "attempt": dock.attempt if dock else 0,
+                           "detail": dock.detail if dock else ""}
+        return out
 
     def _scan(self) -> None:
         scan = self.bus.latest(SCAN)
@@ -384,3 +412,6 @@ class FleetBridge:
         payload = codec.encode_scan(scan, laser, self.clock.wall_time(), self.fcfg.scan_beams)
         self.transport.put(rover_key(self.rover, "scan"), payload)
 
+
+def _rounded(value: float | None) -> float | None:
+    return None if value is None else round(value, 1)

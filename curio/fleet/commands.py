@@ -13,8 +13,13 @@ as ``bt.command_accepted`` / ``bt.command_rejected`` events with the command's r
 Actions: ``goto`` (``x``, ``y``, ``yaw`` (default 0) in ``map``), ``start_tour`` (``tour_id``, and
 ``tour``: a tour definition the rover keeps first — the fleet manager distributes its shared
 tours this way; it needs the ``command`` permission), ``stop_tour``, ``pause``, ``resume``,
-``go_home`` (``dock`` is the same until docking lands), ``cancel``, ``estop``,
-``release_estop`` (only by the key that set it or an ``admin`` key, as on the dashboard).
+``go_home``, ``dock`` (on a rover with a dock fitted — ``dock.enabled`` — Go Home *is* docking:
+the tree's ``RequestDock`` drives the docker's staging, approach and retries; ``dock`` is refused
+on a rover without one, so the sender knows it will not charge), ``cancel``, ``estop``,
+``release_estop`` (only by the key that set it or an ``admin`` key, as on the dashboard),
+``set_zones`` (``map``, ``zones``: the whole set of a map's keep-out and speed zones, from the
+fleet manager — ``curio/fleet/zones_sync.py``; checked and applied by the rover's zone
+service, refused on a rover without zones or on another map).
 A ``request_id`` (up to 64 characters) is echoed in the reply; a repeated one is acknowledged
 without running again.
 """
@@ -35,11 +40,13 @@ from curio.fleet.auth import Verified
 from curio.tours.model import TourError, tour_from_json
 from curio.tours.service import TourService
 from curio.tours.store import TourStore
+from curio.zones.model import ZoneError
 
 __all__ = ["ACTIONS", "CommandExecutor", "Outcome"]
 
 ACTIONS: tuple[str, ...] = ("goto", "start_tour", "stop_tour", "pause", "resume", "go_home",
-                            "dock", "cancel", "estop", "release_estop")
+                            "dock", "cancel", "estop", "release_estop", "set_zones")
+# ``dock`` becomes Go Home: with a dock fitted the tree docks on it (curio/bt/unattended.py).
 _PLAIN: dict[str, OperatorAction] = {"pause": "pause", "resume": "resume", "go_home": "go_home",
                                      "dock": "go_home", "cancel": "cancel", "estop": "estop",
                                      "release_estop": "release_estop"}
@@ -63,14 +70,19 @@ class CommandExecutor:
         bus, clock: injected.
         service: the tour service (None: tours are not available on this rover).
         store: the tour store that distributed tours are kept in.
+        has_dock: a dock is fitted (``dock.enabled``): ``dock`` is accepted.
+        zones: the rover's zone service (``ZoneService``; None: zones are off).
     """
 
     def __init__(self, bus: Bus, clock: Clock, service: TourService | None = None,
-                 store: TourStore | None = None) -> None:
+                 store: TourStore | None = None, *, has_dock: bool = False,
+                 zones: Any = None) -> None:
         self.bus = bus
         self.clock = clock
         self.service = service
         self.store = store
+        self.has_dock = has_dock
+        self.zones = zones
         self._recent: OrderedDict[str, Outcome] = OrderedDict()
         self.executed = 0
 
@@ -113,11 +125,16 @@ class CommandExecutor:
             return self._publish("goto", v, rid, goal=_goal(cmd))
         if action == "start_tour":
             return self._start_tour(v, rid)
+        if action == "set_zones":
+            return self._set_zones(v, rid)
         if action == "stop_tour":
             if self.service is None:
                 return Outcome(False, "this rover has no tour service", rid)
             self.service.stop_tour(source="fleet", actor=v.key)
             return Outcome(True, "", rid)
+        if action == "dock" and not self.has_dock:
+            return Outcome(False, "this rover has no dock (dock.enabled is off): send go_home "
+                                  "to drive it home", rid)
         if action == "release_estop":
             estop = self.bus.latest(ESTOP)
             setter = estop.source if estop is not None else ""
@@ -147,6 +164,17 @@ class CommandExecutor:
         request = self.service.start_tour(tour_id, source="fleet", actor=v.key,
                                           request_id=rid)
         return Outcome(True, "", request)
+
+
+    def _set_zones(self, v: Verified, rid: str) -> Outcome:
+        if self.zones is None:
+            return Outcome(False, "this rover keeps no zones (zones.enabled is off)", rid)
+        try:
+            changed = self.zones.replace(str(v.cmd.get("map", "")), v.cmd.get("zones"),
+                                         actor=v.source)
+        except ZoneError as exc:
+            return Outcome(False, str(exc), rid)
+        return Outcome(True, "" if changed else "the zones were already these", rid)
 
 
 def _goal(cmd: dict[str, Any]) -> Pose2D:

@@ -257,6 +257,7 @@ class PeerTrack:
     yield_to: str | None = None
     inside: bool = False
     radius_m: float = 0.45
+    stop_in_m: float | None = None  # yielding: it holds after driving this far along its plan
 
     @classmethod
     def from_message(cls, name: str, msg: dict[str, Any]) -> PeerTrack:
@@ -269,7 +270,8 @@ class PeerTrack:
                    str(msg.get("state", "clear")),
                    (float(zone[0]), float(zone[1])) if zone else None,
                    msg.get("yield") or None, bool(msg.get("inside", False)),
-                   float(msg.get("r", 0.45)))
+                   float(msg.get("r", 0.45)),
+                   float(msg["stop_in"]) if msg.get("stop_in") is not None else None)
 
     def points(self) -> F64:
         """Its pose followed by its plan ahead, ``(K, 2)``."""
@@ -637,7 +639,16 @@ class TrafficNode:
                 "v": odom.linear_mps if odom is not None else 0.0,
                 "goal": self.goal_active(), "plan": ahead, "state": d.state,
                 "zone": list(d.zone.centre) if d.zone is not None else None,
-                "yield": d.yield_to, "inside": d.inside, "r": self.robot_radius_m}
+                "yield": d.yield_to, "inside": d.inside, "r": self.robot_radius_m,
+                "stop_in": self._stop_in(d)}
+
+    @staticmethod
+    def _stop_in(d: Decision) -> float | None:
+        """Yielding: how far (m, along the plan) it drives on before it holds (None: it does
+        not hold; curio/fleet/intent.py predicts the others with it)."""
+        if d.state != "yield" or d.zone is None or d.inside:
+            return None
+        return round(max(0.0, d.zone.s_in_m - d.hold_s_m), 2)
 
     async def run(self) -> None:
         """Run the rule at ``rate_hz`` until cancelled."""

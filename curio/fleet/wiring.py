@@ -7,7 +7,10 @@ run`` stops with one line), and registers:
 * ``fleet.bridge`` (publish loop, link check) and ``fleet.pump`` (received samples to the
   loop) — :class:`~curio.fleet.bridge.FleetBridge`;
 * ``fleet.traffic`` — :class:`~curio.fleet.traffic.TrafficNode`, whose hold is added to the
-  navigator's ``holds`` (``fleet.traffic.enabled``);
+  navigator's ``holds`` (``fleet.traffic.enabled``); with ``fleet.traffic.predict_peers`` (off
+  by default) and
+  the people-aware controller's stage, the other rovers reach that stage as moving obstacles
+  predicted along their plans (:class:`~curio.fleet.intent.RoverIntent`);
 * ``fleet.keys`` — re-reads the keyring (and the dashboard's tokens) when ``curio fleet key``
   (``curio token``) changed them; a command may be signed with either;
 * ``fleet.ros2`` — :class:`~curio.fleet.ros2.publisher.Ros2Publisher` (``fleet.ros2.enabled``);
@@ -40,11 +43,13 @@ from curio.fleet.auth import (
 )
 from curio.fleet.bridge import FleetBridge
 from curio.fleet.commands import CommandExecutor
+from curio.fleet.intent import RoverIntent
 from curio.fleet.keys import check_rover_name
 from curio.fleet.simworld import PeerBodies
 from curio.fleet.traffic import PassageFinder, TrafficNode
 from curio.fleet.transport import Transport
 from curio.fleet.zenoh_link import ZenohSettings, ZenohTransport, load_zenoh
+from curio.fleet.zones_sync import zones_status
 from curio.nav.navigator import NavigatorNode
 from curio.robot import RobotModel
 from curio.sim.world import World
@@ -89,11 +94,16 @@ def zenoh_settings(cfg: Config) -> ZenohSettings:
 def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel, *,
                 navigator: NavigatorNode, grid: Callable[[], OccupancyGrid], tours: Tours,
                 paths: Any = None, world: World | None = None, tokens: Any = None,
-                transport: Transport | None = None) -> Fleet | None:
+                transport: Transport | None = None, people_stage: Any = None,
+                zones: Any = None) -> Fleet | None:
     """Construct and register the rover's fleet parts (None when ``fleet.enabled`` is off).
 
     ``tokens`` is the dashboard's token store (``curio.web.tokens.TokenStore``): its named
     tokens sign fleet commands too, with their roles, after the fleet's own keyring.
+    ``people_stage`` is the people-aware controller's stage (``PeopleStage``, None without
+    ``people.aware``): it gets the other rovers as movers with known intent. ``zones`` is the
+    zone service (None: zones off): the fleet manager's ``set_zones`` goes to it, and its
+    map and digest go into the status.
     """
     f = cfg.fleet
     if not f.enabled:
@@ -106,7 +116,8 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     keys = FleetKeyring(cfg.data_path(f.keys_file))
     sources: list[KeyLookup] = [keys] if tokens is None else [keys, TokenStoreKeys(tokens)]
     verifier = CommandVerifier(rover, ChainedKeys(sources), clock.wall_time, f.command_max_age_s)
-    executor = CommandExecutor(bus, clock, tours.service, tours.store)
+    executor = CommandExecutor(bus, clock, tours.service, tours.store,
+                               has_dock=cfg.dock.enabled, zones=zones)
 
     def goal_active() -> bool:
         return navigator.active is not None
@@ -119,12 +130,16 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
                               robot.circumscribed_radius_m, goal_active)
         navigator.holds.append(traffic.hold)
         parts.add(Part("fleet.traffic", run=traffic.run))
+        if f.traffic.predict_peers and people_stage is not None:
+            people_stage.movers = RoverIntent(traffic.peers, clock.wall_time,
+                                              f.traffic.peer_timeout_s)
     snapshots: dict[str, Callable[[], Any]] = {"tours": lambda: [
         t.to_json() for t in tours.store.list_tours()]}
     if paths is not None:
         snapshots["paths"] = lambda: [p.to_json() for p in paths.list_paths()]
     bridge = FleetBridge(cfg, rover, bus, clock, transport, robot, verifier, executor, traffic,
                          goal_active, snapshots)
+    bridge.status_extras.append(zones_status(zones))
     if traffic is not None:
         bridge.on_peer("traffic", traffic.on_peer)
     bodies = None

@@ -46,6 +46,13 @@ Turning in place (to the path, or to a goal's heading) waits while someone is wi
 passage (the costmap says the footprint's corners are near a wall) the comfortable distances
 are ``min_distance_m``: stopping in a doorway helps nobody through it.
 
+**Movers with known intent** (:attr:`PeopleStage.movers`, optional): other rovers of a fleet
+(``curio/fleet/intent.py``) join the people as obstacles whose future is *known*: predicted
+along their planned path, not on a straight line, each with its own radius (a circle round its
+footprint) instead of ``person_radius_m``; one that stands asks only ``min_distance_m``. A
+person track on top of a mover (the tracker took the rover for a person) is dropped, and
+"Excuse me" is said only when a person is near (the assertive shrink happens all the same).
+
 With :attr:`PeopleStage.stop_short` (the guide sets it on the way to a tour stop) a goal
 with people standing on it counts as reached within ``stop_short_m``: the rover keeps its
 distance instead of pushing into the group. The safety stage's stop zone still has the last
@@ -56,6 +63,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -65,7 +73,7 @@ from curio.core.geometry import Pose2D, approach
 from curio.core.messages import PeopleTracks
 from curio.nav.controller import ControlStatus, LocalController, Review
 from curio.nav.costs import LETHAL, NO_INFORMATION, cost_at_distance
-from curio.people.stage_kernel import people_clearances
+from curio.people.stage_kernel import path_clearances, people_clearances
 from curio.robot import RobotModel
 
 __all__ = ["PeopleStage"]
@@ -92,6 +100,11 @@ class PeopleStage:
         ccfg: ``nav.controller`` (speeds, accelerations, the collision horizon).
         robot: the robot model (footprint, speed on an arc).
         tracks: the latest ``/people`` message (None before the first).
+
+    Attributes:
+        movers: optional; called with the horizon's times (s from now), returns obstacles
+            with known futures (``now`` ``(J, 5)``, ``future`` ``(J, K, 2)``, ``radius_m``
+            ``(J,)``: :class:`curio.fleet.intent.KnownMovers`).
     """
 
     def __init__(self, cfg: PeopleConfig, ccfg: ControllerConfig, robot: RobotModel,
@@ -115,14 +128,21 @@ class PeopleStage:
         self.changed = 0
         self._changed_at_s = -math.inf
         self.last_costs: tuple[F64, ...] = ()  # the last review's numbers (for inspection)
+        self.movers: Callable[[F64], Any] | None = None
+        self._futures: F64 = np.zeros((0, len(self.times), 2))  # of the rows after the people
+        self._persons = 0  # people (not movers) in the last people_near
 
     # -- people ------------------------------------------------------------------------------
     def people_near(self, pose: Pose2D, now_s: float) -> F64:
-        """``(J, 5)`` tracked people within reach, predicted to ``now_s``: x, y, vx, vy (map,
-        m, m/s) and 1 for a track that walked (0: it never did)."""
+        """``(J, 6)`` tracked people (then the movers) within reach, predicted to ``now_s``:
+        x, y, vx, vy (map, m, m/s), 1 for a track that walked (0: it never did), and how much
+        larger than ``person_radius_m`` its body is (m; 0 for people)."""
+        return self._with_movers(self._people(pose, now_s), pose)
+
+    def _people(self, pose: Pose2D, now_s: float) -> F64:
         msg = self.tracks()
         if msg is None or not msg.tracks or now_s - msg.stamp > STALE_S:
-            return np.zeros((0, 5))
+            return np.zeros((0, 6))
         dt = max(0.0, now_s - msg.stamp)
         reach = self.cfg.interaction_radius_m + self.reach_m
         rows = []
@@ -136,8 +156,30 @@ class PeopleStage:
                 vx = vy = 0.0
             elif sp > 2.0:
                 vx, vy = vx * 2.0 / sp, vy * 2.0 / sp
-            rows.append((x, y, vx, vy, 1.0 if t.walked else 0.0))
-        return np.array(rows, dtype=np.float64).reshape(-1, 5)
+            rows.append((x, y, vx, vy, 1.0 if t.walked else 0.0, 0.0))
+        return np.array(rows, dtype=np.float64).reshape(-1, 6)
+
+    def _with_movers(self, people: F64, pose: Pose2D) -> F64:
+        """``people`` followed by the movers within reach (their futures kept for the
+        review); a person track within a mover's radius is the mover."""
+        self._futures = np.zeros((0, len(self.times), 2))
+        self._persons = len(people)
+        known = self.movers(self.times) if self.movers is not None else None
+        if known is None or len(known.now) == 0:
+            return people
+        reach = self.cfg.interaction_radius_m + self.reach_m
+        now, radius = known.now, known.radius_m
+        near = np.hypot(now[:, 0] - pose.x, now[:, 1] - pose.y) <= reach + radius
+        if not near.any():
+            return people
+        now, radius = now[near], radius[near]
+        if len(people):
+            d = np.hypot(people[:, None, 0] - now[None, :, 0], people[:, None, 1] - now[None, :, 1])
+            people = people[(d > radius[None, :]).all(axis=1)]
+            self._persons = len(people)
+        self._futures = np.ascontiguousarray(known.future[near])
+        extra = np.maximum(radius - self.cfg.person_radius_m, 0.0)
+        return np.vstack([people, np.column_stack([now[:, :5], extra])])
 
     def _goal_taken(self, ctl: LocalController, people: F64) -> bool:
         """Whether someone stands where the rover would stand at its goal."""
@@ -145,7 +187,8 @@ class PeopleStage:
         if goal is None or len(people) == 0:
             return False
         need = self.reach_m + self.cfg.person_radius_m + self.cfg.passing_distance_m
-        return bool((np.hypot(people[:, 0] - goal.x, people[:, 1] - goal.y) < need).any())
+        return bool((np.hypot(people[:, 0] - goal.x, people[:, 1] - goal.y)
+                     < need + people[:, 5]).any())
 
     # -- candidates --------------------------------------------------------------------------
     def _candidates(self, target: float, kappa: float, kmax: float, near: bool,
@@ -240,7 +283,7 @@ class PeopleStage:
         room = self.reach_m + self.cfg.person_radius_m + self.cfg.min_distance_m
         for t in (0.0, 0.5, 1.0):
             d = np.hypot(people[:, 0] + people[:, 2] * t - pose.x,
-                         people[:, 1] + people[:, 3] * t - pose.y)
+                         people[:, 1] + people[:, 3] * t - pose.y) - people[:, 5]
             if (d < room).any():
                 if self._note_yield(now_s) < self.cfg.yield_max_s:
                     return Review(0.0, 0.0, ControlStatus.YIELDING,
@@ -311,6 +354,7 @@ class PeopleStage:
         now_d = np.empty((1, 1, len(people)))
         people_clearances(np.array([[[pose.x, pose.y, pose.yaw]]]), self.times[:1],
                           people[:, :4], self.footprint, self.cfg.person_radius_m, now_d)
+        now_d -= people[None, None, :, 5]
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
         ahead = (people[:, 0] - pose.x) * c + (people[:, 1] - pose.y) * s
         towards = people[:, 2] * c + people[:, 3] * s
@@ -332,6 +376,12 @@ class PeopleStage:
         dist = np.empty((len(cands), len(times), len(people)))
         people_clearances(steps, times, people[:, :4], self.footprint, cfg.person_radius_m,
                           dist)
+        n = len(self._futures)
+        if n:  # the movers: along their known future, with their own radius
+            known = np.empty((len(cands), len(times), n))
+            path_clearances(steps, self._futures[:, ::2].copy(), self.footprint,
+                            people[-n:, 5] + cfg.person_radius_m, known)
+            dist[:, :, -n:] = known
         req = self._required(steps, times, people)
         if now_s < self._assertive_until_s or self._narrow(ctl, pose):
             req = np.minimum(req, cfg.min_distance_m + 0.05)
@@ -367,9 +417,10 @@ class PeopleStage:
                 cfg.excuse_me_interval_s:
             self._last_excuse_s = now_s
             self._assertive_until_s = now_s + cfg.assertive_s
-            self.excuse_me_count += 1
-            for listener in list(self.on_excuse_me):
-                listener(cfg.excuse_me_text)
+            if self._persons:  # nobody to say it to when only another rover waits
+                self.excuse_me_count += 1
+                for listener in list(self.on_excuse_me):
+                    listener(cfg.excuse_me_text)
         return waited
 
     def _command(self, ctl: LocalController, now_s: float, cand: F64,

@@ -3,7 +3,9 @@
 For each candidate trajectory ``m``, each time step ``k`` and each person ``j``: the signed
 distance (m, negative inside) from the person's predicted centre — constant velocity from
 their tracked position — to the rover's footprint polygon at that pose, minus the person's
-body radius. The first call compiles the kernel; numba caches the machine code on disk.
+body radius. :func:`path_clearances` is the same for bodies whose future is known (another
+rover's predicted path) instead of constant velocity, each with its own radius. The first call
+compiles the kernel; numba caches the machine code on disk.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit  # type: ignore[import-untyped]
 
-__all__ = ["people_clearances"]
+__all__ = ["path_clearances", "people_clearances"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -65,3 +67,27 @@ def people_clearances(poses: F64, times: F64, people: F64, footprint: F64, radiu
                 dy = people[j, 1] + people[j, 3] * t - y
                 out[m, k, j] = _polygon_distance(c * dx + s * dy, -s * dx + c * dy,
                                                  footprint) - radius
+
+
+@njit(cache=True, nogil=True)  # type: ignore[misc]
+def path_clearances(poses: F64, futures: F64, footprint: F64, radii: F64,
+                    out: F64) -> None:  # pragma: no cover - compiled
+    """Fill ``out`` ``(M, K, J)`` with footprint-to-body distances (m) to bodies whose
+    positions at each step are known.
+
+    Args:
+        poses: ``(M, K, 3)`` rover poses (x, y, yaw) in ``map``.
+        futures: ``(J, K, 2)`` each body's predicted centre (``map``, m) at each step.
+        footprint: ``(E, 2)`` polygon in ``base_link``.
+        radii: ``(J,)`` each body's radius, m.
+    """
+    m_n, k_n = poses.shape[0], poses.shape[1]
+    for m in range(m_n):
+        for k in range(k_n):
+            x, y, yaw = poses[m, k, 0], poses[m, k, 1], poses[m, k, 2]
+            c, s = math.cos(yaw), math.sin(yaw)
+            for j in range(futures.shape[0]):
+                dx = futures[j, k, 0] - x
+                dy = futures[j, k, 1] - y
+                out[m, k, j] = _polygon_distance(c * dx + s * dy, -s * dx + c * dy,
+                                                 footprint) - radii[j]

@@ -106,6 +106,28 @@ class ZoneService:
         self.store.delete(zone_id, expect_revision=revision)
         self._changed("deleted", zone_id, actor)
 
+    def replace(self, map_name: str, zones: Any, actor: str = "") -> bool:
+        """Take a whole set of zones for ``map_name`` (a fleet manager's copy): every zone is
+        checked as an edit would be (a keep-out over the rover or its dock refuses the set);
+        return False when they equal the zones there are (nothing changes).
+
+        Raises:
+            ZoneError: another map's zones, or a bad zone (nothing changes).
+        """
+        if map_name != self.store.map_name:
+            raise ZoneError(f"the zones are for the map {map_name!r}; this rover drives on "
+                            f"{self.store.map_name!r}")
+        if not isinstance(zones, list):
+            raise ZoneError("zones must be a list of zones")
+        new = [Zone.from_json(z, self.store.max_speed_mps) for z in zones]
+        if [z.to_json() for z in new] == [z.to_json() for z in self.store.list_zones()]:
+            return False
+        for zone in new:
+            self._check_placement(zone)
+        self.store.replace_all(new)
+        self._changed("replaced", 0, actor)
+        return True
+
     def export(self, out_dir: Path | None = None) -> list[Path]:
         """Write the Nav2 filter masks (default: beside the zone file); return the files."""
         return export_nav2_masks(self.store.list_zones(), self.grid,

@@ -125,6 +125,17 @@ class ZoneStore:
         del self._zones[zone_id]
         self._commit("deleted", zone_id)
 
+    def replace_all(self, zones: list[Zone]) -> None:
+        """Replace every zone with ``zones`` (their ids kept; a fleet manager's copy of the
+        map's zones, ``curio/fleet/zones_sync.py``); one change, ``replaced``."""
+        if len(zones) > MAX_ZONES:
+            raise ZoneError(f"{len(zones)} zones is more than the {MAX_ZONES} allowed")
+        if len({z.id for z in zones}) != len(zones):
+            raise ZoneError("two zones have the same id")
+        self._zones = {z.id: z for z in zones}
+        self._next_id = max([self._next_id, *(z.id + 1 for z in zones)])
+        self._commit("replaced", 0)
+
     # --- persistence --------------------------------------------------------------------------
     def _check_revision(self, expect: int | None) -> None:
         if expect is not None and expect != self.revision:

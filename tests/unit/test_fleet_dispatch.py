@@ -175,8 +175,39 @@ def test_equally_near_rovers_share_the_work_by_battery_and_unreachable_ones_wait
     assert job.rover == "b"
     g = Fleet()
     g.rover("a", 0.0)
-    g.distance = lambda r, t: float("inf")  # type: ignore[method-assign]
+    g.distance = lambda r, t: float("inf")  # type: ignore[method-assign, assignment]
     g.d.distance = g.distance
     job = g.d.request(1, "T", "operator", T0)
     g.d.tick(T0)
     assert job.state == "queued"
+
+
+DOCK = {"state": "idle", "charging": False, "attempt": 0, "detail": ""}
+
+
+def test_the_power_model_decides_who_is_charged() -> None:
+    """With the rovers' state of charge reported, the fuller pack (not the higher voltage
+    reading) gets the tour, and a rover under ``min_soc`` gets none however high its voltage."""
+    f = Fleet(min_soc=0.3)
+    f.rover("a", 9.0, battery_v=8.2, soc=0.25)   # nearest, high reading, nearly empty pack
+    f.rover("b", 8.0, battery_v=7.4, soc=0.55)
+    f.rover("c", 8.5, battery_v=7.9, soc=0.45)
+    job = f.d.request(1, "T", "operator", T0)
+    f.d.tick(T0)
+    assert job.rover == "b"
+    assert [n for *_, n in f.d.candidates(f.d.request(1, "T", "op", T0), T0)] == ["c"]
+
+
+def test_a_rover_running_low_on_charge_docks_and_its_tour_moves() -> None:
+    f = Fleet(low_soc=0.15)
+    f.rover("a", 9.0, soc=0.8, dock=DOCK)
+    f.rover("b", 0.0, soc=0.9)
+    job = f.d.request(1, "T", "operator", T0)
+    f.d.tick(T0)
+    f.started("a", job, T0 + 1)
+    f.rover("a", 9.0, now=T0 + 5, soc=0.12, battery_v=7.2, dock=DOCK, ready=False, tour=1,
+            tour_phase="moving")
+    f.rover("b", 0.0, now=T0 + 5, soc=0.9)
+    f.d.tick(T0 + 5)
+    assert job.rover == "b" and "12% charge" in job.reason
+    assert [c["action"] for r, c in f.sent if r == "a"][-2:] == ["stop_tour", "dock"]

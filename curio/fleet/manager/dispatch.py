@@ -10,9 +10,11 @@ request id came) → ``done`` (``tour.finished``). A queued job that no rover ca
 
 **The best rover** (:meth:`Dispatcher.candidates`): online, *ready* by its own rule (no e-stop,
 idle/arrived/docked/charging, no tour, battery at or above the rover's minimum, localised —
-``docs/tours.md``), at or above ``min_battery_v``, not busy with another job, not one that
+``docs/tours.md``), at or above ``min_battery_v`` and, when the rover reports its power
+model's state of charge, at or above ``min_soc``; not busy with another job, not one that
 already failed this job; then the nearest by driving distance on the shared map to the tour's
-first stop (within ``NEAR_EQUAL_M`` counts as equally near), then the fuller battery, then the
+first stop (within ``NEAR_EQUAL_M`` counts as equally near), then the fuller battery (state of
+charge first — rovers that report one before those that do not — then voltage), then the
 name.
 
 **Re-dispatch** (the job goes back to the queue, the rover is excluded for it):
@@ -22,7 +24,8 @@ name.
 * it has been offline for ``redispatch_after_s`` (it keeps driving safely on its own; when it
   comes back still running that tour it is told to stop and go home, because another rover
   has the visitors now);
-* its battery fell below ``low_battery_v`` during the tour (it is told to stop and go home);
+* its battery fell below ``low_battery_v``, or its state of charge below ``low_soc``, during
+  the tour (it is told to stop and to dock — ``go_home`` on a rover without a dock);
 * its tour stopped (``tour.stopped`` not asked for by the manager) or has been ``failed`` for
   ``failed_tour_s`` (stopped and sent home).
 
@@ -169,7 +172,8 @@ class Dispatcher:
         r = self.roster.get(rover)
         if tour_id is not None and r.tour_id == tour_id:
             self.send(rover, {"action": "stop_tour", "request_id": f"orphan-{rover}-{now:.0f}"})
-            self.send(rover, {"action": "go_home", "request_id": f"home-{rover}-{now:.0f}"})
+            self.send(rover, {"action": r.home_action,
+                              "request_id": f"home-{rover}-{now:.0f}"})
             self.note("dispatch.orphan_stopped", {"rover": rover, "tour_id": tour_id})
         self.orphans.pop(rover, None)
 
@@ -201,10 +205,9 @@ class Dispatcher:
             elif now - job.last_send_wall_s > RESEND_S:
                 self._send_start(job, now)
             return
-        battery = r.battery
-        if battery is not None and battery < cfg.low_battery_v:
-            self._redispatch(job, f"{job.rover}'s battery is low ({battery:.2f} V)", now,
-                             stop=True)
+        low = _low_battery(r, cfg)
+        if low:
+            self._redispatch(job, f"{job.rover}'s battery is low ({low})", now, stop=True)
             return
         failed = r.status.get("tour_phase") == "failed"
         job.failed_since = (job.failed_since or now) if failed else None
@@ -217,7 +220,8 @@ class Dispatcher:
         if stop and old is not None:
             job.stopping.add(old)
             self.send(old, {"action": "stop_tour", "request_id": f"{job.request_id}-stop"})
-            self.send(old, {"action": "go_home", "request_id": f"{job.request_id}-home"})
+            self.send(old, {"action": self.roster.get(old).home_action,
+                            "request_id": f"{job.request_id}-home"})
         if old is not None:
             job.excluded.add(old)
         self.redispatches += 1
@@ -233,10 +237,10 @@ class Dispatcher:
         job.state, job.reason = "dropped", reason
         self._note("dispatch.dropped", job, reason=reason)
 
-    def candidates(self, job: Job, now: float) -> list[tuple[float, float, str]]:
-        """(distance m, −battery V, name) of every rover that may take ``job``, best first:
-        the nearest (distances within ``NEAR_EQUAL_M`` count as equal), then the fuller
-        battery, then the name."""
+    def candidates(self, job: Job, now: float) -> list[tuple[float, float, float, str]]:
+        """(distance m, −state of charge (1 when unknown), −battery V, name) of every rover
+        that may take ``job``, best first: the nearest (distances within ``NEAR_EQUAL_M`` count
+        as equal), then the fuller battery, then the name."""
         busy = {j.rover for j in self.jobs if j.state in ("sent", "running")}
         out = []
         for r in self.roster.rovers.values():
@@ -245,9 +249,13 @@ class Dispatcher:
                     or not r.online(now, self.cfg.offline_after_s) or not r.ready
                     or battery is None or battery < self.cfg.min_battery_v):
                 continue
-            out.append((self.distance(r, job.tour_id), -battery, r.name))
+            soc = r.soc
+            if soc is not None and soc < self.cfg.min_soc:
+                continue
+            out.append((self.distance(r, job.tour_id), -(soc if soc is not None else -1.0),
+                        -battery, r.name))
         return sorted(out, key=lambda c: (c[0] // NEAR_EQUAL_M if math.isfinite(c[0])
-                                          else math.inf, c[1], c[2]))
+                                          else math.inf, c[1], c[2], c[3]))
 
     def _assign(self, job: Job, now: float) -> None:
         if now > job.deadline_wall_s:
@@ -261,13 +269,13 @@ class Dispatcher:
         best = next((c for c in self.candidates(job, now) if math.isfinite(c[0])), None)
         if best is None:
             return
-        job.rover = best[2]
+        job.rover = best[3]
         job.attempts += 1
         job.request_id = f"job{job.id}-{job.attempts}"
         job.state, job.sent_wall_s = "sent", now
         self._send_start(job, now)
         self._note("dispatch.sent", job, distance_m=round(best[0], 2),
-                   battery_v=round(-best[1], 2))
+                   battery_v=round(-best[2], 2), soc=None if best[1] > 0 else -best[1])
 
     def _send_start(self, job: Job, now: float) -> None:
         assert job.rover is not None
@@ -275,3 +283,18 @@ class Dispatcher:
         self.send(job.rover, {"action": "start_tour", "tour_id": job.tour_id,
                               "tour": self.tour_def(job.tour_id),
                               "request_id": job.request_id})
+
+
+def _low_battery(r: RoverState, cfg: FleetManagerConfig) -> str:
+    """Why ``r``'s battery is too low to go on with a tour ('' = it is not): its voltage under
+    ``low_battery_v``, its state of charge under ``low_soc``, or its power model's level
+    ``low`` / ``critical``."""
+    battery, soc = r.battery, r.soc
+    if battery is not None and battery < cfg.low_battery_v:
+        return f"{battery:.2f} V"
+    if soc is not None and soc < cfg.low_soc:
+        return f"{soc:.0%} charge"
+    level = r.status.get("power_level")
+    if level in ("low", "critical"):
+        return f"level {level}"
+    return ""

@@ -51,6 +51,25 @@ class RoverState:
         return float(value) if isinstance(value, int | float) else self.battery_v
 
     @property
+    def soc(self) -> float | None:
+        """State of charge 0..1 from the rover's power model (``/power``), None when the
+        rover does not report one."""
+        value = self.status.get("soc")
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+        return None
+
+    @property
+    def has_dock(self) -> bool:
+        """A dock is fitted (its status carries the dock's state)."""
+        return isinstance(self.status.get("dock"), dict)
+
+    @property
+    def home_action(self) -> str:
+        """What sends it home to charge: ``dock`` with a dock fitted, else ``go_home``."""
+        return "dock" if self.has_dock else "go_home"
+
+    @property
     def tour_id(self) -> int | None:
         """The tour it runs now, by its status."""
         value = self.status.get("tour")
@@ -71,6 +90,12 @@ class RoverState:
                 "stop": self.status.get("stop"), "stops": self.status.get("stops", 0),
                 "traffic": self.status.get("traffic", "off"),
                 "map": self.status.get("map", ""), "plan": self.plan,
+                "soc": self.soc, "charging": bool(self.status.get("charging")),
+                "power_level": self.status.get("power_level"),
+                "time_left_s": self.status.get("time_left_s"),
+                "dock": self.status.get("dock"), "loc": self.status.get("loc", "unknown"),
+                "dashboard": self.status.get("dashboard", ""),
+                "zones": self.status.get("zones"),
                 "alerts": self.alerts[-10:]}
 
 

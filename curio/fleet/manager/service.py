@@ -16,6 +16,9 @@ clock, so ``curio fleet run`` (a Zenoh router session, the real clock) and ``cur
 * **Dispatch** (:class:`~curio.fleet.manager.dispatch.Dispatcher`): operator and kiosk
   requests and the schedule's starts become jobs; every ``check_period_s`` they are given to
   the best rover and watched.
+* **Zones** (:class:`~curio.fleet.zones_sync.ZoneDistributor`, ``distribute_zones``): the
+  zones of the shared map, from the manager's zone file, pushed to every rover on that map
+  whose zones differ (a signed ``set_zones``).
 * **Events missed while a rover was away** are fetched with a query of its recent events
   (``curio/<rover>/q/events``) when it comes back or a gap in its numbering shows.
 
@@ -30,6 +33,7 @@ import contextlib
 import inspect
 import logging
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 from zoneinfo import ZoneInfo
 
@@ -46,11 +50,13 @@ from curio.fleet.manager.dispatch import Dispatcher, Job
 from curio.fleet.manager.roster import Roster, RoverState
 from curio.fleet.manager.routes import RouteDistances
 from curio.fleet.transport import Sample, Transport
+from curio.fleet.zones_sync import ZoneDistributor
 from curio.robot import RobotModel
 from curio.tours.model import TourError
 from curio.tours.placement import MapPlacement
 from curio.tours.schedule import ScheduleStore
 from curio.tours.store import TourStore
+from curio.zones.wiring import zone_file
 
 __all__ = ["FleetManager"]
 
@@ -91,6 +97,10 @@ class FleetManager:
         self.routes = RouteDistances(self.grid, self.robot.inscribed_radius_m)
         self.dispatcher = Dispatcher(self.mcfg, self.roster, self._distance, self._tour_def,
                                      self.send, self._note)
+        map_name = Path(map_path(cfg)).stem
+        self.zones = ZoneDistributor(zone_file(cfg, map_name), map_name,
+                                     self.robot.max_wheel_speed_mps, self.roster, self.send,
+                                     self._note)
         self.log: list[dict[str, Any]] = []
         self._tasks: list[asyncio.Task[None]] = []
         self._last_check_wall: float | None = None
@@ -219,6 +229,9 @@ class FleetManager:
             r.status["map_differs"] = flag
         self._schedule(now)
         self.dispatcher.tick(now)
+        if self.mcfg.distribute_zones:
+            self.zones.reload()
+            self.zones.check(now, self.mcfg.offline_after_s)
         self._refresh_snapshots()
 
     def _schedule(self, now: float) -> None:

@@ -1,19 +1,18 @@
-"""The fleet manager's JSON API and a small self-contained fleet page (no CDN, no build step).
-
-This is deliberately separate from the rover dashboard (``curio/web``, being reworked on the
-``dashboard`` branch): the fleet view on the dashboard's own page is listed as work for after
-that merge (``docs/fleet.md``); until then this page shows every rover on the shared map with
-its state, battery, tour and alerts, the jobs, and lets an operator dispatch a tour.
+"""The fleet manager's web server: the fleet view (``/``, :mod:`curio.fleet.manager.page`: the
+dashboard's page kit, every rover on the shared map with its state, battery, tour and alerts,
+a link to each rover's own dashboard) and the JSON API.
 
 Endpoints (JSON; changes need ``Authorization: Bearer <token>`` with the manager's token,
 ``<data_dir>/fleet_manager_token``, created 0600 on first start and printed at start-up):
 
-* ``GET /api/fleet`` — rovers (state, battery, pose, tour, plan, alerts), jobs, tours, summary;
+* ``GET /api/fleet`` — rovers (state, battery and state of charge, dock, pose, tour, plan,
+  alerts, dashboard address), jobs, tours, summary;
 * ``GET /api/fleet/map`` — the shared map's size, resolution and origin; ``GET
   /api/fleet/map.png`` — the map as an image (row 0 at the top);
 * ``POST /api/fleet/tours/{id}/dispatch`` — queue a run of a tour (``{"source"?}``);
 * ``POST /api/fleet/rovers/{name}/command`` — a signed command to one rover
-  (``{"action", ...}`` as in ``curio/fleet/commands.py``).
+  (``{"action", ...}`` as in ``curio/fleet/commands.py``);
+* ``GET /api/auth``, ``POST /api/fleet/estop`` — :mod:`curio.fleet.manager.page`.
 """
 
 from __future__ import annotations
@@ -31,6 +30,7 @@ from PIL import Image
 
 from curio.core.fileio import atomic_write_text
 from curio.fleet.commands import ACTIONS
+from curio.fleet.manager.page import FleetPage
 from curio.tours.model import TourError
 
 __all__ = ["FleetWeb", "load_or_create_token"]
@@ -70,7 +70,8 @@ class FleetWeb:
         self.token = token
         self._runner: web.AppRunner | None = None
         self.app = web.Application(client_max_size=MAX_BODY)
-        self.app.router.add_get("/", self._page)
+        self.page = FleetPage(manager, token)
+        self.page.add_routes(self.app)
         self.app.router.add_get("/api/fleet", self._fleet)
         self.app.router.add_get("/api/fleet/map", self._map_meta)
         self.app.router.add_get("/api/fleet/map.png", self._map_png)
@@ -119,7 +120,9 @@ class FleetWeb:
             "rovers": m.rovers_json(), "jobs": [j.to_json() for j in m.dispatcher.jobs[-100:]],
             "tours": [{"id": t.id, "name": t.name, "stops": len(t.stops)}
                       for t in m.tours.list_tours()],
-            "summary": m.summary(), "map": m.map_sha})
+            "summary": m.summary(), "map": m.map_sha,
+            "zones": {"map": m.zones.map_name, "count": len(m.zones.zones),
+                      "digest": m.zones.digest if m.zones.has_file else None}})
 
     async def _map_meta(self, request: web.Request) -> web.Response:
         g = self.manager.grid
@@ -157,45 +160,4 @@ class FleetWeb:
         self.manager.send(name, body)
         return web.json_response({"sent": True, "rover": name, "action": body["action"]})
 
-    async def _page(self, request: web.Request) -> web.Response:
-        return web.Response(text=PAGE, content_type="text/html")
 
-
-PAGE = """<!doctype html><html><head><meta charset="utf-8"><title>Curio fleet</title>
-<meta name="viewport" content="width=device-width, initial-scale=1">
-<style>body{font:14px system-ui,sans-serif;margin:1em}canvas{border:1px solid #888;
-max-width:100%}table{border-collapse:collapse}td,th{padding:.2em .6em;border-bottom:1px solid
-#ddd}.off{color:#999}.alert{color:#b00}</style></head><body><h1>Curio fleet</h1>
-<canvas id="map"></canvas><h2>Rovers</h2><table id="rovers"></table>
-<h2>Tours</h2><div id="tours"></div><h2>Jobs</h2><table id="jobs"></table><script>
-const token=new URLSearchParams(location.search).get("token")||localStorage.fleetToken||"";
-if(token)localStorage.fleetToken=token;
-const img=new Image();img.src="/api/fleet/map.png";let meta=null;
-fetch("/api/fleet/map").then(r=>r.json()).then(m=>{meta=m;});
-const c=document.getElementById("map"),g=c.getContext("2d");
-function px(x,y){const s=1/meta.resolution_m;return[(x-meta.origin[0])*s,
- meta.height-(y-meta.origin[1])*s];}
-function esc(t){return String(t??"").replace(/[&<>"]/g,ch=>"&#"+ch.charCodeAt(0)+";");}
-async function dispatch(id){const r=await fetch(`/api/fleet/tours/${id}/dispatch`,
- {method:"POST",headers:{Authorization:"Bearer "+token,"Content-Type":"application/json"},
- body:"{}"});if(!r.ok)alert((await r.json()).error);}
-async function tick(){const f=await (await fetch("/api/fleet")).json();
- if(meta&&img.complete){c.width=meta.width;c.height=meta.height;g.drawImage(img,0,0);
-  for(const r of f.rovers){if(!r.pose)continue;const[x,y]=px(r.pose[0],r.pose[1]);
-   g.strokeStyle="#0a0";g.beginPath();r.plan.forEach((p,i)=>{const q=px(p[0],p[1]);
-   i?g.lineTo(q[0],q[1]):g.moveTo(q[0],q[1]);});g.stroke();
-   g.fillStyle=r.online?"#06c":"#999";g.beginPath();g.arc(x,y,7,0,7);g.fill();
-   g.fillText(r.name,x+9,y-9);}}
- document.getElementById("rovers").innerHTML="<tr><th>rover<th>online<th>state<th>battery"+
-  "<th>tour<th>traffic<th>alerts"+f.rovers.map(r=>`<tr class="${r.online?"":"off"}"><td>`+
-  `${esc(r.name)}<td>${r.online?"yes":"no"}<td>${esc(r.text||r.state)}<td>`+
-  `${r.battery_v?.toFixed?.(2)??""} V<td>${esc(r.tour_name)} ${r.stop??""}/${r.stops}`+
-  `<td>${esc(r.traffic)}<td class="alert">${r.alerts.slice(-2).map(a=>esc(a.kind)).join(", ")}`
-  ).join("");
- document.getElementById("tours").innerHTML=f.tours.map(t=>`<button onclick="dispatch(${t.id})"`+
-  `>${esc(t.name)}</button>`).join(" ");
- document.getElementById("jobs").innerHTML="<tr><th>job<th>tour<th>source<th>state<th>rover"+
-  "<th>why"+f.jobs.slice().reverse().map(j=>`<tr><td>${j.id}<td>${esc(j.tour)}<td>`+
-  `${esc(j.source)}<td>${j.state}<td>${esc(j.rover)}<td>${esc(j.reason)}`).join("");}
-setInterval(tick,1000);tick();</script></body></html>
-"""
