@@ -222,21 +222,18 @@ def test_an_edit_the_disk_refused_is_undone_not_saved_later(
     # stayed in memory and reached the file with the next successful save.
     import errno
 
-    import curio.tours.files as files_mod
-
     s = store(tmp_path)
-    real = files_mod.atomic_write_text
 
     def full(path: Path, text: str, private: bool = False) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(files_mod, "atomic_write_text", full)
+    monkeypatch.setattr("curio.tours.files.atomic_write_text", full)
     with pytest.raises(TourError, match=r"No space left on device.*nothing was changed"):
         s.create("Lost")
     with pytest.raises(TourError, match="nothing was changed"):
         s.rename(1, "Renamed")
     assert [(t.id, t.name) for t in s.list_tours()] == [(1, "Tour")]
-    monkeypatch.setattr(files_mod, "atomic_write_text", real)
+    monkeypatch.undo()  # the disk has room again
     assert s.create("Kept").id == 2  # the refused create did not use up an id
     again = TourStore(tmp_path / "tours.json", [])
     assert [(t.id, t.name) for t in again.list_tours()] == [(1, "Tour"), (2, "Kept")]
