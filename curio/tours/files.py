@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +26,8 @@ from curio.core.errors import SetupError
 from curio.core.fileio import atomic_write_bytes, atomic_write_text
 
 __all__ = ["DataFileError", "VersionedFile"]
+
+log = logging.getLogger("curio.tours.files")
 
 Migration = Callable[[dict[str, Any]], dict[str, Any]]
 T = TypeVar("T")
@@ -166,4 +169,7 @@ class VersionedFile:
             self.migrated_from = None
         text = json.dumps({**body, "version": self.version}, indent=2, ensure_ascii=False) + "\n"
         atomic_write_text(self.path, text)
-        atomic_write_text(self.backup, text)
+        try:
+            atomic_write_text(self.backup, text)
+        except OSError as exc:  # the save is done; only its second copy is behind
+            log.warning("could not update the backup %s: %s", self.backup, exc)

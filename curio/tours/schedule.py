@@ -172,6 +172,7 @@ class ScheduleStore:
         self._next_id = 1
         self._listeners: list[Callable[[str, int, str], None]] = []
         self._load()
+        self._saved = self._state()  # the last state on disk
 
     # --- persistence ------------------------------------------------------------------------
 
@@ -238,8 +239,21 @@ class ScheduleStore:
         changes pass id 0)."""
         self._listeners.append(listener)
 
+    def _state(self) -> tuple[dict[int, Schedule], dict[str, ClosedDay], int]:
+        return dict(self._schedules), dict(self._closed), self._next_id
+
     def _changed(self, change: str, sid: int, actor: str) -> None:
-        self._save()
+        """Save after an edit; when the file cannot be written (a full disk) the edit is undone
+        and refused with the reason, so it cannot reach the file with a later save."""
+        try:
+            self._save()
+        except OSError as exc:
+            schedules, closed, self._next_id = self._saved
+            self._schedules, self._closed = dict(schedules), dict(closed)
+            log.error("could not save the schedules: %s", exc)
+            raise TourError(f"Could not save the schedules ({exc.strerror or exc}): nothing was "
+                            "changed. Free space on the rover's disk, then try again.") from exc
+        self._saved = self._state()
         for listener in list(self._listeners):
             try:
                 listener(change, sid, actor)

@@ -99,6 +99,7 @@ class TourStore:
         self._next_id = 1
         self._listeners: list[Callable[[str, int, str], None]] = []
         self._load(seed)
+        self._saved = (dict(self._tours), self._next_id)  # the last state on disk
 
     # --- persistence ------------------------------------------------------------------------
 
@@ -148,7 +149,16 @@ class TourStore:
         self._listeners.append(listener)
 
     def _changed(self, change: str, tour: Tour, actor: str) -> Tour:
-        self._save()
+        """Save after an edit; when the file cannot be written (a full disk) the edit is undone
+        and refused with the reason, so it cannot reach the file with a later save."""
+        try:
+            self._save()
+        except OSError as exc:
+            self._tours, self._next_id = dict(self._saved[0]), self._saved[1]
+            log.error("could not save the tours: %s", exc)
+            raise TourError(f"Could not save the tours ({exc.strerror or exc}): nothing was "
+                            "changed. Free space on the rover's disk, then try again.") from exc
+        self._saved = (dict(self._tours), self._next_id)
         for listener in list(self._listeners):
             try:
                 listener(change, tour.id, actor)

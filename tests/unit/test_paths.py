@@ -335,18 +335,15 @@ def test_an_edit_the_disk_refused_is_undone_not_saved_later(
     # stayed in memory and reached the file with the next successful save.
     import errno
 
-    import curio.bt.paths as paths_mod
-
     file = tmp_path / "paths.json"
     pm = PathManager(defaults(), file)
     heard: list[tuple[str, int]] = []
     pm.add_listener(lambda what, pid: heard.append((what, pid)))
-    real = paths_mod.atomic_write_json
 
     def full(path: Path, obj: object) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(paths_mod, "atomic_write_json", full)
+    monkeypatch.setattr("curio.bt.paths.atomic_write_json", full)
     with pytest.raises(PathError, match=r"No space left on device.*nothing was changed"):
         pm.add_waypoint(1, 3.0, 3.0)
     with pytest.raises(PathError, match="nothing was changed"):
@@ -354,7 +351,7 @@ def test_an_edit_the_disk_refused_is_undone_not_saved_later(
     with pytest.raises(PathError, match="nothing was changed"):
         pm.delete(2)
     assert len(pm.get(1).waypoints) == 3 and pm.ids() == [0, 1, 2] and heard == []
-    monkeypatch.setattr(paths_mod, "atomic_write_json", real)
+    monkeypatch.undo()  # the disk has room again
     pm.rename(2, "Second")  # the disk has room again: the next edit saves
     again = PathManager(defaults(), file)
     assert [(w.x_m, w.y_m) for w in again.get(1).waypoints] == [(0.2, 0.0), (-0.2, 0.0),

@@ -278,3 +278,26 @@ def test_readiness_reads_the_bus() -> None:
     bus.publish(TOUR, TourState(0.0))
     bus.publish(LOCALIZATION, LocalizationStatus(0.0, "off"))
     assert readiness(bus, 7.0).ready
+
+
+def test_a_schedule_edit_the_disk_refused_is_undone_not_saved_later(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Same defect as the paths' (found by curio soak's disk_full).
+    import errno
+
+    s = store(tmp_path / "schedules.json")
+
+    def full(path: Path, text: str, private: bool = False) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr("curio.tours.files.atomic_write_text", full)
+    with pytest.raises(TourError, match="nothing was changed"):
+        s.add(1, ["mon"], ["10:00"])
+    with pytest.raises(TourError, match="nothing was changed"):
+        s.set_closed(["2025-12-25"])
+    assert s.list_schedules() == [] and s.closed_days() == []
+    monkeypatch.undo()  # the disk has room again
+    s.add(2, ["tue"], ["11:00"])
+    again = store(tmp_path / "schedules.json")
+    assert [(x.id, x.tour_id) for x in again.list_schedules()] == [(1, 2)]
+    assert again.closed_days() == []

@@ -214,3 +214,26 @@ def test_a_version_1_file_is_migrated(tmp_path: Path) -> None:
     s.rename(1, "Renamed")
     assert json.loads(path.read_text())["version"] == 2
     assert json.loads((tmp_path / "tours.json.v1.bak").read_text())["version"] == 1
+
+
+def test_an_edit_the_disk_refused_is_undone_not_saved_later(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Same defect as the paths' (found by curio soak's disk_full): an edit whose save failed
+    # stayed in memory and reached the file with the next successful save.
+    import errno
+
+    s = store(tmp_path)
+
+    def full(path: Path, text: str, private: bool = False) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr("curio.tours.files.atomic_write_text", full)
+    with pytest.raises(TourError, match=r"No space left on device.*nothing was changed"):
+        s.create("Lost")
+    with pytest.raises(TourError, match="nothing was changed"):
+        s.rename(1, "Renamed")
+    assert [(t.id, t.name) for t in s.list_tours()] == [(1, "Tour")]
+    monkeypatch.undo()  # the disk has room again
+    assert s.create("Kept").id == 2  # the refused create did not use up an id
+    again = TourStore(tmp_path / "tours.json", [])
+    assert [(t.id, t.name) for t in again.list_tours()] == [(1, "Tour"), (2, "Kept")]
