@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from curio.core.config import load_config
+from curio.core.errors import SetupError
 from curio.core.fileio import atomic_write_json
 
 __all__ = ["add_arguments", "run"]
@@ -86,7 +87,6 @@ class Progress:
 
 def _kinds(text: str | None) -> list[str] | None:
     """``--kinds``: known fault kinds, comma-separated."""
-    from curio.cli import UsageError
     from curio.soak.plan import KINDS
 
     if text is None:
@@ -94,37 +94,35 @@ def _kinds(text: str | None) -> list[str] | None:
     kinds = [k.strip() for k in text.split(",") if k.strip()]
     unknown = [k for k in kinds if k not in KINDS]
     if unknown or not kinds:
-        raise UsageError(f"--kinds takes fault kinds from {', '.join(KINDS)}, got {text!r}")
+        raise SetupError(f"--kinds takes fault kinds from {', '.join(KINDS)}, got {text!r}")
     return kinds
 
 
 def _start(text: str | None) -> dt.time | None:
     """``--start HH:MM``."""
-    from curio.cli import UsageError
 
     if text is None:
         return None
     try:
         return dt.time.fromisoformat(text)
     except ValueError:
-        raise UsageError(f"--start takes a local time HH:MM, got {text!r}") from None
+        raise SetupError(f"--start takes a local time HH:MM, got {text!r}") from None
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``curio soak`` with parsed ``args``; return the exit code."""
-    from curio.cli import UsageError
     from curio.soak.orchestrator import Orchestrator, SoakOptions
-    from curio.soak.report import format_table
+    from curio.soak.report import build_report, format_table
 
     if not (0.0 < args.hours <= 24.0 * 14):
-        raise UsageError(f"--hours takes simulated hours in (0, 336], got {args.hours}")
+        raise SetupError(f"--hours takes simulated hours in (0, 336], got {args.hours}")
     if args.clients < 3:
-        raise UsageError(f"--clients takes at least 3 (a viewer, an operator, a kiosk), got "
+        raise SetupError(f"--clients takes at least 3 (a viewer, an operator, a kiosk), got "
                          f"{args.clients}")
     if args.faults < 0:
-        raise UsageError(f"--faults takes a whole number >= 0, got {args.faults}")
+        raise SetupError(f"--faults takes a whole number >= 0, got {args.faults}")
     if args.seed < 0:
-        raise UsageError(f"--seed takes a whole number >= 0, got {args.seed}")
+        raise SetupError(f"--seed takes a whole number >= 0, got {args.seed}")
     kinds, start = _kinds(args.kinds), _start(args.start)
     cfg = load_config(args.config, args.overrides)
     workdir = args.workdir or cfg.resolve(cfg.data_dir) / "soak"
@@ -135,9 +133,11 @@ def run(args: argparse.Namespace) -> int:
                        start=start,
                        progress=progress)
     try:
-        report = asyncio.run(Orchestrator(opts).run())
+        orchestrator = Orchestrator(opts)
+        asyncio.run(orchestrator.run())
     finally:
         progress.close()
+    report = build_report(orchestrator)
     if args.report is not None:
         atomic_write_json(args.report, report)
     print(format_table(report))

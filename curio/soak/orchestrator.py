@@ -363,10 +363,8 @@ class Orchestrator:
 
     # --- the whole soak -------------------------------------------------------------------------
 
-    async def run(self) -> dict[str, Any]:
-        """Run the soak; return the report."""
-        from curio.soak.report import build_report
-
+    async def run(self) -> None:
+        """Run the soak (:func:`curio.soak.report.build_report` makes its report after)."""
         self.prepare()
         tasks = [asyncio.ensure_future(c.run()) for c in self.clients]
         sampler = asyncio.ensure_future(self._sample_load())
@@ -400,8 +398,6 @@ class Orchestrator:
             self.file_checks.append({"boot": self.boot, "why": "end",
                                      "checks": [c.__dict__ for c in final]})
             self.disk.unmount(self.dir / "data-copy" if self.opts.keep else None)
-        report = build_report(self)
-        return report
 
     def _ended(self) -> bool:
         """The building's clock reached the end: a rover that dies now is not restarted."""

@@ -34,26 +34,23 @@ from typing import TYPE_CHECKING, Any
 
 from curio.core.clock import wall_perf_counter
 from curio.soak.plan import KINDS
+from curio.soak.verdict import (
+    NAV_P99_BUDGET_S,
+    SAFETY_P99_BUDGET_S,
+    checks_of,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from curio.soak.orchestrator import Orchestrator
 
 __all__ = ["build_report", "format_table"]
 
-NAV_P99_BUDGET_S = 0.025
-SAFETY_P99_BUDGET_S = 0.005
-RATE_FLOOR = 0.95
-RSS_BUDGET_MB_PER_H = 1.0
-FD_SLACK = 12
-THREAD_SLACK = 4
-QUEUE_LIMIT = 1000
 # Resident memory reaches its plateau within ~4 min of active simulated time (seed 2, 3 h soak:
 # 327 MB at the start, 355-359 MB from 4 min to 30 min, no trend): 10 min of the first run and
 # 5 min of each restarted one are left out. A slope over 20 min of those samples still swings
 # by several MB/h either way (-8 MB/h there), hence RSS_MIN_SPAN_H.
 WARM_UP_FIRST_S = 600.0
 WARM_UP_LATER_S = 300.0
-RSS_MIN_SPAN_H = 1.0
 RTF_TARGET = 20.0
 
 
@@ -182,8 +179,6 @@ def _time(o: Orchestrator) -> dict[str, Any]:
 
 def build_report(o: Orchestrator) -> dict[str, Any]:
     """The report of one soak (see the module docstring)."""
-    from curio.soak.verdict import checks_of
-
     ledger = o.ledger.summary()
     faults = _fault_table(o)
     resources = _resources(o)

@@ -1,17 +1,26 @@
-"""The soak's checks: what must hold for ``curio soak`` to pass (see the issue and
-:mod:`curio.soak.report` for the budgets). Each check is ``{name, ok, detail}``; ``ok`` is
+"""The soak's checks: what must hold for ``curio soak`` to pass (see the issue; the budgets are
+below). Each check is ``{name, ok, detail}``; ``ok`` is
 None for a check the run was too short to judge (the memory slope), which fails nothing."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from curio.soak import report as r
-
 if TYPE_CHECKING:  # pragma: no cover
     from curio.soak.orchestrator import Orchestrator
 
 __all__ = ["checks_of"]
+
+# The budgets the checks hold the soak to (the report prints them beside the figures).
+NAV_P99_BUDGET_S = 0.025
+SAFETY_P99_BUDGET_S = 0.005
+RATE_FLOOR = 0.95
+RSS_BUDGET_MB_PER_H = 1.0
+FD_SLACK = 12
+THREAD_SLACK = 4
+QUEUE_LIMIT = 1000
+# The memory slope is judged only over at least this many simulated hours after warm-up.
+RSS_MIN_SPAN_H = 1.0
 
 
 def _check(name: str, ok: bool | None, detail: str) -> dict[str, Any]:
@@ -21,11 +30,11 @@ def _check(name: str, ok: bool | None, detail: str) -> dict[str, Any]:
 
 def _memory_check(res: dict[str, Any]) -> dict[str, Any]:
     growth, span = res["rss_growth_mb_per_h"], float(res.get("rss_span_h", 0.0))
-    name = f"memory flat after warm-up (≤ {r.RSS_BUDGET_MB_PER_H:g} MB per simulated hour)"
+    name = f"memory flat after warm-up (≤ {RSS_BUDGET_MB_PER_H:g} MB per simulated hour)"
     detail = f"{growth} MB/h over {span:g} h after warm-up in {len(res['rss_runs'])} run(s)"
-    if growth is None or span < r.RSS_MIN_SPAN_H:
-        return _check(name, None, f"not judged: {detail} (needs {r.RSS_MIN_SPAN_H:g} h)")
-    return _check(name, growth <= r.RSS_BUDGET_MB_PER_H, detail)
+    if growth is None or span < RSS_MIN_SPAN_H:
+        return _check(name, None, f"not judged: {detail} (needs {RSS_MIN_SPAN_H:g} h)")
+    return _check(name, growth <= RSS_BUDGET_MB_PER_H, detail)
 
 
 def _fault_checks(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
@@ -109,22 +118,22 @@ def _resource_checks(rep: dict[str, Any]) -> list[dict[str, Any]]:
     return [
         _memory_check(res),
         _check("file descriptors and threads constant after warm-up",
-               fd_spread <= r.FD_SLACK and th_spread <= r.THREAD_SLACK,
+               fd_spread <= FD_SLACK and th_spread <= THREAD_SLACK,
                f"fds spread {fd_spread:g} (slope {res['fd_growth_per_h']}/h), threads spread "
                f"{th_spread:g} (slope {res['thread_growth_per_h']}/h)"),
-        _check(f"no growing queue (all under {r.QUEUE_LIMIT})", queues < r.QUEUE_LIMIT,
+        _check(f"no growing queue (all under {QUEUE_LIMIT})", queues < QUEUE_LIMIT,
                f"bus {res['bus_backlog_max']} ({res['bus_backlog_worst_topic']}), web "
                f"{res['web_reliable_max']}, recorder {res['recorder_queue_max']}, event log "
                f"{res['eventlog_queue_max']}"),
-        _check(f"control loop p99 within budget ({r.NAV_P99_BUDGET_S * 1e3:g} ms CPU)",
-               tim["nav_cycles"] > 0 and tim["nav_cpu_p99_ms"] <= r.NAV_P99_BUDGET_S * 1e3,
+        _check(f"control loop p99 within budget ({NAV_P99_BUDGET_S * 1e3:g} ms CPU)",
+               tim["nav_cycles"] > 0 and tim["nav_cpu_p99_ms"] <= NAV_P99_BUDGET_S * 1e3,
                f"p99 {tim['nav_cpu_p99_ms']} ms CPU ({tim['nav_wall_p99_ms']} ms wall), "
                f"max {tim['nav_cpu_max_ms']} ms, {tim['nav_cycles']} cycles"),
         _check("safety stage's rate within budget",
                None if rate is None and tim["safety_steps"] == 0 else
                rate is not None and gap is not None
-               and tim["safety_cpu_p99_ms"] <= r.SAFETY_P99_BUDGET_S * 1e3
-               and rate >= r.RATE_FLOOR * 20.0 and tim["safety_gaps_over"] == 0,
+               and tim["safety_cpu_p99_ms"] <= SAFETY_P99_BUDGET_S * 1e3
+               and rate >= RATE_FLOOR * 20.0 and tim["safety_gaps_over"] == 0,
                f"min {rate} Hz per window, longest gap {gap} s, {tim['safety_gaps_over']} gaps "
                f"over two periods (stalls excepted), step p99 {tim['safety_cpu_p99_ms']} ms"),
     ]
