@@ -44,7 +44,12 @@ async def test_a_ros2_listener_sees_the_rover(cfg: Config) -> None:
         "r1", ZenohSettings("client", connect=(ep,))))
     await app.start()
     await clock.run(until_s=3.0)
-    wall_sleep(0.5)
+    want = {"map", "odom", "scan", "tf", "tf_static"}
+    for _ in range(200):  # deliveries arrive on Zenoh's threads: wait for them (at most 10 s)
+        with lock:
+            if want <= {key.split("/")[2] for key in got}:
+                break
+        wall_sleep(0.05)
     await app.stop()
     router.close()
     topics = {key.split("/")[2]: key for key in got}
