@@ -304,7 +304,10 @@ class PeopleStage:
         if now_s < self._assertive_until_s:
             # "Excuse me" did not move them: a track that never walked (a pillar, a box, a
             # statue the size of a person) is an obstacle like any other from now on.
-            people = people[people[:, 4] > 0.5]
+            keep = people[:, 4] > 0.5
+            keep[self._persons:] = True  # the movers (other rovers) after the people stay
+            self._persons = int(keep[:self._persons].sum())
+            people = people[keep]
             if len(people) == 0:
                 return None
         self.reviews += 1
