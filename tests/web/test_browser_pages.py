@@ -136,6 +136,10 @@ async def test_replay_timeline_pauses_and_seeks(tmp_path: Path) -> None:
             await b.wait_js("!!document.getElementById('replayBar')")
             await page.click("#replayPlay")  # pause
             await b.wait_js("document.getElementById('replayPlay').textContent === '▶'")
+            # A poll already on its way when the pause was clicked may still show the last
+            # step: read the position after one full poll more, then watch it hold.
+            polls = await b.state("window.curio.replayPolls")
+            await b.wait_js(f"window.curio.replayPolls >= {polls + 2}")
             held = await b.text("#replayTime")
             polls = await b.state("window.curio.replayPolls")
             await b.wait_js(f"window.curio.replayPolls >= {polls + 3}")  # asked 3 times more:
