@@ -13,7 +13,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_write_bytes", "atomic_write_json", "atomic_write_text"]
+__all__ = ["atomic_write_bytes", "atomic_write_json", "atomic_write_text", "modified_ns",
+           "read_json"]
 
 
 def _umask() -> int:
@@ -68,3 +69,23 @@ def atomic_write_text(path: Path | str, text: str, *, private: bool = False) -> 
 def atomic_write_json(path: Path | str, obj: Any) -> None:
     """Write ``obj`` as indented JSON atomically."""
     atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
+
+
+def read_json(path: Path | str) -> Any:
+    """The JSON value in ``path``, or None when there is no such file.
+
+    Raises:
+        OSError: the file cannot be read; ValueError: it is not JSON.
+    """
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None
+
+
+def modified_ns(path: Path | str) -> int | None:
+    """The file's modification time (ns), or None when it cannot be seen."""
+    try:
+        return Path(path).stat().st_mtime_ns
+    except OSError:
+        return None

@@ -14,7 +14,6 @@ makes the marker stale (logged once), it never stops the rover.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 from pathlib import Path
@@ -22,7 +21,7 @@ from typing import Any
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
-from curio.core.fileio import atomic_write_json
+from curio.core.fileio import atomic_write_json, read_json
 from curio.core.messages import DriverHealth, Event
 from curio.core.topics import EVENTS, HEALTH
 
@@ -55,12 +54,10 @@ class RunMarker:
 
     def _read(self) -> dict[str, Any] | None:
         try:
-            data = json.loads(self.path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            return None
+            data = read_json(self.path)
         except (OSError, ValueError) as exc:
             return {"error": f"the marker could not be read: {exc}"}
-        return data if isinstance(data, dict) else {}
+        return None if data is None else data if isinstance(data, dict) else {}
 
     @property
     def unclean(self) -> bool:

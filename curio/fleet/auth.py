@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from curio.core.errors import SetupError
-from curio.core.fileio import atomic_write_text
+from curio.core.fileio import atomic_write_text, modified_ns
 
 __all__ = [
     "PERMISSIONS",
@@ -296,10 +296,7 @@ class FleetKeyring:
 
     def reload_if_changed(self) -> bool:
         """Re-read the file if it changed (``curio fleet key`` in another process)."""
-        try:
-            mtime: int | None = self.path.stat().st_mtime_ns
-        except OSError:
-            mtime = None
+        mtime = modified_ns(self.path)
         if mtime == self._mtime_ns:
             return False
         try:

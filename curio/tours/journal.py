@@ -15,14 +15,13 @@ File writes go through ``clock.offload`` (a worker thread on the real clock).
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
-from curio.core.fileio import atomic_write_json
+from curio.core.fileio import atomic_write_json, read_json
 from curio.core.messages import Event
 from curio.core.topics import EVENTS
 
@@ -51,13 +50,13 @@ class TourJournal:
 
     def _read(self) -> dict[str, Any] | None:
         try:
-            data = json.loads(self.path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            return None
+            data = read_json(self.path)
         except (OSError, ValueError) as exc:
             log.warning("the tour journal %s cannot be read (%s): reporting an unknown tour",
                         self.path, exc)
             return {"tour": "", "error": str(exc)}
+        if data is None:
+            return None
         return data if isinstance(data, dict) else {"tour": ""}
 
     def report(self) -> None:

@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from curio.core.errors import SetupError
-from curio.core.fileio import atomic_write_text
+from curio.core.fileio import atomic_write_text, modified_ns
 
 __all__ = [
     "NAME_RULE",
@@ -233,10 +233,7 @@ class TokenStore:
 
         A file that became unreadable keeps the tokens in memory (and logs why).
         """
-        try:
-            mtime: int | None = self.path.stat().st_mtime_ns
-        except OSError:
-            mtime = None
+        mtime = modified_ns(self.path)
         if mtime == self._mtime_ns:
             return False
         try:
