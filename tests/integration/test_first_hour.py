@@ -132,8 +132,18 @@ def test_an_emulated_scenario_does_not_depend_on_an_earlier_run(tmp_path: Path,
         report = json.loads(path.read_text())
         report.pop("wall_time_s")
         reports.append(report)
-    assert any(e["kind"] == "driver.imu_calibration_saved" for e in reports[0]["events"])
-    assert reports[0] == reports[1]
+    # Each run starts from a fresh data dir: each calibrates and saves (none restores run 1's).
+    for report in reports:
+        assert any(e["kind"] == "driver.imu_calibration_saved" for e in report["events"])
+    assert [e["kind"] for e in reports[0]["events"]] == [e["kind"] for e in reports[1]["events"]]
+    # Not to the last bit: the real drivers read the emulators' bytes from pseudo-terminals,
+    # whose delivery against the simulated clock depends on the host's scheduling (CI once saw
+    # a localisation RMSE of 4.39 against 4.52 mm). A restored calibration changed far more.
+    m0, m1 = reports[0]["metrics"], reports[1]["metrics"]
+    assert m0.keys() == m1.keys()
+    for key, value in m0.items():
+        if isinstance(value, float):
+            assert m1[key] == pytest.approx(value, rel=0.1, abs=1e-3), key
 
 
 def test_scripts_run_starts_without_the_network(tmp_path: Path) -> None:
