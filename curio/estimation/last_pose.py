@@ -18,14 +18,13 @@ match the scans at all makes localisation search (``lost``), as after a kidnap.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from pathlib import Path
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
-from curio.core.fileio import atomic_write_json
+from curio.core.fileio import atomic_write_json, read_json
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.core.topics import LOCALIZATION, POSE
 
@@ -42,10 +41,10 @@ MIN_TURN_RAD = 0.1
 def load_last_pose(path: Path) -> Pose2D | None:
     """The pose in ``path`` (None: no file, or one that cannot be used — logged)."""
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = read_json(path)
+        if data is None:
+            return None
         pose = Pose2D(float(data["x_m"]), float(data["y_m"]), float(data["yaw_rad"]))
-    except FileNotFoundError:
-        return None
     except (OSError, ValueError, KeyError, TypeError) as exc:
         log.warning("ignoring the last pose in %s: %s", path, exc)
         return None
