@@ -98,6 +98,8 @@ class Localization2BB(CurioBehaviour):
         self._track: tuple[Pose2D, Pose2D] | None = None  # (pose in map, odometry) last tick
         self._anchor: tuple[Pose2D, Pose2D] | None = None  # after a jump: (pose, odometry)
         self._expect_jump = False
+        self._searching = False  # a whole-map search was asked for and has not settled yet
+        self._search_asked = False  # ... and the tree has not taken note of it yet
 
     def _held(self, key: str, on: bool, now: float) -> float:
         """How long condition ``key`` has held (0 when it does not hold now)."""
@@ -112,13 +114,17 @@ class Localization2BB(CurioBehaviour):
     def _jumped(self, now: float) -> float | None:
         """How far the map→odom correction jumped since the last tick (None: it did not). The
         first jump within ``SETTLE_S`` of a pose set on ``/initialpose`` is that pose being
-        applied, not a jump."""
+        applied, not a jump; during a whole-map search (an ``/initialpose`` as wide as
+        ``GLOBAL_STD_XY_M``, until the localiser is ``ok`` again) the estimate moves from place
+        to place by design, so nothing counts as a jump — narrowing the search back to where the
+        rover was would undo the operator's (or the tree's own) Relocalise."""
         bus = self.ctx.bus
         ip = bus.latest(INITIAL_POSE)
         if ip is not None and ip.stamp > self._initial_stamp:
             self._initial_stamp = ip.stamp
             self._expect_jump = True
             self._since["good"] = None  # judge the localiser afresh from here
+            self._searching = self._search_asked = ip.covariance[0] >= GLOBAL_STD_XY_M ** 2
             odom_now = bus.latest(ODOM)
             if ip.covariance[0] < GLOBAL_STD_XY_M and odom_now is not None and self.get("lost") \
                     and self._anchor is not None:
@@ -128,8 +134,11 @@ class Localization2BB(CurioBehaviour):
         prev, self._correction = self._correction, corr
         if now - self._initial_stamp > self.SETTLE_S:
             self._expect_jump = False
+        status = bus.latest(LOCALIZATION)
+        if self._searching and status is not None and status.state == "ok":
+            self._searching = False
         odom = bus.latest(ODOM)
-        if prev is None or corr is None or odom is None:
+        if prev is None or corr is None or odom is None or self._searching:
             return None
         # Where the rover is in map under each correction (a small turn of the correction
         # moves the odom origin far when the rover is far from it: compare the rover).
@@ -181,7 +190,16 @@ class Localization2BB(CurioBehaviour):
                              and msg.std_xy_m > cfg.lost_std_xy_m, now)
         good_for = self._held("good", jump is None and msg.state != "lost" and (
             msg.state == "ok" or msg.std_xy_m <= 0.5 * cfg.lost_std_xy_m), now)
-        if not self.get("lost"):
+        asked, self._search_asked = self._search_asked, False
+        if not self.get("lost") and asked:
+            # Relocalise pressed (or asked for by the CLI): the rover no longer knows where it
+            # is. Lost at once, with no hint: the turn in place helps the localiser's search.
+            self.ctx.sink.event("localization.search", message="Searching the whole map for "
+                                "where I am.")
+            self.set("lost_hint", None)
+            self._anchor = None
+            self.set("lost", True)
+        elif not self.get("lost"):
             if jump is not None:
                 self.ctx.sink.event("localization.jump", distance_m=round(jump, 3),
                                     message="My position estimate jumped: checking where I "
@@ -380,6 +398,10 @@ class Relocalise(CurioBehaviour):
         ctx = self.ctx
         hint = self.get("lost_hint")
         status = ctx.bus.latest(LOCALIZATION)
+        asked = ctx.bus.latest(INITIAL_POSE)
+        if hint is None and asked is not None and asked.covariance[0] >= GLOBAL_STD_XY_M ** 2 \
+                and ctx.clock.now() - asked.stamp <= Localization2BB.SETTLE_S:
+            return  # a whole-map search was just asked for: it is running
         if hint is not None:
             std_xy, std_yaw, pose = HINT_STD_XY_M, HINT_STD_YAW_RAD, Pose2D(*hint)
         elif status is None or status.state != "lost":

@@ -292,6 +292,35 @@ def test_an_operator_pose_is_not_taken_for_a_jump() -> None:
     assert not h.bb("lost") and not h.of("localization.jump")
 
 
+def test_a_whole_map_search_is_not_narrowed_back_to_the_old_pose() -> None:
+    """Relocalise pressed: lost at once (the rover turns to help the search), and the estimate
+    moving about during the search is not a jump — the tree never answers the operator's
+    whole-map search with a narrow one around where the rover was (CI caught that race)."""
+    h = harness()
+    drive(h)
+    h.bus.publish(ODOM, Odometry(h.clock.now(), Pose2D(1.0, 0.0, 0.0)))
+    h.bus.publish(POSE, PoseWithCovariance(h.clock.now(), Pose2D(1.0, 0.0, 0.0)))
+    h.bus.publish(MAP_TO_ODOM, Transform(h.clock.now(), Pose2D()))
+    h.tick()
+    wide = (1.0e6, 0.0, 0.0, 0.0, 1.0e6, 0.0, 0.0, 0.0, math.pi ** 2)
+    asks = h.bus.subscribe(INITIAL_POSE, maxsize=50)
+    h.bus.publish(INITIAL_POSE, PoseWithCovariance(h.clock.now(), Pose2D(), covariance=wide))
+    localization(h, "lost", 30.0)
+    h.tick()
+    assert h.bb("lost") and h.of("localization.search") and h.bb("lost_hint") is None
+    for k in range(1, 8):  # the search's estimate wanders over the map: 3 m every 0.2 s
+        h.bus.publish(MAP_TO_ODOM, Transform(h.clock.now(), Pose2D(3.0 * k, -2.0 * k, 0.0)))
+        localization(h, "uncertain", 2.0)
+        h.tick(2)
+    assert not h.of("localization.jump")
+    sent = asks.drain()
+    assert sent and all(m.covariance[0] > 1e5 for m in sent), "the search was narrowed"
+    # Converged: ok for long enough, found.
+    localization(h, "ok")
+    h.tick(6)
+    assert not h.bb("lost") and h.of("localization.found")
+
+
 def test_lost_is_pre_empted_by_the_e_stop_and_does_not_resume() -> None:
     h = harness()
     drive(h)

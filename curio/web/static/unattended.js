@@ -290,6 +290,7 @@
     "dock.left": said("", () => "Off the dock"),
     "localization.lost": said("bad", () => "Lost: looking around"),
     "localization.jump": said("warn", (d) => "The position estimate jumped " + (d.distance_m ? Number(d.distance_m).toFixed(1) + " m" : "")),
+    "localization.search": said("warn", () => "Searching the whole map"),
     "localization.found": said("ok", () => "Found: I know where I am again"),
     "zones.changed": (d) => ["who", "Zone " + d.zone_id + " " + d.change + (d.actor ? " by " + d.actor : "")],
     "notify.sent": (d) => ["ok", "Notification sent" + (d.channel ? " (" + d.channel + ")" : "")],
