@@ -13,6 +13,9 @@ write: every boot would compile again, while the rover is already driving.
   holds for the current sources (none: cold; a ``git pull`` makes the cache stale too).
 * :func:`preload` loads every cached variant now (milliseconds each), so the first scan after
   a start never waits.
+* :func:`watch_compiles` then logs every kernel that still compiles (a call with argument
+  types or array layouts the warmup never produced: seconds of a stalled loop on a Pi, and
+  megabytes of LLVM memory kept).
 
 ``curio warmup`` (:mod:`curio.commands.warmup`) fills the cache by driving the simulator, and
 ``curio run`` loads it (or, cold, fills it) before the rover starts.
@@ -35,6 +38,7 @@ from curio.core.errors import SetupError
 
 __all__ = [
     "KernelStatus", "cache_dir", "describe", "dispatchers", "preload", "status", "use_cache_dir",
+    "watch_compiles",
 ]
 
 log = logging.getLogger("curio.kernels")
@@ -158,3 +162,32 @@ def preload() -> tuple[int, list[str]]:
         if not sigs:
             cold.append(name)
     return loaded, cold
+
+
+_watching: list[Any] = []
+
+
+def watch_compiles() -> None:
+    """From now on, log a warning naming the kernel and its argument types whenever a kernel
+    compiles (numba's ``numba:compile`` event fires on a real compilation, not on a load from
+    the cache). Idempotent."""
+    if _watching:
+        return
+    from numba.core import event
+
+    class _Watch(event.Listener):  # type: ignore[misc]
+        def on_start(self, ev: Any) -> None:
+            pass
+
+        def on_end(self, ev: Any) -> None:
+            func = getattr(ev.data.get("dispatcher"), "py_func", None)
+            module = getattr(func, "__module__", "") or ""
+            if module.split(".")[0] == "numba":
+                return  # numba's own helpers, compiled as part of a kernel
+            name = f"{module}.{getattr(func, '__qualname__', '?')}"
+            log.warning("kernel %s compiled while the rover runs, for %s: a call the warmup "
+                        "does not make (curio/commands/warmup.py)", name, ev.data.get("args"))
+
+    listener = _Watch()
+    event.register("numba:compile", listener)  # type: ignore[no-untyped-call]
+    _watching.append(listener)

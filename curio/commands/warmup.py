@@ -57,19 +57,17 @@ def _warm_helpers() -> None:
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     polygon_distances(np.array([[0.5, 0.5], [2.0, 0.0]]), square)
     # The people stage (curio/people/stage.py): now, over the horizon, and other rovers'
-    # known futures (fleet.traffic.predict_peers).
+    # known futures (fleet.traffic.predict_peers) — always with C-contiguous arrays.
     footprint = square - 0.5
-    people = np.zeros((2, 6))
+    people = np.zeros((2, 4))
     people[:, 0] = (1.0, 2.0)
-    times = np.linspace(0.0, 4.0, 21)
-    people_clearances(np.array([[[0.0, 0.0, 0.0]]]), times[:1], people[:, :4], footprint, 0.25,
+    times = np.linspace(0.0, 4.0, 11)
+    people_clearances(np.array([[[0.0, 0.0, 0.0]]]), times[:1], people, footprint, 0.25,
                       np.empty((1, 1, 2)))
-    steps = np.zeros((3, 21, 3))[:, ::2]
-    people_clearances(steps, times[::2], people[:, :4], footprint, 0.25,
-                      np.empty((3, len(times[::2]), 2)))
-    futures = np.ones((1, 21, 2))
-    path_clearances(steps, futures[:, ::2].copy(), footprint, people[-1:, 5] + 0.25,
-                    np.empty((3, len(times[::2]), 1)))
+    steps = np.zeros((3, 11, 3))
+    people_clearances(steps, times, people, footprint, 0.25, np.empty((3, 11, 2)))
+    futures = np.ones((1, 11, 2))
+    path_clearances(steps, futures, footprint, np.full(1, 0.25), np.empty((3, 11, 1)))
 
 
 async def _drive(cfg: Config, scenario: str, sim_s: float) -> None:
@@ -113,6 +111,7 @@ def prepare(cfg: Config, config_args: list[str]) -> None:
     where = kernels.describe(kernels.use_cache_dir(cfg))
     t0 = wall_perf_counter()
     loaded, cold = kernels.preload()
+    kernels.watch_compiles()
     if not cold:
         log.info("compiled kernels: %d loaded from the cache (%s) in %.1f s", loaded, where,
                  wall_perf_counter() - t0)

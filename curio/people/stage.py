@@ -92,6 +92,15 @@ COMFORT_SLACK = 1e-3  # a comfort cost this small is nobody's concern
 STEERING_S = 1.5
 
 
+def _dense(a: F64) -> F64:
+    """``a`` as a C-contiguous array (a copy only when it is not one). The kernels are compiled
+    once per array layout, and a slice's layout depends on its shape (one tracked person makes
+    ``people[:, :4]`` contiguous, two do not): passing dense arrays keeps the kernels to the one
+    variant ``curio warmup`` compiles, so nothing compiles inside the running loop (it did at a
+    kidnap: seconds of CPU on a Pi and ~6 MB of LLVM memory kept for good)."""
+    return np.ascontiguousarray(a)
+
+
 class PeopleStage:
     """Reviews the controller's arc against predicted people (see the module docstring).
 
@@ -356,7 +365,8 @@ class PeopleStage:
         (offer backing off)."""
         now_d = np.empty((1, 1, len(people)))
         people_clearances(np.array([[[pose.x, pose.y, pose.yaw]]]), self.times[:1],
-                          people[:, :4], self.footprint, self.cfg.person_radius_m, now_d)
+                          _dense(people[:, :4]), self.footprint, self.cfg.person_radius_m,
+                          now_d)
         now_d -= people[None, None, :, 5]
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
         ahead = (people[:, 0] - pose.x) * c + (people[:, 1] - pose.y) * s
@@ -374,15 +384,15 @@ class PeopleStage:
         """Each candidate's cost (inf: it drives at someone) and comfort cost, from the
         people predicted every 0.2 s."""
         cfg = self.cfg
-        steps = poses[:, ::2]
-        times = self.times[::2]
+        steps = _dense(poses[:, ::2])
+        times = _dense(self.times[::2])
         dist = np.empty((len(cands), len(times), len(people)))
-        people_clearances(steps, times, people[:, :4], self.footprint, cfg.person_radius_m,
-                          dist)
+        people_clearances(steps, times, _dense(people[:, :4]), self.footprint,
+                          cfg.person_radius_m, dist)
         n = len(self._futures)
         if n:  # the movers: along their known future, with their own radius
             known = np.empty((len(cands), len(times), n))
-            path_clearances(steps, self._futures[:, ::2].copy(), self.footprint,
+            path_clearances(steps, _dense(self._futures[:, ::2]), self.footprint,
                             people[-n:, 5] + cfg.person_radius_m, known)
             dist[:, :, -n:] = known
         req = self._required(steps, times, people)

@@ -4,12 +4,14 @@ reported cold or warm, preloaded; ``curio check`` says so and ``curio warmup`` f
 from __future__ import annotations
 
 import json
+import logging
 import os
 import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from curio import kernels
@@ -126,3 +128,25 @@ def test_warmup_compiles_every_kernel_from_a_cold_cache(tmp_path: Path,
     n = len(kernels.dispatchers())
     assert f"compiled kernels: {n} of {n} in the cache" in done.stdout
     assert check.kernel_cache_row(_cfg(where)).status == "ok"
+
+
+def test_a_kernel_compiling_while_the_rover_runs_is_logged(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """After the start's preload, a compilation (a layout the warmup never made) is a warning
+    naming the kernel and its types; a call that needs no compilation says nothing."""
+    from numba import njit
+
+    @njit  # type: ignore[misc]
+    def twice(a: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+        return a * 2.0
+
+    kernels.watch_compiles()
+    kernels.watch_compiles()  # idempotent: one warning per compilation, not two
+    with caplog.at_level(logging.WARNING, logger="curio.kernels"):
+        twice(np.zeros(3))
+        twice(np.ones(3))  # the same types: no compilation
+        twice(np.zeros((3, 2))[:, 0])  # a strided slice: another layout, compiled
+    said = [r.getMessage() for r in caplog.records if "compiled while the rover runs" in
+            r.getMessage()]
+    assert len(said) == 2 and all("twice" in m for m in said)
+    assert "'A'" in said[1]

@@ -160,3 +160,32 @@ def test_keeps_the_arc_when_nobody_minds(
     ctrl.set_plan(straight_plan(-4.0, 4.0), Pose2D(4.0, 0.0, 0.0))
     _pose, without, _ = run(ctrl, Pose2D(-4.0, 0.0, 0.0), [far], 40.0, None)
     assert [o.linear_mps for _, _, o in with_stage] == [o.linear_mps for _, _, o in without]
+
+
+@pytest.mark.parametrize("count", [1, 2, 3])
+def test_the_kernels_get_dense_arrays_whatever_the_number_of_people(
+        parts: tuple[LocalController, PeopleStage, Config], count: int,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """numba compiles a kernel once per array layout, and a slice's layout depends on its shape
+    (one person makes ``people[:, :4]`` contiguous, two do not). The stage passes C-contiguous
+    arrays only, so the one variant ``curio warmup`` compiles is the only one ever called —
+    before, a kidnap with one tracked person compiled new variants inside the running loop."""
+    import curio.people.stage as stage_module
+
+    seen: list[tuple[str, bool]] = []
+
+    def recording(name: str, kernel: object) -> object:
+        def call(*args: object) -> None:
+            seen.extend((name, a.flags.c_contiguous) for a in args if isinstance(a, np.ndarray))
+            kernel(*args)  # type: ignore[operator]
+        return call
+
+    monkeypatch.setattr(stage_module, "people_clearances",
+                        recording("people_clearances", stage_module.people_clearances))
+    monkeypatch.setattr(stage_module, "path_clearances",
+                        recording("path_clearances", stage_module.path_clearances))
+    ctrl, stage, _cfg = parts
+    walkers = [Walker((1.0 + k, 0.6), (-0.5, 0.0)) for k in range(count)]
+    run(ctrl, Pose2D(-4.0, 0.0, 0.0), walkers, 3.0, stage)
+    assert seen, "the stage never called its kernels"
+    assert all(dense for _, dense in seen), sorted({n for n, d in seen if not d})
