@@ -20,6 +20,12 @@ ticks more than one period late (``*_missed_pct``); ``keeps_rates`` when no safe
 most 1 % of control ticks miss their period and the p99 lateness of both stays under half a
 period. ``cpu_pct_of_quota``: how much of its budget the process used.
 
+And what the stalls were made of (``benchmarks/pi_budget_child.py`` profiles them):
+``slowest_callbacks`` (the event-loop callbacks that held the loop longest, wall against CPU
+time: CPU × slowdown ≈ wall is a burst the quota stretched, wall ≫ CPU a wait), the full
+(generation-2) garbage collections and their longest pause, and the cgroup's
+``throttled_periods`` / ``throttled_ms``.
+
 Options (``--set``): ``duration=120`` (real seconds per row), ``slowdown=4``,
 ``pi_calibration=`` (scans per CPU second on a Pi), ``unthrottled=1`` (also the row without a
 quota).
@@ -119,16 +125,24 @@ def _run_child(duration_s: float, seed: int, core: int,
                 method, cgroup = got
             else:
                 method, guard = "SIGSTOP/SIGCONT duty cycle", _duty_cycle(proc.pid, fraction)
+        throttling: dict[str, int] = {}
         try:
             with guard:
                 proc.wait()
+            if cgroup is not None:
+                with contextlib.suppress(OSError):
+                    for line in (cgroup / "cpu.stat").read_text().splitlines():
+                        key, _, value = line.partition(" ")
+                        throttling[key] = int(value)
         finally:
             if cgroup is not None:
                 with contextlib.suppress(OSError):
                     cgroup.rmdir()
         if proc.returncode != 0 or not out.exists():
             raise RuntimeError(f"the pi-budget child failed (exit {proc.returncode})")
-        return json.loads(out.read_text(encoding="utf-8")), method
+        result: dict[str, Any] = json.loads(out.read_text(encoding="utf-8"))
+        result["throttling"] = throttling
+        return result, method
 
 
 def _loop_figures(name: str, lateness_s: list[float], rate_hz: float) -> dict[str, Any]:
@@ -148,6 +162,27 @@ def _loop_figures(name: str, lateness_s: list[float], rate_hz: float) -> dict[st
     }
 
 
+def _stall_profile(result: dict[str, Any]) -> dict[str, Any]:
+    """What held the loop (the child's profile): the slowest callbacks with their CPU, the
+    older-generation garbage collections, and the cgroup's throttling counters."""
+    slow = sorted(result.get("slow_callbacks", []), key=lambda c: -c["wall_ms"])
+    gcs = result.get("collections", [])
+    full = [c for c in gcs if c["generation"] == 2]
+    thr = result.get("throttling", {})
+    throttled_ms = thr.get("throttled_usec", thr.get("throttled_time", 0) // 1000) / 1e3
+    return {
+        "slow_callbacks": len(slow),
+        "slowest_callbacks": ", ".join(
+            f"{c['name']} {c['wall_ms']:.0f} ms wall / {c['cpu_ms']:.1f} ms CPU at "
+            f"{c['at_s']:.0f} s" for c in slow[:5]),
+        "full_collections": len(full),
+        "full_collection_max_ms": max((c["wall_ms"] for c in full), default=0.0),
+        "full_collection_cpu_max_ms": max((c["cpu_ms"] for c in full), default=0.0),
+        "throttled_periods": thr.get("nr_throttled", 0),
+        "throttled_ms": round(throttled_ms, 1),
+    }
+
+
 def _row(subject: str, result: dict[str, Any], method: str, fraction: float | None
          ) -> dict[str, Any]:
     lat = result["lateness_s"]
@@ -162,6 +197,7 @@ def _row(subject: str, result: dict[str, Any], method: str, fraction: float | No
         **_loop_figures("control", lat["control"], result["control_hz"]),
         **_loop_figures("safety", lat["safety"], result["safety_hz"]),
     }
+    row.update(_stall_profile(result))
     control_period_ms = 1e3 / result["control_hz"]
     safety_period_ms = 1e3 / result["safety_hz"]
     row["keeps_rates"] = bool(
