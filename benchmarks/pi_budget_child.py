@@ -17,6 +17,10 @@ more than ``SLOW_CALLBACK_S`` of wall time (its task's name, wall and CPU time: 
 slowdown ≈ wall is a burst of work the quota stretched; wall ≫ CPU is the process waiting —
 throttled, preempted or blocked in a system call) and every collection of the cyclic garbage
 collector's older generations (wall and CPU time, the number of objects it had to walk).
+
+Work the application hands to ``clock.offload`` runs in a worker thread, as on the rover's real
+clock (the simulated clock runs it inline, for determinism): the global planner's searches and
+the event log's commits do not hold the loop here either.
 """
 
 from __future__ import annotations
@@ -31,7 +35,13 @@ from typing import Any
 from curio import kernels
 from curio.app import App
 from curio.core.bus import Topic
-from curio.core.clock import SimClock, process_cpu_time, thread_cpu_time, wall_perf_counter
+from curio.core.clock import (
+    RealClock,
+    SimClock,
+    process_cpu_time,
+    thread_cpu_time,
+    wall_perf_counter,
+)
 from curio.core.config import REPO_ROOT, load_config
 from curio.core.topics import CMD_VEL, CMD_VEL_NAV
 from curio.scenarios import get_scenario
@@ -96,6 +106,10 @@ def main(out_path: str, duration_s: float, seed: int) -> None:
         await original_run(self, *args, **kwargs)
 
     SimClock.run = anchored_run  # type: ignore[method-assign]
+    # As on the rover's RealClock, work handed to ``clock.offload`` (the global planner, the
+    # event log's SQLite commits) runs in a worker thread while the loop goes on; the simulated
+    # clock runs it inline to stay deterministic, which would put every plan on the loop.
+    SimClock.offload = RealClock.offload  # type: ignore[method-assign]
     slow_callbacks, collections = _profile_stalls(anchor)
 
     def tap(topic: Topic[Any], msg: Any) -> None:

@@ -28,6 +28,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import gc
 import logging
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -236,6 +237,10 @@ class App:
             if part.run is not None:
                 task = asyncio.create_task(self._guard(part.run, part.name), name=part.name)
                 self._tasks.append(task)
+        # Everything built so far (modules, numba's type system, the maps) lives as long as the
+        # rover: out of the cyclic collector's sight, a full collection no longer walks ~130 000
+        # objects (86 ms of CPU here, ~0.35 s on a Pi 4 core, with the safety stage held).
+        gc.freeze()
 
     async def _guard(self, run: Callable[[], Awaitable[None]], name: str) -> None:
         try:
@@ -271,6 +276,7 @@ class App:
             if part.close is not None:
                 with contextlib.suppress(Exception):
                     await part.close()
+        gc.unfreeze()  # a rebuilt App (a map switch) must not keep this one's cycles for ever
 
     def part_states(self) -> dict[str, str]:
         """Each part's task: ``running``, ``crashed: <error>``, ``stopped`` or ``not started``
