@@ -80,7 +80,26 @@ class Operator2BB(CurioBehaviour):
             except Exception as exc:  # a bad command must never stop the tree
                 log.exception("operator command %s failed", cmd.action)
                 self.ctx.reject(_req(cmd), cmd.action, f"The command failed: {exc}.")
+        self._refuse_held()
         return Status.SUCCESS
+
+    def _refuse_held(self) -> None:
+        """A path, tour or Go Home still waiting when a pause or an e-stop takes over is
+        answered now, refused: the branches that would carry it out do not run while the rover
+        is held, so it would wait unanswered for as long as the hold lasts (found by ``curio
+        soak``: a command pressed in the same tick as Pause was never answered). Commands that
+        arrive during the hold are refused on arrival, with the same advice."""
+        if self.get("estop") or self.get("estop_operator") is not None:
+            why = "The e-stop was engaged before it started: release it, then send it again."
+        elif self._paused_effective():
+            why = "The rover was paused before it started: press Resume, then send it again."
+        else:
+            return
+        for key in ("command", "home_request"):
+            old = self.get(key)
+            if old is not None:
+                self.ctx.reject(old, old["action"], why)
+                self.set(key, None)
 
     def _paused_effective(self) -> bool:
         req = self.get("pause_request")

@@ -51,3 +51,29 @@ def test_estop_and_release_answers_say_what_happened() -> None:
     h.tick()
     accepted = {e.detail["request_id"]: e.detail["message"] for e in h.of("bt.command_accepted")}
     assert "stopped" in accepted["s"] and "released" in accepted["r"]
+
+
+@pytest.mark.parametrize("tree", ["follow_path", "tour"])
+@pytest.mark.parametrize("hold", ["pause", "estop", "safety_estop"])
+def test_a_command_waiting_when_a_hold_begins_is_answered_at_once(tree: str, hold: str) -> None:
+    """A path or tour pressed in the same tick as Pause (or just before an e-stop) used to wait
+    unanswered for as long as the hold lasted (``curio soak``: a command lost at the end)."""
+    from curio.core.config import REPO_ROOT, load_config
+
+    shipped = load_config(REPO_ROOT / "config.toml", []).bt  # with its tour stops
+    h = make_harness(shipped.model_copy(update={"speak": False, "tree": tree}))
+    h.tick()
+    if tree == "tour":
+        h.press("start_tour", request_id="c")
+    else:
+        h.press("select_path", request_id="c", path_id=1)
+    if hold == "safety_estop":
+        h.estop(True)
+    else:
+        h.press(hold, request_id="x")
+    h.tick(3)
+    assert answers_for(h, "c") == ["bt.command_rejected"], h.kinds("bt.")
+    rejected = {e.detail["request_id"]: e.detail["message"] for e in h.of("bt.command_rejected")}
+    assert "send it again" in rejected["c"]
+    h.tick(20)
+    assert len(answers_for(h, "c")) == 1  # once
