@@ -21,6 +21,8 @@ __all__ = ["SpeechQueue"]
 
 log = logging.getLogger("curio.speech")
 
+HISTORY = 200  # utterances kept in ``asked`` and ``played``
+
 
 class SpeechQueue:
     """Plays utterances through ``engine`` one at a time.
@@ -30,8 +32,9 @@ class SpeechQueue:
         max_waiting: how many utterances may wait behind the one playing (>= 1).
 
     Attributes:
-        asked: every utterance asked for, in order (for tests and the kiosk's history).
-        played: the utterances handed to the engine, in order.
+        asked: the last ``HISTORY`` utterances asked for, in order (for tests and the kiosk's
+            history; bounded: a rover talks all day for weeks).
+        played: the last ``HISTORY`` utterances handed to the engine, in order.
         dropped: how many waiting utterances were dropped for newer ones.
     """
 
@@ -41,8 +44,8 @@ class SpeechQueue:
         self.engine: SpeechEngine = engine if engine is not None else SilentEngine()
         self.max_waiting = max_waiting
         self.waiting: deque[Utterance] = deque()
-        self.asked: list[Utterance] = []
-        self.played: list[Utterance] = []
+        self.asked: deque[Utterance] = deque(maxlen=HISTORY)
+        self.played: deque[Utterance] = deque(maxlen=HISTORY)
         self.dropped = 0
         self.task: asyncio.Task[None] | None = None
         self.speaking: Utterance | None = None

@@ -123,3 +123,15 @@ async def test_webhook_and_ntfy_are_delivered_retried_and_never_block(aiohttp_se
     (failed,) = [e for e in events.drain() if e.kind == "notify.failed"]
     assert failed.detail["attempts"] == 2 and failed.detail["error"]
     assert isinstance(NtfyChannel(base).name, str) and json.dumps(hook_body)
+
+
+def test_the_speech_history_is_bounded() -> None:
+    """A rover that talks all day for weeks keeps only the latest utterances (a soak's object
+    census found every sentence of the day kept)."""
+    from curio.speech.queue import HISTORY
+
+    speech = SpeechQueue()
+    for k in range(HISTORY + 50):
+        speech.say(f"stop {k}")
+    assert len(speech.asked) == HISTORY
+    assert speech.asked[-1].text == f"stop {HISTORY + 49}" and speech.asked[0].text == "stop 50"
