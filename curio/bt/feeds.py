@@ -48,7 +48,7 @@ class Operator2BB(CurioBehaviour):
     def __init__(self, ctx: TreeContext, name: str = "Operator2BB") -> None:
         super().__init__(name, ctx,
                          read=("paused", "estop", "help_active", "battery_low", "battery_v",
-                               "curr_path", "phase"),
+                               "curr_path", "phase", "lost"),
                          write=("command", "home_request", "pause_request", "help_done",
                                 "estop_operator"))
         self.sub: Subscription[OperatorCommand] = ctx.bus.subscribe(OPERATOR)
@@ -84,15 +84,19 @@ class Operator2BB(CurioBehaviour):
         return Status.SUCCESS
 
     def _refuse_held(self) -> None:
-        """A path, tour or Go Home still waiting when a pause or an e-stop takes over is
-        answered now, refused: the branches that would carry it out do not run while the rover
-        is held, so it would wait unanswered for as long as the hold lasts (found by ``curio
-        soak``: a command pressed in the same tick as Pause was never answered). Commands that
-        arrive during the hold are refused on arrival, with the same advice."""
+        """A path, tour or Go Home still waiting while a pause, an e-stop or being lost holds the
+        rover is answered now, refused: the branches that would carry it out do not run while
+        the rover is held, so it would wait unanswered for as long as the hold lasts (found by
+        ``curio soak``: a command pressed in the same tick as Pause, and a kiosk's tour while
+        the rover was lost, were never answered). The route the rover was on when it got lost
+        is not a command: it is held and resumes once the rover is found."""
         if self.get("estop") or self.get("estop_operator") is not None:
             why = "The e-stop was engaged before it started: release it, then send it again."
         elif self._paused_effective():
             why = "The rover was paused before it started: press Resume, then send it again."
+        elif self.get("lost"):
+            why = ("I am not sure where I am: set my position on the map (or press Relocalise), "
+                   "then send it again.")
         else:
             return
         for key in ("command", "home_request"):

@@ -366,3 +366,21 @@ async def test_spinner_turns_through_its_bound_and_gives_up_when_held() -> None:
     await clock.run(until_s=8.0 + 4 * math.pi / 0.5 + 6.0)
     assert spinner.done
     task.cancel()
+
+
+def test_a_tour_asked_for_while_lost_is_refused_not_left_waiting() -> None:
+    """A kiosk's Start tour while the rover is lost used to wait unanswered until it was found
+    (``curio soak``: a command lost at the end); now it is refused at once with what to do."""
+    from curio.core.config import REPO_ROOT, load_config
+
+    shipped = load_config(REPO_ROOT / "config.toml", []).bt  # with its tour stops
+    h = make_harness(shipped.model_copy(update={"speak": False, "tree": "tour"}))
+    h.tick()
+    localization(h, "lost", 2.0)
+    h.tick(30)
+    assert h.bb("lost")
+    h.press("start_tour", request_id="k1")
+    h.tick(2)
+    (refused,) = [e for e in h.of("bt.command_rejected") if e.detail["request_id"] == "k1"]
+    assert "not sure where I am" in refused.detail["message"]
+    assert not [e for e in h.of("bt.command_accepted") if e.detail["request_id"] == "k1"]
