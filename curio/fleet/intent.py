@@ -38,7 +38,7 @@ import numpy.typing as npt
 
 from curio.fleet.traffic import PeerTable, PeerTrack
 
-__all__ = ["KnownMovers", "RoverIntent", "predict_along"]
+__all__ = ["KnownMovers", "RoverIntent", "known_rovers", "predict_along"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -96,6 +96,21 @@ def _heading_along(start: tuple[float, float], path: F64, along_m: float,
     if norm < 1e-6:
         return math.cos(yaw), math.sin(yaw)
     return float(d[0] / norm), float(d[1] / norm)
+
+
+def known_rovers(peers: PeerTable, wall_time: Callable[[], float],
+                 timeout_s: float) -> Callable[[], F64]:
+    """For :attr:`curio.people.stage.PeopleStage.rovers`: every peer heard from within
+    ``timeout_s`` (whatever it is doing, holding included) as ``(J, 3)`` x, y (``map``, m)
+    and the radius round its footprint (m), so the people stage does not take it for a
+    person."""
+
+    def now() -> F64:
+        fresh = peers.fresh(wall_time(), timeout_s)
+        return np.array([(p.pose.x, p.pose.y, p.radius_m) for p in fresh],
+                        dtype=np.float64).reshape(-1, 3)
+
+    return now
 
 
 class RoverIntent:

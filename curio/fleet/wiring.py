@@ -43,7 +43,7 @@ from curio.fleet.auth import (
 )
 from curio.fleet.bridge import FleetBridge
 from curio.fleet.commands import CommandExecutor
-from curio.fleet.intent import RoverIntent
+from curio.fleet.intent import RoverIntent, known_rovers
 from curio.fleet.keys import check_rover_name
 from curio.fleet.simworld import PeerBodies
 from curio.fleet.traffic import PassageFinder, TrafficNode
@@ -130,9 +130,12 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
                               robot.circumscribed_radius_m, goal_active)
         navigator.holds.append(traffic.hold)
         parts.add(Part("fleet.traffic", run=traffic.run))
-        if f.traffic.predict_peers and people_stage is not None:
-            people_stage.movers = RoverIntent(traffic.peers, clock.wall_time,
-                                              f.traffic.peer_timeout_s)
+        if people_stage is not None:
+            people_stage.rovers = known_rovers(traffic.peers, clock.wall_time,
+                                               f.traffic.peer_timeout_s)
+            if f.traffic.predict_peers:
+                people_stage.movers = RoverIntent(traffic.peers, clock.wall_time,
+                                                  f.traffic.peer_timeout_s)
     snapshots: dict[str, Callable[[], Any]] = {"tours": lambda: [
         t.to_json() for t in tours.store.list_tours()]}
     if paths is not None:

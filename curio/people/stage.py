@@ -90,6 +90,7 @@ W_SAFE = 300.0
 BACK_OFF_MPS = 0.1
 COMFORT_SLACK = 1e-3  # a comfort cost this small is nobody's concern
 STEERING_S = 1.5
+ROVER_MARGIN_M = 0.25  # a person track this near a known rover's circle is that rover (m)
 
 
 def _dense(a: F64) -> F64:
@@ -114,6 +115,12 @@ class PeopleStage:
         movers: optional; called with the horizon's times (s from now), returns obstacles
             with known futures (``now`` ``(J, 5)``, ``future`` ``(J, K, 2)``, ``radius_m``
             ``(J,)``: :class:`curio.fleet.intent.KnownMovers`).
+        rovers: optional; the other rovers the fleet link knows of now, ``(J, 3)`` x, y
+            (``map``, m) and a radius round each footprint (m). A person track on one of them
+            is that rover, not a person: dropped (the right-of-way rule and, with
+            ``fleet.traffic.predict_peers``, the movers deal with rovers; taking a rover that
+            holds at a doorway's staging point for a person made the one with the right of way
+            yield to it — ``curio bench fleet`` deadlocks).
     """
 
     def __init__(self, cfg: PeopleConfig, ccfg: ControllerConfig, robot: RobotModel,
@@ -138,6 +145,7 @@ class PeopleStage:
         self._changed_at_s = -math.inf
         self.last_costs: tuple[F64, ...] = ()  # the last review's numbers (for inspection)
         self.movers: Callable[[F64], Any] | None = None
+        self.rovers: Callable[[], F64] | None = None
         self._futures: F64 = np.zeros((0, len(self.times), 2))  # of the rows after the people
         self._persons = 0  # people (not movers) in the last people_near
 
@@ -166,7 +174,13 @@ class PeopleStage:
             elif sp > 2.0:
                 vx, vy = vx * 2.0 / sp, vy * 2.0 / sp
             rows.append((x, y, vx, vy, 1.0 if t.walked else 0.0, 0.0))
-        return np.array(rows, dtype=np.float64).reshape(-1, 6)
+        people = np.array(rows, dtype=np.float64).reshape(-1, 6)
+        rovers = self.rovers() if self.rovers is not None and len(people) else None
+        if rovers is not None and len(rovers):
+            d = np.hypot(people[:, None, 0] - rovers[None, :, 0],
+                         people[:, None, 1] - rovers[None, :, 1])
+            people = people[(d > rovers[None, :, 2] + ROVER_MARGIN_M).all(axis=1)]
+        return people
 
     def _with_movers(self, people: F64, pose: Pose2D) -> F64:
         """``people`` followed by the movers within reach (their futures kept for the

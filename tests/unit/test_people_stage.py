@@ -189,3 +189,20 @@ def test_the_kernels_get_dense_arrays_whatever_the_number_of_people(
     run(ctrl, Pose2D(-4.0, 0.0, 0.0), walkers, 3.0, stage)
     assert seen, "the stage never called its kernels"
     assert all(dense for _, dense in seen), sorted({n for n, d in seen if not d})
+
+
+def test_a_track_on_a_rover_the_fleet_knows_is_not_a_person(
+        parts: tuple[LocalController, PeopleStage, Config]) -> None:
+    """The lidar sees another rover and the tracker makes a track of it; the fleet link says a
+    rover stands there: it is not a person (the right-of-way rule deals with it). Before, the
+    rover with the right of way yielded to the one holding at the doorway's staging point —
+    `curio bench fleet` seed 7 deadlocked."""
+    _ctrl, stage, _cfg = parts
+    on_rover = PersonTrack(1, 1.0, 0.1, 0.0, 0.0, walked=True)
+    person = PersonTrack(2, 1.5, -1.0, 0.0, 0.0, walked=True)
+    stage.tracks = lambda: PeopleTracks(0.0, (on_rover, person))
+    here = Pose2D(0.0, 0.0, 0.0)
+    assert len(stage.people_near(here, 0.0)) == 2  # no fleet: both count
+    stage.rovers = lambda: np.array([[1.05, 0.0, 0.45]])
+    near = stage.people_near(here, 0.0)
+    assert len(near) == 1 and tuple(near[0, :2]) == (1.5, -1.0)
