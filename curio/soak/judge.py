@@ -30,13 +30,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from curio.core.bus import Subscription
 from curio.core.geometry import wrap_angle
-from curio.core.messages import DriverHealth, Event
-from curio.core.topics import ESTOP, EVENTS, HEALTH, LOCALIZATION, POSE, STATUS, TOUR
+from curio.core.messages import DriverHealth, Event, OperatorCommand
+from curio.core.topics import ESTOP, EVENTS, HEALTH, LOCALIZATION, OPERATOR, POSE, STATUS, TOUR
 from curio.eventlog.store import LogQuery
 from curio.soak.faults import DEADLINES_S, Injection, Targets, inject
 from curio.soak.link import Link
@@ -50,6 +51,7 @@ POLL_S = 0.25
 LOG_POLL_S = 2.0
 MOVING_MPS = 0.05
 HEALTHY_WAIT_S = 60.0
+NUDGE_S = 120.0  # simulated seconds a due fault waits for the rover to drive before a tour
 KILL_WAIT_S = 30.0
 LOCALISED_M = 0.3
 LOCALISED_RAD = 0.15
@@ -120,6 +122,8 @@ class FaultRunner:
         self.health_seen: dict[str, float] = {}
         self.help_open_s: float | None = None
         self.unhealthy_since_s: float | None = None
+        self._waiting_since_s: float | None = None  # a due fault has waited for a drive since
+        self._nudged_s = -math.inf
         self.judged = 0
         self._health: Subscription[DriverHealth] = app.bus.subscribe(HEALTH, maxsize=4096)
         self._events: Subscription[Event] = app.bus.subscribe(EVENTS)
@@ -133,13 +137,15 @@ class FaultRunner:
         return self.current is not None or self.dying is not None
 
     def next_due_wall_s(self) -> float | None:
-        """When the next fault is due (building clock), unless it waits for motion."""
+        """When the next fault is due (building clock). A due fault that waits for the rover to
+        drive makes it now: the building's clock must not time-lapse past it while the rover
+        stands parked (:meth:`_nudge` starts a tour for it after ``NUDGE_S``)."""
         if not self.plan:
             return None
-        nxt = self.plan[0]
-        if KINDS[nxt.kind].need != "any" and nxt.at_wall_s <= self.clock.wall_time():
-            return None  # due, waiting for the rover to drive: the tours decide
-        return nxt.at_wall_s
+        wall = self.clock.wall_time()
+        if any(KINDS[f.kind].need != "any" and f.at_wall_s <= wall for f in self.plan):
+            return float(wall)
+        return self.plan[0].at_wall_s
 
     def describe(self) -> dict[str, Any]:
         """The runner's state for the heartbeat: the fault being judged, the next one and
@@ -207,11 +213,43 @@ class FaultRunner:
     def _healthy(self) -> bool:
         return all(self.states.get(name, "ok") == "ok" for name in DRIVER_PARTS)
 
-    def _maybe_inject(self, now: float) -> None:
-        if not self.plan or self.plan[0].at_wall_s > self.clock.wall_time():
+    def _next_ready(self) -> PlannedFault | None:
+        """The first due fault whose need holds. A fault that waits for the rover to drive
+        does not hold up the due faults behind it that need nothing (a campaign whose last
+        tours were cut short used to leave all of them uninjected)."""
+        wall = self.clock.wall_time()
+        for fault in self.plan:
+            if fault.at_wall_s > wall:
+                return None
+            if self._need_met(fault):
+                return fault
+        return None
+
+    def _nudge(self, now: float) -> None:
+        """A fault that needs the rover driving has waited ``NUDGE_S`` while it stood idle
+        (the operators' random commands stopped the tours, or none is scheduled any more):
+        start a tour for it, as the kiosk would (``source`` ``soak``), at most every
+        ``NUDGE_S``."""
+        wall = self.clock.wall_time()
+        waiting = [f for f in self.plan if f.at_wall_s <= wall and not self._need_met(f)]
+        if not waiting or now - self._nudged_s < NUDGE_S:
             return
-        fault = self.plan[0]
-        if not self._need_met(fault):
+        if self._waiting_since_s is None:
+            self._waiting_since_s = now
+            return
+        tour = self.app.bus.latest(TOUR)
+        if now - self._waiting_since_s < NUDGE_S or (tour is not None and tour.tour_id):
+            return
+        self._nudged_s = now
+        self.app.bus.publish(OPERATOR, OperatorCommand(
+            now, "start_tour", source="soak", request_id=f"soak-nudge-{waiting[0].id}"))
+        log.info("soak: fault %d (%s) waits for a tour: starting one", waiting[0].id,
+                 waiting[0].kind)
+
+    def _maybe_inject(self, now: float) -> None:
+        fault = self._next_ready()
+        if fault is None:
+            self._nudge(now)
             return
         notes: list[str] = []
         if not self._healthy():
@@ -222,7 +260,8 @@ class FaultRunner:
             bad = {k: v for k, v in self.states.items() if v != "ok"}
             notes.append(f"injected while parts were not ok: {bad}")
         self.unhealthy_since_s = None
-        self.plan.pop(0)
+        self._waiting_since_s = None
+        self.plan.remove(fault)
         if KINDS[fault.kind].restart:
             self.dying, self.dying_since_s = fault, now
             self.link.send("kill_me", id=fault.id, kind=fault.kind, params=fault.params,

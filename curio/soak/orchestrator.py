@@ -200,9 +200,10 @@ class Orchestrator:
                         battery_v=beat.get("battery_v"), lapsed_s=beat.get("lapsed_s", 0.0))
             truth = beat["truth"]
             spec["overrides"].append(f"sim.start=[{truth[0]!r}, {truth[1]!r}, {truth[2]!r}]")
-        done = max([restart["fault"]["id"] if restart else 0, *self.obs.faults,
-                    *self.obs.injected])
-        spec["faults"] = [f.to_json() for f in self.plan if f.id > done]
+        done = {*self.obs.faults, *self.obs.injected}
+        if restart:
+            done.add(restart["fault"]["id"])
+        spec["faults"] = [f.to_json() for f in self.plan if f.id not in done]
         return spec
 
     async def _start(self, restart: dict[str, Any] | None) -> asyncio.subprocess.Process:
