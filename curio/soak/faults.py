@@ -54,6 +54,7 @@ DEADLINES_S = {
     "kidnap": 60.0, "kill9": 120.0, "corrupt_file": 120.0,
 }
 BALLAST_CHUNK = 1 << 20
+DISK_WALL_DEADLINE_S = 20.0  # wall seconds for the writer threads' retries after a full disk
 
 
 @dataclass
@@ -98,6 +99,10 @@ class Injection:
         recovered: extra condition for recovery beyond every recovery part being ``ok``.
         note: what was done, for the report.
         recovery_parts: the parts that must be ``ok`` again (default: ``health``).
+        wall_deadline_s: for parts that retry on the wall clock (the recorder's and the event
+            log's writer threads after a full disk: every 5 s and 2 s of wall time), the
+            deadline is also at least this many wall seconds after the condition ended — the
+            soak's simulated clock runs 15–70× faster than those retries.
     """
 
     health: tuple[str, ...]
@@ -107,6 +112,7 @@ class Injection:
     recovered: Callable[[], bool] | None = None
     note: dict[str, Any] = field(default_factory=dict)
     recovery_parts: tuple[str, ...] | None = None
+    wall_deadline_s: float | None = None
 
     @property
     def must_recover(self) -> tuple[str, ...]:
@@ -229,7 +235,8 @@ def _inject_more(fault: PlannedFault, t: Targets, deadline: float) -> Injection:
                 ballast.unlink()
 
         return Injection(("recorder", "eventlog"), (), free, deadline,
-                         note={"ballast_mb": round(written / 1e6, 1)})
+                         note={"ballast_mb": round(written / 1e6, 1)},
+                         wall_deadline_s=DISK_WALL_DEADLINE_S)
     if kind == "kidnap":
         target = _kidnap_target(t.app.world, int(p["seed"]))
         before = t.app.world.truth_pose

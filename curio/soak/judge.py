@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from curio.core.bus import Subscription
+from curio.core.clock import wall_perf_counter
 from curio.core.geometry import wrap_angle
 from curio.core.messages import DriverHealth, Event, OperatorCommand
 from curio.core.topics import ESTOP, EVENTS, HEALTH, LOCALIZATION, OPERATOR, POSE, STATUS, TOUR
@@ -77,6 +78,8 @@ class FaultRun:
     good_since_s: float | None = None
     next_log_s: float = 0.0
     held_s: float = 0.0
+    cleared_wall_s: float | None = None  # wall_perf_counter() when the condition ended
+    recovered_wall_s: float | None = None  # ... and when it was recovered
 
     def result(self) -> dict[str, Any]:
         """The judged fault for the report."""
@@ -92,6 +95,8 @@ class FaultRun:
             "recover_s": None if self.recovered_s is None else round(
                 max(0.0, self.recovered_s - cleared - self.held_s), 3),
             "held_by_operator_s": round(self.held_s, 3),
+            "recover_wall_s": None if self.recovered_wall_s is None or self.cleared_wall_s is None
+            else round(self.recovered_wall_s - self.cleared_wall_s, 3),
             "outage_s": rel(self.recovered_s), "help_s": rel(self.help_s),
             "health_parts": list(self.inj.health), "note": self.inj.note, "notes": self.notes,
         }
@@ -293,6 +298,7 @@ class FaultRunner:
     def _judge(self, run: FaultRun, now: float) -> None:
         if run.cleared_s is None and run.clearing is not None and run.clearing.done():
             run.cleared_s = now
+            run.cleared_wall_s = wall_perf_counter()
             with contextlib.suppress(BaseException):
                 run.clearing.result()
         if run.log_s is None and now >= run.next_log_s:
@@ -304,10 +310,13 @@ class FaultRunner:
                 run.held_s += POLL_S  # an operator holds the rover: the deadline waits too
             elif self._recovered(run, now):
                 run.recovered_s = now
+                run.recovered_wall_s = wall_perf_counter()
         deadline = (run.cleared_s if run.cleared_s is not None else now) + run.inj.deadline_s \
             + run.held_s
         settled = run.recovered_s is not None and run.log_s is not None
-        if settled or (run.cleared_s is not None and now >= deadline):
+        wall_wait = run.inj.wall_deadline_s is not None and run.cleared_wall_s is not None \
+            and wall_perf_counter() - run.cleared_wall_s < run.inj.wall_deadline_s
+        if settled or (run.cleared_s is not None and now >= deadline and not wall_wait):
             if run.recovered_s is not None:
                 run.outcome = "recovered"
             elif self._stopped_safely(run):

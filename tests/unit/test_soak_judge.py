@@ -1,0 +1,56 @@
+"""The soak's fault judge: a full disk is recovered by writer threads that retry on the wall
+clock (every 5 s and 2 s), while the soak's simulated clock runs 15–70× faster — so its
+deadline also waits ``wall_deadline_s`` of wall time. Before, a quiet machine judged a disk
+that the rover recovered 3–5 wall seconds after it had room as "failed" (40 simulated seconds
+had gone by)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+from curio.soak.faults import Injection
+from curio.soak.judge import FaultRun, FaultRunner
+from curio.soak.plan import PlannedFault
+
+
+def _runner() -> tuple[FaultRunner, list[dict[str, Any]]]:
+    sent: list[dict[str, Any]] = []
+    runner = FaultRunner.__new__(FaultRunner)
+    runner.app = SimpleNamespace(bus=SimpleNamespace(latest=lambda topic: None), eventlog=None,
+                                 world=SimpleNamespace(truth_twist=(0.0, 0.0)))
+    runner.link = SimpleNamespace(send=lambda t, **kw: sent.append(kw))
+    runner.states, runner.health_seen = {"recorder": "error", "eventlog": "error"}, {}
+    runner.help_open_s = None
+    runner.judged = 0
+    return runner, sent
+
+
+def _disk_run(wall_deadline_s: float | None) -> FaultRun:
+    inj = Injection(("recorder", "eventlog"), (), None, 40.0, wall_deadline_s=wall_deadline_s)
+    run = FaultRun(PlannedFault(1, "disk_full", 0.0), inj, injected_s=0.0, injected_wall_s=0.0)
+    run.cleared_s, run.log_s = 10.0, 5.0
+    return run
+
+
+def test_a_full_disk_waits_for_the_writers_wall_clock_retries() -> None:
+    runner, sent = _runner()
+    run = _disk_run(wall_deadline_s=20.0)
+    run.cleared_wall_s = float("inf")  # the disk got its room just now (wall clock)
+    runner.current = run
+    runner._judge(run, now=60.0)  # 50 simulated seconds later: past the 40 s deadline
+    assert runner.current is run and not sent, "judged before the writers could retry"
+    runner.states.update(recorder="ok", eventlog="ok")
+    runner.health_seen.update(recorder=61.0, eventlog=61.0)
+    runner._judge(run, now=61.5)
+    runner._judge(run, now=63.0)  # ok for a second: recovered
+    assert sent and sent[0]["outcome"] == "recovered", sent
+
+
+def test_without_the_wall_deadline_the_same_run_failed() -> None:
+    runner, sent = _runner()
+    run = _disk_run(wall_deadline_s=None)
+    run.cleared_wall_s = float("inf")
+    runner.current = run
+    runner._judge(run, now=60.0)
+    assert sent and sent[0]["outcome"] == "failed"
