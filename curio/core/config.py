@@ -1028,6 +1028,10 @@ class FleetTrafficConfig(Section):
         2.0, ge=0.0, le=60.0, description="the rover that will reach the passage sooner by more "
         "than this goes first (distance and turns, estimated); closer than that, the one whose "
         "name sorts first")
+    slow_approach_lead_s: float = Field(
+        4.0, ge=0.0, le=60.0, description="a rover that gives way slows on its way to the "
+        "staging point so that it arrives this long before the other is expected through the "
+        "passage (0: it drives there at full speed and waits)")
     rate_hz: float = Field(5.0, gt=0.0, le=50.0, description="right-of-way decisions per second")
     predict_peers: bool = Field(
         False, description="give the other rovers, predicted along their planned paths, to the "

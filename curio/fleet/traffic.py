@@ -18,7 +18,10 @@ this module adds what a lidar cannot know — where they are going:
   one whose name sorts first. The other gives way (state ``yield``): it keeps driving until it
   is ``stop_before_m``..``wait_back_m`` before the passage, at the spot clearest of the other's
   way (the *staging point*), holds there, and goes as soon as the other has left the passage
-  (``clear_after_m``) or stopped using it. Decisions are latched: a rover that goes keeps the
+  (``clear_after_m``) or stopped using it. On its way to the staging point it slows
+  (:meth:`TrafficNode.speed_limit`, a limit the controller applies) so that it arrives shortly
+  before the other is expected through, rather than parking in front of the passage for the
+  other's whole approach. Decisions are latched: a rover that goes keeps the
   passage until it is through; one that yields to a rover that yields too (a race) goes if its
   name sorts first.
 * :class:`TrafficNode` is the rover's part: it runs the rule at ``rate_hz`` and gives the
@@ -65,6 +68,7 @@ __all__ = [
     "PeerTrack",
     "RightOfWay",
     "TrafficNode",
+    "clear_eta_s",
     "eta_s",
 ]
 
@@ -80,6 +84,7 @@ WAIT_SPEED_MPS = 0.03   # slower than this while holding: waiting at the staging
 NOMINAL_SPEED_MPS = 0.25  # for arrival estimates (the controller drives at up to 0.3 m/s)
 TURN_S_PER_RAD = 2.0    # and each radian of turning on the way costs this long
 ETA_STEP_M = 0.5        # the plan's resolution for those estimates
+SLOW_APPROACH_MIN_MPS = 0.08  # a rover giving way never creeps slower than this to its staging
 
 
 # --- geometry ---------------------------------------------------------------------------------
@@ -511,6 +516,14 @@ def eta_s(points: F64, yaw_rad: float, zone: Passage) -> float:
     return float(s[k]) / NOMINAL_SPEED_MPS + TURN_S_PER_RAD * turning
 
 
+def clear_eta_s(peer: PeerTrack, zone: Passage, clear_after_m: float) -> float:
+    """Estimated seconds until ``peer`` has driven through ``zone`` and ``clear_after_m``
+    beyond it (:func:`eta_s` to the passage, then its length and the margin at
+    ``NOMINAL_SPEED_MPS``)."""
+    through_m = max(0.0, zone.s_out_m - zone.s_in_m) + clear_after_m
+    return eta_s(peer.points(), peer.pose.yaw, zone) + through_m / NOMINAL_SPEED_MPS
+
+
 # --- the part ---------------------------------------------------------------------------------
 
 class TrafficNode:
@@ -601,6 +614,26 @@ class TrafficNode:
 
     def _event(self, kind: str, **detail: Any) -> None:
         self.bus.publish(EVENTS, Event(self.clock.now(), kind, detail))
+
+    def speed_limit(self, pose: Pose2D) -> float:
+        """The controller's speed limit, m/s (``inf``: none): a rover giving way slows on its
+        way to the staging point so that it gets there about ``slow_approach_lead_s`` before
+        the other will have cleared the passage (:func:`clear_eta_s`), instead of standing in
+        front of the passage for the other's whole approach; never below
+        ``SLOW_APPROACH_MIN_MPS``. Off with ``slow_approach_lead_s = 0``."""
+        d = self.decision
+        lead = self.cfg.slow_approach_lead_s
+        if not self.cfg.enabled or lead <= 0.0 or d.state != "yield" or d.zone is None or \
+                d.inside or d.yield_to is None:
+            return math.inf
+        to_staging_m = d.zone.s_in_m - d.hold_s_m
+        other = self.peers.peers.get(d.yield_to)
+        if to_staging_m <= 0.0 or other is None:
+            return math.inf
+        spare_s = clear_eta_s(other, d.zone, self.cfg.clear_after_m) - lead
+        if spare_s <= 0.0:
+            return math.inf
+        return max(SLOW_APPROACH_MIN_MPS, to_staging_m / spare_s)
 
     def hold(self, pose: Pose2D, now: float) -> str | None:
         """The navigator's hook: why to hold still now, or None (drive on)."""

@@ -129,6 +129,7 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
                               PassageFinder(grid, f.traffic.narrow_width_m), width,
                               robot.circumscribed_radius_m, goal_active)
         navigator.holds.append(traffic.hold)
+        navigator.controller.speed_limits["giving way"] = traffic.speed_limit
         parts.add(Part("fleet.traffic", run=traffic.run))
         if people_stage is not None:
             people_stage.rovers = known_rovers(traffic.peers, clock.wall_time,

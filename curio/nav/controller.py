@@ -302,8 +302,9 @@ class LocalController:
         self.goal: Pose2D | None = None
         self.check_yaw = True
         self.progress = ProgressChecker(cfg.progress_min_distance_m, cfg.progress_timeout_s)
-        # Speed zones (curio/zones): the speed limit for the rover at a pose in map, m/s.
-        self.speed_limit: Callable[[Pose2D], float] | None = None
+        # Speed limits for the rover at a pose in map (m/s), by the reason shown when one
+        # binds: the speed zones (curio/zones), a rover giving way (curio/fleet/traffic.py).
+        self.speed_limits: dict[str, Callable[[Pose2D], float]] = {}
         self.people: MotionReview | None = None  # the people stage (curio/people/wiring.py)
         self.reset()
 
@@ -586,10 +587,10 @@ class LocalController:
         kappa = pursuit_curvature(aim.x_r, aim.y_r, kmax)
         v_target, detail = regulated_speed(cfg, self.robot, kappa, self._clearance_m(cyc.pose),
                                            cyc.dist_goal, cyc.now_s < self._settle_until)
-        if self.speed_limit is not None:
-            zone_limit = self.speed_limit(cyc.pose)
-            if zone_limit < v_target:
-                v_target, detail = zone_limit, detail or "speed zone"
+        for reason, limit_at in self.speed_limits.items():
+            limit = limit_at(cyc.pose)
+            if limit < v_target:
+                v_target, detail = limit, detail or reason
         if abs(self._v) < 1e-3 and abs(self._w) < 1e-3:
             self._kappa = kappa  # standing still: the servos swing while the speed ramps up
         else:

@@ -7,7 +7,7 @@ every change (and at start-up):
 * makes the keep-out zones, grown by ``zones.keepout_margin_m``, lethal in the costmap
   (:meth:`curio.nav.costmap.Costmap.set_keepout`): the planner never plans through them, the
   controller's footprint check never drives into them;
-* gives the controller the speed limit of the speed zones (``LocalController.speed_limit``)
+* gives the controller the speed limit of the speed zones (``LocalController.speed_limits``)
   and the safety stage the keep-out check and the speed limit (``SafetyStage.zone_guard``),
   both through one :class:`~curio.zones.guard.ZoneGuard`;
 * publishes the zones on ``/zones`` (latched; ``detail``: ``map``, ``revision``, ``zones``)

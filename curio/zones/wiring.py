@@ -36,7 +36,7 @@ def build_zones(cfg: Config, bus: Bus, clock: Clock, robot: RobotModel, grid: Oc
     store = ZoneStore(zone_file(cfg, map_name), map_name, robot.max_wheel_speed_mps)
     guard = ZoneGuard(robot, cfg.zones, bus)
     if controller is not None:
-        controller.speed_limit = guard.speed_limit_at
+        controller.speed_limits["speed zone"] = guard.speed_limit_at
     if safety is not None:
         safety.zone_guard = guard
     return ZoneService(cfg, bus, clock, store, grid, guard, costmap, home)

@@ -22,17 +22,19 @@ async def test_two_rovers_pass_the_workshop_doorway_without_collision_or_deadloc
         cfg: Config) -> None:
     pytest.importorskip("zenoh")
     scenario = get_fleet_scenario("doorway")
-    # Seed 5: they meet head on and one of them waits at its staging point.
+    # Seed 5: they meet head on and one of them gives way.
     zen = await run_fleet(scenario, cfg, FleetArgs(seed=5, transport="zenoh"))
     assert zen["success"], zen["failure"]
     m = zen["metrics"]
     assert m["rover_rover_collisions"] == 0 and m["rover_rover_encounters"] >= 1
-    # One waits at its staging point, then both pass, the wait within issue 17's 10 s
-    # (7.5 s on this seed; the longest over `curio bench fleet`'s 50 seeds is in docs/fleet.md).
-    assert 0.0 < m["longest_standoff_s"] <= 10.0
+    # The one that gives way slows on its way to its staging point and goes once the other is
+    # through; any stop there within issue 17's 10 s (none on this seed since the slow
+    # approach: it was 7.5 s before; the 50 seeds of `curio bench fleet` are in docs/fleet.md).
+    assert m["longest_standoff_s"] <= 10.0
     assert m["delivery_timeouts"] == 0
-    waits = [e for e in zen["events"] if e["kind"] == "traffic.waiting"]
-    assert waits, "the rover that gave way never stopped at its staging point"
+    kinds = [(e["rover"], e["kind"]) for e in zen["events"] if e["kind"].startswith("traffic")]
+    yielded = {r for r, k in kinds if k == "traffic.yield"}
+    assert len(yielded) == 1 and (yielded.pop(), "traffic.resume") in kinds, kinds
     # The same run over the in-process transport: the very same day (reproducible).
     mem = await run_fleet(scenario, cfg, FleetArgs(seed=5, transport="memory"))
     zen["metrics"].pop("delivery_timeouts")

@@ -3,14 +3,27 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from curio.core.bus import Bus
+from curio.core.clock import SimClock
 from curio.core.config import REPO_ROOT, FleetTrafficConfig
 from curio.core.geometry import Pose2D
 from curio.estimation.maps import load_map
-from curio.fleet.traffic import MyView, PassageFinder, PeerTable, PeerTrack, RightOfWay, eta_s
+from curio.fleet.traffic import (
+    SLOW_APPROACH_MIN_MPS,
+    MyView,
+    PassageFinder,
+    PeerTable,
+    PeerTrack,
+    RightOfWay,
+    TrafficNode,
+    clear_eta_s,
+    eta_s,
+)
 
 GRID = load_map(REPO_ROOT / "maps" / "curio_building.yaml")
 # The workshop's 0.9 m doorway is at x 9.0..9.9, y 9.5..9.65.
@@ -110,3 +123,40 @@ def test_peer_table_drops_stale_and_malformed_messages() -> None:
     track = table.tracks(11.0, 2.0)[0]
     assert track.id == "rover:b" and track.path == ((1.0, 2.0), (3.0, 4.0))
     assert track.vx_mps == pytest.approx(0.2 * math.cos(0.5))
+
+
+def test_a_rover_giving_way_slows_to_reach_its_staging_point_as_the_other_clears(
+        finder) -> None:
+    """On its way to the staging point the rover that gives way is slowed so that it gets there
+    ``slow_approach_lead_s`` before the other is expected through (never below the floor); no
+    limit at the staging point, with the right of way, or without the other's messages."""
+    node = TrafficNode(FleetTrafficConfig(), "a", Bus(), SimClock(), finder, 0.62, 0.45,
+                       lambda: True)
+    me = view("a", Pose2D(7.0, 8.3, 0.0), INTO_WORKSHOP, start_s=2.0)
+    far = peer("b", Pose2D(9.45, 13.5, -math.pi / 2),  # it has claimed the doorway
+               np.array([[9.45, 13.5], [9.45, 8.3], [13.0, 8.3]]), state="go",
+               zone=(9.45, 9.57))
+    node.peers.peers["b"] = far
+    node.decision = node.rule.step(me, [far])
+    d = node.decision
+    assert (d.state, d.yield_to) == ("yield", "b") and d.zone is not None
+    to_staging = d.zone.s_in_m - d.hold_s_m
+    spare = clear_eta_s(far, d.zone, 0.9) - 4.0
+    assert spare > 0 and to_staging > 0
+    limit = node.speed_limit(me.pose)
+    assert limit == pytest.approx(max(SLOW_APPROACH_MIN_MPS, to_staging / spare))
+    assert limit < 0.2  # well under the controller's 0.3 m/s
+    node.peers.peers["b"] = peer("b", Pose2D(9.45, 30.0, -math.pi / 2),
+                                 np.array([[9.45, 30.0], [9.45, 8.3], [13.0, 8.3]]),
+                                 state="go", zone=(9.45, 9.57))
+    assert node.speed_limit(me.pose) == SLOW_APPROACH_MIN_MPS  # very far: the floor
+    node.peers.peers.clear()
+    assert node.speed_limit(me.pose) == math.inf                # not heard: drive on
+    node.peers.peers["b"] = far
+    node.decision = replace(d, hold_s_m=d.zone.s_in_m)          # at the staging point
+    assert node.speed_limit(me.pose) == math.inf                # (the hold stops it)
+    node.decision = replace(d, state="go", yield_to=None)
+    assert node.speed_limit(me.pose) == math.inf
+    node.decision = d
+    node.cfg = FleetTrafficConfig(slow_approach_lead_s=0.0)
+    assert node.speed_limit(me.pose) == math.inf                # switched off
