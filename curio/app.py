@@ -207,7 +207,7 @@ class App:
             grid=lambda: est.map_server.grid, tours=self.tours, paths=self.paths,
             world=self.world, tokens=self.tokens, transport=fleet_transport,
             people_stage=self.people.stage if self.people is not None else None,
-            zones=self.zones)
+            zones=self.zones, maps=maps)
         self.web: WebServer | None = None
         self.web_url: str | None = None
         if cfg.web.enabled if web is None else web:

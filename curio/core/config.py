@@ -1085,6 +1085,13 @@ class FleetManagerConfig(Section):
                                   "dropped after waiting this long")
     max_attempts: int = Field(3, ge=1, le=20, description="dispatches of one tour at most")
     check_period_s: float = Field(1.0, gt=0.0, le=60.0)
+    distribute_maps: bool = Field(
+        True, description="push the shared map (the manager's map file, read again when it "
+        "changes) to every rover on that map whose cells differ; a rover takes it when parked "
+        "(curio/fleet/maps_sync.py)")
+    map_resend_s: float = Field(
+        30.0, gt=0.0, le=3600.0, description="a rover that refused the map (busy) is asked "
+        "again after this long")
     distribute_zones: bool = Field(
         True, description="push the zones of the shared map (the manager's zone file, once it "
         "exists) to every rover on that map (curio/fleet/zones_sync.py)")

@@ -14,7 +14,7 @@ role may do the action. A refused command changes nothing; the bridge answers wi
 and logs ``fleet.command_refused``.
 
 **Roles** are the dashboard's (issue 20): ``kiosk`` may start and stop tours; ``operator`` may
-also send goals, pause, go home, use the e-stop, push tour definitions and a map's zones;
+also send goals, pause, go home, use the e-stop, push tour definitions, a map and its zones;
 ``admin`` may also
 release an e-stop that somebody else set. :data:`PERMISSIONS` and :func:`action_permission`
 mirror ``curio/web/tokens.py`` and ``curio/web/control.py`` on the dashboard branch and are kept
@@ -69,8 +69,8 @@ ROLES: tuple[str, ...] = ("kiosk", "operator", "admin")
 PERMISSIONS: dict[str, frozenset[str]] = {
     "viewer": frozenset(),
     "kiosk": frozenset({"tour"}),
-    "operator": frozenset({"tour", "estop", "command", "zones"}),
-    "admin": frozenset({"tour", "estop", "command", "zones", "release_any_estop"}),
+    "operator": frozenset({"tour", "estop", "command", "zones", "maps"}),
+    "admin": frozenset({"tour", "estop", "command", "zones", "maps", "release_any_estop"}),
 }
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9 ._@-]{0,31}$")
 _HEX16 = re.compile(r"^[0-9a-f]{16,64}$")
@@ -84,6 +84,8 @@ def action_permission(action: str) -> str:
         return "tour"
     if action == "set_zones":
         return "zones"
+    if action == "set_map":
+        return "maps"
     return "command"
 
 

@@ -19,7 +19,10 @@ on a rover without one, so the sender knows it will not charge), ``cancel``, ``e
 ``release_estop`` (only by the key that set it or an ``admin`` key, as on the dashboard),
 ``set_zones`` (``map``, ``zones``: the whole set of a map's keep-out and speed zones, from the
 fleet manager — ``curio/fleet/zones_sync.py``; checked and applied by the rover's zone
-service, refused on a rover without zones or on another map).
+service, refused on a rover without zones or on another map), ``set_map`` (``map``, ``grid``,
+``sha``: a new revision of the map the rover drives on, from the fleet manager —
+``curio/fleet/maps_sync.py``; taken only on a rover run by ``curio run``'s map host, parked,
+when the map has free space at its home; it restarts on it).
 A ``request_id`` (up to 64 characters) is echoed in the reply; a repeated one is acknowledged
 without running again.
 """
@@ -28,8 +31,11 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
@@ -37,6 +43,10 @@ from curio.core.geometry import Pose2D
 from curio.core.messages import OperatorAction, OperatorCommand
 from curio.core.topics import ESTOP, OPERATOR
 from curio.fleet.auth import Verified
+from curio.fleet.codec import grid_digest
+from curio.fleet.maps_sync import decode_pushed_map
+from curio.maps.control import MapsAccess
+from curio.maps.library import MapLibraryError
 from curio.tours.model import TourError, tour_from_json
 from curio.tours.service import TourService
 from curio.tours.store import TourStore
@@ -45,7 +55,8 @@ from curio.zones.model import ZoneError
 __all__ = ["ACTIONS", "CommandExecutor", "Outcome"]
 
 ACTIONS: tuple[str, ...] = ("goto", "start_tour", "stop_tour", "pause", "resume", "go_home",
-                            "dock", "cancel", "estop", "release_estop", "set_zones")
+                            "dock", "cancel", "estop", "release_estop", "set_zones",
+                            "set_map")
 # ``dock`` becomes Go Home: with a dock fitted the tree docks on it (curio/bt/unattended.py).
 _PLAIN: dict[str, OperatorAction] = {"pause": "pause", "resume": "resume", "go_home": "go_home",
                                      "dock": "go_home", "cancel": "cancel", "estop": "estop",
@@ -72,17 +83,25 @@ class CommandExecutor:
         store: the tour store that distributed tours are kept in.
         has_dock: a dock is fitted (``dock.enabled``): ``dock`` is accepted.
         zones: the rover's zone service (``ZoneService``; None: zones are off).
+        maps: the map library and its host (None, or without a host: ``set_map`` is refused).
+        busy: why the rover cannot change its map now (None: it is parked and may).
+        home: the rover's home in ``map`` (a pushed map must have free space there).
     """
 
     def __init__(self, bus: Bus, clock: Clock, service: TourService | None = None,
                  store: TourStore | None = None, *, has_dock: bool = False,
-                 zones: Any = None) -> None:
+                 zones: Any = None, maps: MapsAccess | None = None,
+                 busy: Callable[[], str | None] = lambda: None,
+                 home: Callable[[], Pose2D] = Pose2D) -> None:
         self.bus = bus
         self.clock = clock
         self.service = service
         self.store = store
         self.has_dock = has_dock
         self.zones = zones
+        self.maps = maps
+        self.busy = busy
+        self.home = home
         self._recent: OrderedDict[str, Outcome] = OrderedDict()
         self.executed = 0
 
@@ -127,6 +146,8 @@ class CommandExecutor:
             return self._start_tour(v, rid)
         if action == "set_zones":
             return self._set_zones(v, rid)
+        if action == "set_map":
+            return self._set_map(v, rid)
         if action == "stop_tour":
             if self.service is None:
                 return Outcome(False, "this rover has no tour service", rid)
@@ -175,6 +196,37 @@ class CommandExecutor:
         except ZoneError as exc:
             return Outcome(False, str(exc), rid)
         return Outcome(True, "" if changed else "the zones were already these", rid)
+
+
+    def _set_map(self, v: Verified, rid: str) -> Outcome:
+        maps = self.maps
+        if maps is None or maps.control is None:
+            return Outcome(False, "this rover cannot take a map from the fleet: only a rover "
+                                  "run by `curio run` with maps.enabled keeps a map library",
+                           rid)
+        name = v.cmd.get("map")
+        if name != maps.active:
+            return Outcome(False, f"this rover drives on {maps.active!r}, not {name!r}: a "
+                                  "rover is moved to another map on its own dashboard", rid)
+        grid = decode_pushed_map(v.cmd.get("grid"), v.cmd.get("sha"), maps.active)
+        if grid_digest(maps.library.grid(maps.active).data) == v.cmd.get("sha"):
+            return Outcome(True, "the map was already this one", rid)
+        why = self.busy()
+        if why is not None:
+            return Outcome(False, f"busy ({why}): the map is taken when the rover is parked",
+                           rid)
+        home = self.home()
+        row, col = (int(c) for c in grid.world_to_cells(np.array([[home.x, home.y]]))[0])
+        inside = 0 <= row < grid.height and 0 <= col < grid.width
+        if not inside or not grid.free_mask()[row, col]:
+            return Outcome(False, f"the map has no free space at the rover's home "
+                                  f"({home.x:.2f}, {home.y:.2f}): not taken", rid)
+        try:
+            revision = maps.library.save_revision(maps.active, grid)
+            maps.control.reload(v.source, f"revision {revision} from the fleet manager")
+        except MapLibraryError as exc:
+            return Outcome(False, str(exc), rid)
+        return Outcome(True, f"kept as revision {revision}; the rover restarts on it", rid)
 
 
 def _goal(cmd: dict[str, Any]) -> Pose2D:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from curio.core.bus import Bus
@@ -33,7 +34,9 @@ from curio.core.clock import Clock, SimClock
 from curio.core.config import Config
 from curio.core.errors import SetupError
 from curio.core.parts import Part, Parts
+from curio.core.topics import TOUR
 from curio.estimation.maps import OccupancyGrid
+from curio.estimation.wiring import map_path
 from curio.fleet.auth import (
     ChainedKeys,
     CommandVerifier,
@@ -45,11 +48,13 @@ from curio.fleet.bridge import FleetBridge
 from curio.fleet.commands import CommandExecutor
 from curio.fleet.intent import RoverIntent, known_rovers
 from curio.fleet.keys import check_rover_name
+from curio.fleet.maps_sync import map_name_status
 from curio.fleet.simworld import PeerBodies
 from curio.fleet.traffic import PassageFinder, TrafficNode
 from curio.fleet.transport import Transport
 from curio.fleet.zenoh_link import ZenohSettings, ZenohTransport, load_zenoh
 from curio.fleet.zones_sync import zones_status
+from curio.maps.control import MapsAccess
 from curio.nav.navigator import NavigatorNode
 from curio.robot import RobotModel
 from curio.sim.world import World
@@ -95,7 +100,7 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
                 navigator: NavigatorNode, grid: Callable[[], OccupancyGrid], tours: Tours,
                 paths: Any = None, world: World | None = None, tokens: Any = None,
                 transport: Transport | None = None, people_stage: Any = None,
-                zones: Any = None) -> Fleet | None:
+                zones: Any = None, maps: MapsAccess | None = None) -> Fleet | None:
     """Construct and register the rover's fleet parts (None when ``fleet.enabled`` is off).
 
     ``tokens`` is the dashboard's token store (``curio.web.tokens.TokenStore``): its named
@@ -103,7 +108,8 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     ``people_stage`` is the people-aware controller's stage (``PeopleStage``, None without
     ``people.aware``): it gets the other rovers as movers with known intent. ``zones`` is the
     zone service (None: zones off): the fleet manager's ``set_zones`` goes to it, and its
-    map and digest go into the status.
+    map and digest go into the status. ``maps`` is the map library and ``curio run``'s host
+    (None in the fleet simulator and tests): the manager's ``set_map`` needs it.
     """
     f = cfg.fleet
     if not f.enabled:
@@ -116,11 +122,22 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     keys = FleetKeyring(cfg.data_path(f.keys_file))
     sources: list[KeyLookup] = [keys] if tokens is None else [keys, TokenStoreKeys(tokens)]
     verifier = CommandVerifier(rover, ChainedKeys(sources), clock.wall_time, f.command_max_age_s)
-    executor = CommandExecutor(bus, clock, tours.service, tours.store,
-                               has_dock=cfg.dock.enabled, zones=zones)
 
     def goal_active() -> bool:
         return navigator.active is not None
+
+    def busy() -> str | None:
+        tour = bus.latest(TOUR)
+        if tour is not None and tour.tour_id is not None:
+            return f"the tour {tour.name!r} is running"
+        if goal_active():
+            return "it is driving to a goal"
+        state = maps.control.state() if maps is not None and maps.control is not None else {}
+        return state.get("busy") or None
+
+    executor = CommandExecutor(bus, clock, tours.service, tours.store,
+                               has_dock=cfg.dock.enabled, zones=zones, maps=maps, busy=busy,
+                               home=lambda: robot.home)
 
     traffic = None
     if f.traffic.enabled:
@@ -144,6 +161,7 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     bridge = FleetBridge(cfg, rover, bus, clock, transport, robot, verifier, executor, traffic,
                          goal_active, snapshots)
     bridge.status_extras.append(zones_status(zones))
+    bridge.status_extras.append(map_name_status(Path(map_path(cfg)).stem))
     if traffic is not None:
         bridge.on_peer("traffic", traffic.on_peer)
     bodies = None

@@ -12,10 +12,14 @@ clock, so ``curio fleet run`` (a Zenoh router session, the real clock) and ``cur
   and rules as on a rover, with stops checked on the shared map; schedules may overlap — the
   fleet has several rovers), and the shared map. A tour is distributed to the rover that runs
   it inside its ``start_tour`` command; the rovers' maps are compared by fingerprint (a rover
-  whose map differs is flagged). Queries: ``curio/@fleet/q/tours``, ``q/schedules``, ``q/map``.
+  whose map differs is flagged, and updated when it is on the same map). Queries:
+  ``curio/@fleet/q/tours``, ``q/schedules``, ``q/map``.
 * **Dispatch** (:class:`~curio.fleet.manager.dispatch.Dispatcher`): operator and kiosk
   requests and the schedule's starts become jobs; every ``check_period_s`` they are given to
   the best rover and watched.
+* **The map** (:class:`~curio.fleet.maps_sync.MapDistributor`, ``distribute_maps``): the
+  manager's map file, read again when it changes, pushed to every rover on that map whose
+  cells differ (a signed ``set_map``; a busy rover refuses and is asked again).
 * **Zones** (:class:`~curio.fleet.zones_sync.ZoneDistributor`, ``distribute_zones``): the
   zones of the shared map, from the manager's zone file, pushed to every rover on that map
   whose zones differ (a signed ``set_zones``).
@@ -41,7 +45,7 @@ from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.jsonable import to_jsonable
 from curio.core.messages import GridMessage
-from curio.estimation.maps import OccupancyGrid, load_map
+from curio.estimation.maps import OccupancyGrid
 from curio.estimation.wiring import map_path
 from curio.fleet import codec
 from curio.fleet.auth import CommandSigner, KeyEntry
@@ -49,6 +53,7 @@ from curio.fleet.keys import MANAGER_QUERY, MANAGER_TOKEN, rover_key, rover_of
 from curio.fleet.manager.dispatch import Dispatcher, Job
 from curio.fleet.manager.roster import Roster, RoverState
 from curio.fleet.manager.routes import RouteDistances
+from curio.fleet.maps_sync import MapDistributor
 from curio.fleet.transport import Sample, Transport
 from curio.fleet.zones_sync import ZoneDistributor
 from curio.robot import RobotModel
@@ -84,20 +89,23 @@ class FleetManager:
         self.transport = transport
         self.signer = CommandSigner(key, clock.wall_time)
         self.robot = RobotModel.from_config(cfg.robot)
-        self.grid: OccupancyGrid = load_map(cfg.resolve(map_path(cfg)))
-        self.map_sha = codec.grid_digest(self.grid.data)
-        placement = MapPlacement(self.grid, self.robot.inscribed_radius_m)
+        self.roster = Roster()
+        map_file = Path(cfg.resolve(map_path(cfg)))
+        self.maps = MapDistributor(map_file, map_file.stem, self.roster, self.send, self._note,
+                                   self.mcfg.map_resend_s)
+        self.grid: OccupancyGrid = self.maps.grid
+        self.map_sha = self.maps.sha
+        placement = MapPlacement(lambda: self.grid, self.robot.inscribed_radius_m)
         self.tours = TourStore(cfg.data_path(cfg.tours.file), (), placement)
         self.schedules = ScheduleStore(cfg.data_path(cfg.tours.schedules_file),
                                        ZoneInfo(cfg.tours.timezone), lambda _tid: 0.0,
                                        self.tours.schedule_problem, gap_s=0.0)
-        self.roster = Roster()
         for name in expected or []:
             self.roster.get(name)
         self.routes = RouteDistances(self.grid, self.robot.inscribed_radius_m)
         self.dispatcher = Dispatcher(self.mcfg, self.roster, self._distance, self._tour_def,
                                      self.send, self._note)
-        map_name = Path(map_path(cfg)).stem
+        map_name = map_file.stem
         self.zones = ZoneDistributor(zone_file(cfg, map_name), map_name,
                                      self.robot.max_wheel_speed_mps, self.roster, self.send,
                                      self._note)
@@ -108,9 +116,20 @@ class FleetManager:
         self.web: Any = None
         self._tours_payload = self._schedules_payload = b""
         self._refresh_snapshots()
-        self._map_payload = codec.encode_map(GridMessage(
-            clock.now(), self.grid.data, self.grid.resolution_m, self.grid.origin))
+        self._map_payload = self._encode_map()
         self._declare()
+
+    def _encode_map(self) -> bytes:
+        return codec.encode_map(GridMessage(self.clock.now(), self.grid.data,
+                                            self.grid.resolution_m, self.grid.origin))
+
+    def _use_map(self) -> None:
+        """The map file changed: route distances, tour placement and the map query use the
+        new cells (tours already stored keep their stops; new and edited ones are checked
+        on it)."""
+        self.grid, self.map_sha = self.maps.grid, self.maps.sha
+        self.routes = RouteDistances(self.grid, self.robot.inscribed_radius_m)
+        self._map_payload = self._encode_map()
 
     # --- the link ---------------------------------------------------------------------------
     def _declare(self) -> None:
@@ -143,6 +162,7 @@ class FleetManager:
                 self._on_event(name, msg, now)
             elif topic == "reply":
                 self.dispatcher.on_reply(name, msg, now)
+                self.maps.on_reply(name, msg)
             else:
                 self.roster.heard(name, topic, msg, now)
         except (KeyError, TypeError, ValueError):
@@ -224,6 +244,10 @@ class FleetManager:
             self.dispatcher.rover_back(name, now)
             if name not in self._fills:
                 self._fills.append(name)
+        if self.mcfg.distribute_maps:
+            if self.maps.reload():
+                self._use_map()
+            self.maps.check(now, self.mcfg.offline_after_s)
         for r in self.roster.rovers.values():
             flag = bool(r.status.get("map")) and r.status.get("map") != self.map_sha
             r.status["map_differs"] = flag
