@@ -58,7 +58,7 @@ from curio.eventlog.commands import CommandJournal
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
 from curio.fleet.transport import Transport
-from curio.fleet.wiring import Fleet, build_fleet
+from curio.fleet.wiring import Fleet, build_fleet, dashboard_address
 from curio.help.desk import HelpDesk
 from curio.help.wiring import build_help
 from curio.kernels import use_cache_dir
@@ -220,6 +220,8 @@ class App:
                                      self.tours.placement),
                                  journal=self.journal, maps=maps)
             self.web_url = self.web.control_url
+            if self.fleet is not None:
+                self.fleet.bridge.dashboard_url = dashboard_address(cfg, self.web.port)
 
     @property
     def parts(self) -> list[Part]:

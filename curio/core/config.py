@@ -1037,8 +1037,7 @@ class FleetTrafficConfig(Section):
         False, description="give the other rovers, predicted along their planned paths, to the "
         "people-aware controller as moving obstacles (needs people.aware; "
         "curio/fleet/intent.py). Off by default: in the doorway bench both settings pass 50 of "
-        "50 seeds; with it the p95 hold is shorter (10.9 against 12.3 s), the longest the same "
-        "(docs/fleet.md)")
+        "50 seeds, the longest stop 3.3 s without it, 1.9 s with it (docs/fleet.md)")
 
 
 class FleetRos2Config(Section):
@@ -1124,7 +1123,9 @@ class FleetConfig(Section):
     dashboard_url: str = Field(
         "", max_length=200, pattern=r"^(https?://\S+)?$",
         description="where operators reach this rover's own dashboard (e.g. "
-        "http://10.0.0.11:8080/), published in its status for the fleet page's link; '' = none")
+        "http://10.0.0.11:8080/), published in its status for the fleet page's link; '' = "
+        "found out: web.host when it is an address, with web.host 0.0.0.0 this machine's "
+        "address towards fleet.connect (else <hostname>.local), none on the loopback")
     traffic: FleetTrafficConfig = Field(default_factory=FleetTrafficConfig)
     ros2: FleetRos2Config = Field(default_factory=FleetRos2Config)
     manager: FleetManagerConfig = Field(default_factory=FleetManagerConfig)

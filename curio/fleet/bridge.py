@@ -146,6 +146,9 @@ class FleetBridge:
         self._peer_handlers: list[tuple[str, PeerHandler]] = []
         # More fields of the status message, each a callable returning a dict (zones).
         self.status_extras: list[Callable[[], dict[str, Any]]] = []
+        # Where operators reach this rover's dashboard ('' = no link): fleet.dashboard_url, or
+        # what the App finds out once its dashboard listens (curio/fleet/wiring.py).
+        self.dashboard_url = cfg.fleet.dashboard_url
         self._event_seq = itertools.count(1)
         self._recent: deque[dict[str, Any]] = deque(maxlen=RECALL_EVENTS)
         self._ticks = 0
@@ -378,7 +381,7 @@ class FleetBridge:
             "ready": ready.ready, "why": ready.reason,
             "map": self._last.get("map_sha", ""), "link": bool(self.link_up),
             "traffic": d.state if d else "off", "yield_to": d.yield_to if d else None,
-            "dashboard": self.fcfg.dashboard_url, **self._power_status(),
+            "dashboard": self.dashboard_url, **self._power_status(),
             **{k: v for extra in self.status_extras for k, v in extra().items()},
         }
 

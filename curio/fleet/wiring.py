@@ -24,6 +24,9 @@ one); by default it is a Zenoh session with ``fleet.mode``, ``fleet.connect``,
 
 from __future__ import annotations
 
+import contextlib
+import ipaddress
+import socket
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,7 +63,7 @@ from curio.robot import RobotModel
 from curio.sim.world import World
 from curio.tours.wiring import Tours
 
-__all__ = ["Fleet", "build_fleet", "rover_name", "zenoh_settings"]
+__all__ = ["Fleet", "build_fleet", "dashboard_address", "rover_name", "zenoh_settings"]
 
 
 @dataclass(frozen=True)
@@ -87,6 +90,52 @@ def rover_name(cfg: Config) -> str:
         return check_rover_name(name)
     except ValueError as exc:
         raise SetupError(f"fleet.rover / robot.name: {exc}") from None
+
+
+def dashboard_address(cfg: Config, port: int) -> str:
+    """Where operators reach this rover's dashboard, for the fleet page's link:
+    ``fleet.dashboard_url`` when set; '' when the dashboard listens on the loopback only (a
+    link nobody else could open); ``web.host`` when it is one address; else (``0.0.0.0``)
+    the address of this machine on the network towards the fleet — the local end of a route
+    to the first numeric ``fleet.connect`` endpoint (a UDP socket's connect: nothing is sent,
+    no name is looked up) — or, without one, the machine's ``<hostname>.local`` (mDNS)."""
+    if cfg.fleet.dashboard_url:
+        return cfg.fleet.dashboard_url
+    host = cfg.web.host
+    with contextlib.suppress(ValueError):
+        address = ipaddress.ip_address(host)
+        if address.is_loopback:
+            return ""
+        if not address.is_unspecified:
+            return f"http://{_url_host(address)}:{port}/"
+    if host not in ("0.0.0.0", "::", ""):
+        return f"http://{host}:{port}/"  # a name the operator chose
+    for endpoint in cfg.fleet.connect:
+        local = _local_address_towards(endpoint)
+        if local is not None:
+            return f"http://{_url_host(local)}:{port}/"
+    return f"http://{socket.gethostname().split('.')[0].lower()}.local:{port}/"
+
+
+def _url_host(address: ipaddress.IPv4Address | ipaddress.IPv6Address) -> str:
+    return f"[{address}]" if address.version == 6 else str(address)
+
+
+def _local_address_towards(endpoint: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
+    """This machine's address on the route to a Zenoh endpoint ``proto/host:port`` with a
+    numeric host (None: a name, unreachable, or the loopback)."""
+    _, _, where = endpoint.partition("/")
+    host, _, port = where.rpartition(":")
+    host = host.strip("[]")
+    try:
+        remote = ipaddress.ip_address(host)
+        family = socket.AF_INET6 if remote.version == 6 else socket.AF_INET
+        with socket.socket(family, socket.SOCK_DGRAM) as probe:
+            probe.connect((str(remote), int(port.split("#")[0])))
+            local = ipaddress.ip_address(probe.getsockname()[0])
+    except (ValueError, OSError):
+        return None
+    return None if local.is_loopback or local.is_unspecified else local
 
 
 def zenoh_settings(cfg: Config) -> ZenohSettings:
