@@ -2,7 +2,9 @@
 
 Top level: ``command`` (``soak``), ``seed``, ``hours``, ``clients``, ``success``, ``failure``,
 ``checks`` (``[{name, ok, detail}]``), ``metrics`` (DESIGN.md's contract: ``collisions``,
-``commands_lost``, ``faults_injected``, ``faults_recovered``, ``rss_growth_mb_per_h``, and
+split as in ``curio sim crowd`` into ``collisions_rover_at_fault`` (judged: must be 0) and
+``collisions_person_at_fault`` (a visitor walked into the rover while it was not moving towards
+them), ``commands_lost``, ``faults_injected``, ``faults_recovered``, ``rss_growth_mb_per_h``, and
 more), ``faults`` (per kind and each one), ``commands`` (the ledger), ``restarts``, ``files``,
 ``resources``, ``timing``, ``time`` (building hours, simulated seconds actually run, the
 time-lapse, wall time, real-time factors), ``load`` (the machine's load average), ``disk``
@@ -188,6 +190,10 @@ def build_report(o: Orchestrator) -> dict[str, Any]:
     results = faults["list"]
     metrics = {
         "collisions": len(o.obs.collisions),
+        "collisions_rover_at_fault": sum(1 for c in o.obs.collisions
+                                         if c.get("fault") != "person"),
+        "collisions_person_at_fault": sum(1 for c in o.obs.collisions
+                                          if c.get("fault") == "person"),
         "commands_lost": int(counts.get("lost", 0)),
         "commands_sent": int(counts.get("sent", 0)),
         "commands_answered": int(counts.get("answered", 0)),

@@ -53,6 +53,7 @@ def test_an_hour_of_soak_with_a_kill_9_and_a_kidnap_passes_every_check(tmp_path:
         assert r["detected_health_s"] is not None and r["detected_log_s"] is not None, r
     m = rep["metrics"]
     assert m["restarts"] == 1 and m["collisions"] == 0 and m["commands_lost"] == 0
+    assert m["collisions_rover_at_fault"] == m["collisions_person_at_fault"] == 0
     assert m["faults_planned"] == m["faults_recovered"] == 4
 
     (restart,) = rep["restarts"]

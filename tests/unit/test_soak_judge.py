@@ -54,3 +54,22 @@ def test_without_the_wall_deadline_the_same_run_failed() -> None:
     runner.current = run
     runner._judge(run, now=60.0)
     assert sent and sent[0]["outcome"] == "failed"
+
+
+def test_only_collisions_the_rover_caused_fail_the_soak() -> None:
+    """A visitor walking into a rover that was not moving towards them is counted, not failed;
+    any contact the rover made by moving fails the check."""
+    from curio.soak.verdict import collision_check
+
+    def rep(*faults: str) -> dict:
+        listed = [{"with": ["visitor:3"], "fault": f, "sim_s": 10.0} for f in faults]
+        return {"metrics": {"collisions": len(listed),
+                            "collisions_rover_at_fault": sum(f != "person" for f in faults),
+                            "collisions_person_at_fault": sum(f == "person" for f in faults)},
+                "collision_list": listed}
+
+    assert collision_check(rep())["ok"]
+    ok = collision_check(rep("person", "person"))
+    assert ok["ok"] and "2 by visitors" in ok["detail"]
+    bad = collision_check(rep("person", "rover"))
+    assert not bad["ok"] and bad["detail"].startswith("1 by the rover")
