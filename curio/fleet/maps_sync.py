@@ -96,6 +96,7 @@ class MapDistributor:
         self._mtime = _mtime(path)
         self._sent: dict[str, float] = {}
         self.pushes = 0
+        self.refused: dict[str, str] = {}  # why each rover last refused the map (the page)
 
     def reload(self) -> bool:
         """Read the map file again when it changed; True when its cells did. A file that
@@ -123,6 +124,7 @@ class MapDistributor:
         for name, r in sorted(self.roster.rovers.items()):
             theirs = r.status.get("map")
             if r.status.get("map_name") != self.map_name or not theirs or theirs == self.sha:
+                self.refused.pop(name, None)
                 continue
             if not r.online(now_wall_s, offline_after_s):
                 continue
@@ -144,11 +146,13 @@ class MapDistributor:
         if not str(reply.get("request_id", "")).startswith("map-"):
             return
         if reply.get("ok"):
+            self.refused.pop(rover, None)
             self.note("maps.taken", {"rover": rover, "map": self.map_name,
                                      "detail": str(reply.get("reason", ""))})
         else:
+            self.refused[rover] = str(reply.get("reason", ""))
             self.note("maps.refused", {"rover": rover, "map": self.map_name,
-                                       "reason": str(reply.get("reason", ""))})
+                                       "reason": self.refused[rover]})
 
 
 def _mtime(path: Path) -> int | None:

@@ -37,6 +37,7 @@ TOKEN = "fleet-page-test-token-0123456789"
 DOCK = {"state": "docked", "charging": True, "attempt": 1, "detail": ""}
 ROVERS: dict[str, dict[str, Any]] = {
     "r1": {"state": "moving", "text": "Tour 'Highlights': to the Workshop", "ready": False,
+           "map": "feedfeedfeedfeed", "map_name": "annex",
            "tour": 1, "tour_name": "Highlights", "tour_phase": "moving", "stop": 1, "stops": 3,
            "battery_v": 7.9, "soc": 0.74, "power_level": "ok", "dock": None,
            "traffic": "yield", "pose": (2.0, 1.0, 0.0),
@@ -47,7 +48,7 @@ ROVERS: dict[str, dict[str, Any]] = {
            "traffic": "clear", "pose": (-4.0, -2.0, 1.57), "plan": []},
     "r3": {"state": "idle", "text": "Idle", "ready": True, "battery_v": 6.9, "soc": 0.18,
            "power_level": "low", "dock": None, "traffic": "clear", "pose": (10.0, 8.0, 3.1),
-           "plan": []},
+           "plan": [], "map": "0123456789abcdef", "map_name": "curio_building"},
 }
 TOUR = {"id": 1, "name": "Highlights", "revision": 1, "stops": [
     {"name": "Entrance", "x_m": 0.0, "y_m": 0.0, "message": "Welcome"},
@@ -134,6 +135,7 @@ async def fleet(tmp_path: Path) -> AsyncIterator[tuple[str, FleetManager, dict[s
 
 async def test_the_fleet_view(tmp_path: Path, viewport: str) -> None:
     async with fleet(tmp_path) as (url, _manager, rovers), kit.chromium() as browser:
+        # (r1 is on another map, r3 on an older revision of the shared one.)
         b = await kit.open_page(browser, url, viewport, connected=False)
         await b.wait_js("document.querySelectorAll('.rover').length === 3 && "
                         "window.curio.fleet.img !== null")
@@ -151,9 +153,29 @@ async def test_the_fleet_view(tmp_path: Path, viewport: str) -> None:
         rovers["r2"].link.pump()
         assert [c["action"] for c in rovers["r2"].commands] == ["set_zones"]
         assert rovers["r2"].commands[0]["zones"][0]["name"] == "Stairs"
+        # r3 runs an older revision of the shared map: it is sent; r1 is on another map.
+        assert "other map" in await b.text(".rover[data-name=r1] .roverTop")
+        assert "map being sent" in await b.text(".rover[data-name=r3] .roverTop")
+        r3 = rovers["r3"]
+        r3.link.pump()
+        (push,) = [c for c in r3.commands if c["action"] == "set_map"]
+        assert push["map"] == "curio_building" and push["sha"] == _manager.map_sha
+        r3.link.put("curio/r3/reply", codec.dumps({
+            "t": r3.clock.wall_time(), "request_id": push["request_id"], "ok": False,
+            "reason": "busy (it is driving to a goal): the map is taken when the rover is "
+                      "parked"}))
+        await b.wait_js("document.querySelector('.rover[data-name=r3] .roverTop').textContent"
+                        ".includes('map update waiting')")
+        title = await b.page.get_attribute(".rover[data-name=r3] .pill.map", "title")
+        assert title is not None and "driving to a goal" in title
         # View only without the token: nothing can be sent.
         assert await b.state("document.querySelector('.roverActions button').disabled")
         assert await b.state("document.getElementById('estop').disabled")
+        # The shared map fills its card (it was drawn 160 px wide when the Maps page's
+        # .mapCard grid also styled the fleet's card).
+        assert await b.state("(() => { const c = document.getElementById('fleetMap'); "
+                             "return c.clientWidth >= 0.9 * c.parentElement.clientWidth "
+                             "&& c.clientWidth > 300; })()")
         # Every rover is drawn on the map in its colour (the pixels are there).
         assert await b.state(PIXELS_OF_ROVERS) == 3
         await b.shot("fleet")

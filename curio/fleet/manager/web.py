@@ -120,7 +120,8 @@ class FleetWeb:
             "rovers": m.rovers_json(), "jobs": [j.to_json() for j in m.dispatcher.jobs[-100:]],
             "tours": [{"id": t.id, "name": t.name, "stops": len(t.stops)}
                       for t in m.tours.list_tours()],
-            "summary": m.summary(), "map": m.map_sha,
+            "summary": m.summary(), "map": m.map_sha, "map_name": m.maps.map_name,
+            "map_refused": dict(m.maps.refused),
             "zones": {"map": m.zones.map_name, "count": len(m.zones.zones),
                       "digest": m.zones.digest if m.zones.has_file else None}})
 

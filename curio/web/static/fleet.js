@@ -176,7 +176,14 @@
     else top.append(el("span", "pill " + (r.ready ? "ok" : "idle"), r.ready ? "ready" : "busy"));
     if (r.estop) top.append(el("span", "pill estop", "E-STOP"));
     if (r.traffic === "yield" || r.traffic === "go") top.append(el("span", "pill " + r.traffic, r.traffic === "yield" ? "giving way" : "has the passage"));
-    if (r.map && state.fleet.map && r.map !== state.fleet.map) top.append(el("span", "pill map", "other map"));
+    if (r.map && state.fleet.map && r.map !== state.fleet.map) {
+      if (r.map_name && r.map_name === state.fleet.map_name) {  // an older revision: pushed
+        const why = (state.fleet.map_refused || {})[r.name];
+        const pill = el("span", "pill map", why ? "map update waiting" : "map being sent");
+        pill.title = why ? "the rover said: " + why : "the fleet's map is on its way";
+        top.append(pill);
+      } else top.append(el("span", "pill map", "other map"));
+    }
     const zones = state.fleet.zones;
     if (r.online && zones && zones.digest && r.zones && r.zones.map === zones.map && r.zones.digest !== zones.digest) {
       top.append(el("span", "pill map", "zones being sent"));
