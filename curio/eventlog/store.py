@@ -159,6 +159,7 @@ class WriterStats:
 
 _STOP = object()
 RETRY_S = 2.0  # while writes fail, they are tried again this often (wall seconds)
+WRITER_CACHE_KIB = 256  # the writer connection's page cache (SQLite's default: 2000 KiB)
 
 
 class EventLog:
@@ -215,6 +216,10 @@ class EventLog:
                 conn = sqlite3.connect(self.path, timeout=10.0)
                 conn.execute("PRAGMA journal_mode=WAL")
                 conn.execute("PRAGMA synchronous=NORMAL")
+                # The writer appends: it needs the B-trees' right edges, not SQLite's default
+                # 2 MB page cache, which it would fill over hours as the file grows (the
+                # soak's slow RSS growth, docs/reliability.md).
+                conn.execute(f"PRAGMA cache_size=-{WRITER_CACHE_KIB}")
                 conn.executescript(_SCHEMA)
                 version = conn.execute("PRAGMA user_version").fetchone()[0]
                 if version > SCHEMA_VERSION:
