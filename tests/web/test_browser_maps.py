@@ -97,6 +97,9 @@ async def _edit_a_wall(b: kit.Browser, host: MapHost) -> None:
     await page.click("#edSave")
     await b.wait_js("document.getElementById('edMsg').textContent.includes('revision 2')",
                     timeout_s=40)
+    # Saved means nothing is unsaved, even before the editor reloads the new revision (Close
+    # right after the message asked "Close without saving …?" on a slow machine).
+    assert await b.state(count) == 0
     assert host.library.revisions("annex") == [1]
     edited = host.library.grid("annex")
     original = host.library.grid("curio_building")

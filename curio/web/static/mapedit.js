@@ -235,6 +235,12 @@
       this.view.draw();
       this.onChange();
     }
+    markSaved() {  // the server kept the changes: nothing is unsaved any more
+      if (!this.grid) return;
+      this.orig = this.grid.cells.slice();
+      this.undoStack = []; this.redoStack = [];
+      this.onChange();
+    }
     undo() { const s = this.undoStack.pop(); if (s) { this.redoStack.push(s); this.apply(s, 0); } }
     redo() { const s = this.redoStack.pop(); if (s) { this.undoStack.push(s); this.apply(s, 1); } }
     changedCount() {

@@ -292,6 +292,7 @@
     $("edSave").disabled = true;
     try {
       const r = await C.api("POST", "/api/maps/" + encodeURIComponent(name) + "/cells", { revision: editor.meta.revision, changes: runs });
+      editor.markSaved();  // Close right after "saved" must not ask about unsaved cells
       C.showMsg($("edMsg"), r.message, r.reloading ? "wait" : "ok");
       if (r.reloading) { busyUntilGen = ((data.state && data.state.generation) || 0) + 1; await backAgain(); }
       await refresh();
