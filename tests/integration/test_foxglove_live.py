@@ -31,7 +31,7 @@ class Client:
         self.statuses: list[str] = []
         self.data: list[tuple[int, bytes]] = []
 
-    async def pump(self, until: Any, timeout_s: float = 5.0) -> None:
+    async def pump(self, until: Any, timeout_s: float = 20.0) -> None:  # loaded CI machines
         async def loop() -> None:
             while not until():
                 msg = await self.ws.receive()
