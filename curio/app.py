@@ -53,7 +53,7 @@ from curio.drivers.modes import driver_mode
 from curio.drivers.wiring import build_drivers
 from curio.estimation.ekf import EkfNode
 from curio.estimation.maps import OccupancyGrid
-from curio.estimation.wiring import Localiser, MapServer, build_estimation, map_path
+from curio.estimation.wiring import Localiser, MapServer, build_estimation, map_name
 from curio.eventlog.commands import CommandJournal
 from curio.eventlog.store import EventLog
 from curio.eventlog.wiring import build_eventlog
@@ -177,7 +177,7 @@ class App:
         self.obstacles: ObstacleNode = nav.obstacles
         self.blocked: BlockedDetector = nav.obstacles.detector
         self.zones: ZoneService | None = build_zones(
-            cfg, self.bus, clock, self.robot, est.map_server.grid, Path(map_path(cfg)).stem,
+            cfg, self.bus, clock, self.robot, est.map_server.grid, map_name(cfg),
             costmap=nav.costmap, controller=nav.controller, safety=self.safety,
             home=self.home.pose)
         self.docker: Docker | None = None

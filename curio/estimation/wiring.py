@@ -23,6 +23,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -52,6 +53,7 @@ __all__ = [
     "MapServer",
     "OdomRelay",
     "build_estimation",
+    "map_name",
     "map_path",
     "start_pose",
 ]
@@ -90,6 +92,12 @@ def map_path(cfg: Config) -> str:
     """The map YAML the rover navigates in: ``localization.map_yaml`` or else ``sim.world``."""
     chosen = cfg.localization.map_yaml or cfg.sim.world
     return str(cfg.resolve(chosen))
+
+
+def map_name(cfg: Config) -> str:
+    """The name of the map the rover navigates in: its YAML file's stem (the map library's
+    name, the zones' file, what the fleet compares)."""
+    return Path(map_path(cfg)).stem
 
 
 def start_pose(cfg: Config, robot: RobotModel) -> Pose2D:

@@ -35,8 +35,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.geometry import Pose2D
@@ -197,7 +195,6 @@ class CommandExecutor:
             return Outcome(False, str(exc), rid)
         return Outcome(True, "" if changed else "the zones were already these", rid)
 
-
     def _set_map(self, v: Verified, rid: str) -> Outcome:
         maps = self.maps
         if maps is None or maps.control is None:
@@ -216,9 +213,8 @@ class CommandExecutor:
             return Outcome(False, f"busy ({why}): the map is taken when the rover is parked",
                            rid)
         home = self.home()
-        row, col = (int(c) for c in grid.world_to_cells(np.array([[home.x, home.y]]))[0])
-        inside = 0 <= row < grid.height and 0 <= col < grid.width
-        if not inside or not grid.free_mask()[row, col]:
+        row, col = grid.world_to_cell(home.x, home.y)
+        if not grid.in_bounds(row, col) or not grid.free_mask()[row, col]:
             return Outcome(False, f"the map has no free space at the rover's home "
                                   f"({home.x:.2f}, {home.y:.2f}): not taken", rid)
         try:

@@ -34,13 +34,18 @@ from curio.estimation.maps import OccupancyGrid, load_map
 from curio.fleet import codec
 from curio.fleet.manager.roster import Roster
 
-__all__ = ["MapDistributor", "decode_pushed_map", "encode_pushed_map", "map_name_status"]
+__all__ = ["MapDistributor", "decode_pushed_map", "encode_pushed_map", "map_name_status",
+           "map_payload"]
+
+
+def map_payload(grid: OccupancyGrid) -> bytes:
+    """``grid`` as :func:`~curio.fleet.codec.encode_map` bytes (the manager's ``q/map``)."""
+    return codec.encode_map(GridMessage(0.0, grid.data, grid.resolution_m, grid.origin))
 
 
 def encode_pushed_map(grid: OccupancyGrid) -> str:
-    """``grid`` as text for a command: base64 of :func:`~curio.fleet.codec.encode_map`."""
-    message = GridMessage(0.0, grid.data, grid.resolution_m, grid.origin)
-    return base64.b64encode(codec.encode_map(message)).decode("ascii")
+    """``grid`` as text for a command: base64 of :func:`map_payload`."""
+    return base64.b64encode(map_payload(grid)).decode("ascii")
 
 
 def decode_pushed_map(text: Any, sha: Any, name: str) -> OccupancyGrid:
@@ -90,9 +95,7 @@ class MapDistributor:
         self.send = send
         self.note = note
         self.resend_s = resend_s
-        self.grid = load_map(path)
-        self.sha = codec.grid_digest(self.grid.data)
-        self._text = encode_pushed_map(self.grid)
+        self._use(load_map(path))
         self._mtime = _mtime(path)
         self._sent: dict[str, float] = {}
         self.pushes = 0
@@ -110,13 +113,19 @@ class MapDistributor:
         except (OSError, ValueError) as exc:
             self.note("maps.unreadable", {"map": self.map_name, "reason": str(exc)})
             return False
-        sha = codec.grid_digest(grid.data)
-        if sha == self.sha:
+        if codec.grid_digest(grid.data) == self.sha:
             return False
-        self.grid, self.sha, self._text = grid, sha, encode_pushed_map(grid)
+        self._use(grid)
         self._sent.clear()
-        self.note("maps.changed", {"map": self.map_name, "sha": sha})
+        self.note("maps.changed", {"map": self.map_name, "sha": self.sha})
         return True
+
+    def _use(self, grid: OccupancyGrid) -> None:
+        """Make ``grid`` the shared map: its fingerprint, its bytes (``q/map``), its text."""
+        self.grid = grid
+        self.sha = codec.grid_digest(grid.data)
+        self.payload = map_payload(grid)
+        self._text = base64.b64encode(self.payload).decode("ascii")
 
     def check(self, now_wall_s: float, offline_after_s: float) -> list[str]:
         """Send the map to every online rover on it whose cells differ; return them."""
@@ -139,7 +148,6 @@ class MapDistributor:
                                     "theirs": theirs})
             out.append(name)
         return out
-
 
     def on_reply(self, rover: str, reply: dict[str, Any]) -> None:
         """A rover's answer to a push: noted as ``maps.taken`` or ``maps.refused`` (why)."""

@@ -29,7 +29,6 @@ import ipaddress
 import socket
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from curio.core.bus import Bus
@@ -37,9 +36,8 @@ from curio.core.clock import Clock, SimClock
 from curio.core.config import Config
 from curio.core.errors import SetupError
 from curio.core.parts import Part, Parts
-from curio.core.topics import TOUR
 from curio.estimation.maps import OccupancyGrid
-from curio.estimation.wiring import map_path
+from curio.estimation.wiring import map_name
 from curio.fleet.auth import (
     ChainedKeys,
     CommandVerifier,
@@ -175,10 +173,7 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     def goal_active() -> bool:
         return navigator.active is not None
 
-    def busy() -> str | None:
-        tour = bus.latest(TOUR)
-        if tour is not None and tour.tour_id is not None:
-            return f"the tour {tour.name!r} is running"
+    def busy() -> str | None:  # the map host's own rule (a tour, a change) and a goal
         if goal_active():
             return "it is driving to a goal"
         state = maps.control.state() if maps is not None and maps.control is not None else {}
@@ -210,7 +205,7 @@ def build_fleet(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotM
     bridge = FleetBridge(cfg, rover, bus, clock, transport, robot, verifier, executor, traffic,
                          goal_active, snapshots)
     bridge.status_extras.append(zones_status(zones))
-    bridge.status_extras.append(map_name_status(Path(map_path(cfg)).stem))
+    bridge.status_extras.append(map_name_status(map_name(cfg)))
     if traffic is not None:
         bridge.on_peer("traffic", traffic.on_peer)
     bodies = None

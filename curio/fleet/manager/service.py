@@ -44,9 +44,8 @@ from zoneinfo import ZoneInfo
 from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.jsonable import to_jsonable
-from curio.core.messages import GridMessage
 from curio.estimation.maps import OccupancyGrid
-from curio.estimation.wiring import map_path
+from curio.estimation.wiring import map_name, map_path
 from curio.fleet import codec
 from curio.fleet.auth import CommandSigner, KeyEntry
 from curio.fleet.keys import MANAGER_QUERY, MANAGER_TOKEN, rover_key, rover_of
@@ -90,11 +89,9 @@ class FleetManager:
         self.signer = CommandSigner(key, clock.wall_time)
         self.robot = RobotModel.from_config(cfg.robot)
         self.roster = Roster()
-        map_file = Path(cfg.resolve(map_path(cfg)))
-        self.maps = MapDistributor(map_file, map_file.stem, self.roster, self.send, self._note,
-                                   self.mcfg.map_resend_s)
-        self.grid: OccupancyGrid = self.maps.grid
-        self.map_sha = self.maps.sha
+        shared = map_name(cfg)
+        self.maps = MapDistributor(Path(map_path(cfg)), shared, self.roster, self.send,
+                                   self._note, self.mcfg.map_resend_s)
         placement = MapPlacement(lambda: self.grid, self.robot.inscribed_radius_m)
         self.tours = TourStore(cfg.data_path(cfg.tours.file), (), placement)
         self.schedules = ScheduleStore(cfg.data_path(cfg.tours.schedules_file),
@@ -105,8 +102,7 @@ class FleetManager:
         self.routes = RouteDistances(self.grid, self.robot.inscribed_radius_m)
         self.dispatcher = Dispatcher(self.mcfg, self.roster, self._distance, self._tour_def,
                                      self.send, self._note)
-        map_name = map_file.stem
-        self.zones = ZoneDistributor(zone_file(cfg, map_name), map_name,
+        self.zones = ZoneDistributor(zone_file(cfg, shared), shared,
                                      self.robot.max_wheel_speed_mps, self.roster, self.send,
                                      self._note)
         self.log: list[dict[str, Any]] = []
@@ -116,20 +112,23 @@ class FleetManager:
         self.web: Any = None
         self._tours_payload = self._schedules_payload = b""
         self._refresh_snapshots()
-        self._map_payload = self._encode_map()
         self._declare()
 
-    def _encode_map(self) -> bytes:
-        return codec.encode_map(GridMessage(self.clock.now(), self.grid.data,
-                                            self.grid.resolution_m, self.grid.origin))
+    @property
+    def grid(self) -> OccupancyGrid:
+        """The shared map (its file, read again when it changes: :attr:`maps`)."""
+        return self.maps.grid
+
+    @property
+    def map_sha(self) -> str:
+        """The shared map's fingerprint."""
+        return self.maps.sha
 
     def _use_map(self) -> None:
-        """The map file changed: route distances, tour placement and the map query use the
-        new cells (tours already stored keep their stops; new and edited ones are checked
-        on it)."""
-        self.grid, self.map_sha = self.maps.grid, self.maps.sha
+        """The map file changed: route distances use the new cells (tour placement and the
+        map query read :attr:`grid` and :attr:`maps` themselves; tours already stored keep
+        their stops, new and edited ones are checked on it)."""
         self.routes = RouteDistances(self.grid, self.robot.inscribed_radius_m)
-        self._map_payload = self._encode_map()
 
     # --- the link ---------------------------------------------------------------------------
     def _declare(self) -> None:
@@ -185,7 +184,7 @@ class FleetManager:
         if what in ("schedules", "*"):
             out.append((f"{MANAGER_QUERY}/schedules", self._schedules_payload))
         if what in ("map", "*"):
-            out.append((f"{MANAGER_QUERY}/map", self._map_payload))
+            out.append((f"{MANAGER_QUERY}/map", self.maps.payload))
         return out
 
     def _refresh_snapshots(self) -> None:
