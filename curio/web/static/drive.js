@@ -136,9 +136,14 @@
     C.toast("You have the stick: hold it to drive.");
   }
   function onLeaseRefused(holder) {  // the server refused our teleop: another operator drives
-    if (teleopTimer !== null) { clearInterval(teleopTimer); teleopTimer = null; }
+    const driving = teleopTimer !== null;
+    const tookOver = S.lease && S.lease.client === S.clientId;  // it was ours: a take-over
+    if (driving) { clearInterval(teleopTimer); teleopTimer = null; }
     stick.held = false; stick.x = 0; stick.y = 0; keys.clear(); placeKnob();
-    askTakeOver(holder);
+    // Ask only when we drove without knowing somebody held the stick. A refusal of a message
+    // that was on its way while somebody took over is stale: we were told (or are now).
+    if (tookOver && driving) C.toast(holder + " took over driving.", true);
+    else if (driving) askTakeOver(holder);
   }
   function renderLease() {
     const l = S.lease || {};
