@@ -9,6 +9,8 @@ clock (default 24) with ``--clients`` scripted dashboard clients (default 10) an
 ``--faults`` faults (default 200) drawn from ``--seed``; prints a progress bar while it runs
 (on a terminal; a line every 5 % otherwise), then the summary table, and writes the JSON report
 to ``--report``. Exit code 0 when every check passed, 1 when one failed, 2 on bad arguments.
+Ctrl-C (or SIGTERM) ends a soak early as at its end: the report covers what ran and fails
+its check "ran its whole time"; a second Ctrl-C stops at once, without a report.
 The rover's files and logs are kept in ``--workdir`` (default ``<data_dir>/soak``).
 """
 
@@ -16,15 +18,20 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import datetime as dt
 import math
+import signal
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from curio.core.config import load_config
 from curio.core.errors import SetupError
 from curio.core.fileio import atomic_write_json
+
+if TYPE_CHECKING:  # pragma: no cover
+    from curio.soak.orchestrator import Orchestrator
 
 __all__ = ["add_arguments", "run"]
 
@@ -109,6 +116,23 @@ def _start(text: str | None) -> dt.time | None:
         raise SetupError(f"--start takes a local time HH:MM, got {text!r}") from None
 
 
+async def _run_stoppable(orchestrator: Orchestrator) -> None:
+    """Run the soak; the first Ctrl-C or SIGTERM ends it early with a report of what ran, a
+    second Ctrl-C stops at once (no report)."""
+    loop = asyncio.get_running_loop()
+
+    def stop(signame: str) -> None:
+        orchestrator.stop_early(f"{signame} at {orchestrator.progress_text()}")
+        print(f"\nsoak: {signame}: stopping, the report will cover what ran "
+              "(Ctrl-C again to stop at once, without a report)", file=sys.stderr, flush=True)
+        loop.remove_signal_handler(signal.SIGINT)  # the next Ctrl-C: KeyboardInterrupt
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop, sig.name)
+    await orchestrator.run()
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``curio soak`` with parsed ``args``; return the exit code."""
     from curio.soak.orchestrator import Orchestrator, SoakOptions
@@ -132,9 +156,9 @@ def run(args: argparse.Namespace) -> int:
                        workdir=Path(workdir), disk=args.disk, keep=args.keep, kinds=kinds,
                        start=start,
                        progress=progress)
+    orchestrator = Orchestrator(opts)
     try:
-        orchestrator = Orchestrator(opts)
-        asyncio.run(orchestrator.run())
+        asyncio.run(_run_stoppable(orchestrator))
     finally:
         progress.close()
     report = build_report(orchestrator)

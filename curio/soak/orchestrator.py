@@ -124,6 +124,9 @@ class Orchestrator:
         self.child_cpu_s = 0.0
         self.notes: list[str] = []
         self._lines: Any = None
+        # Set when the soak is stopped before its end (Ctrl-C, SIGTERM): why, and when.
+        self.stopped_early: dict[str, Any] | None = None
+        self._finisher: asyncio.Task[None] | None = None
 
     # --- setup --------------------------------------------------------------------------------
 
@@ -229,7 +232,9 @@ class Orchestrator:
         assert proc.stdout is not None
         ended = "exited"
         killer: asyncio.Task[None] | None = None
-        finisher: asyncio.Task[None] | None = None
+        self._finisher = None
+        if self.stopped_early is not None:  # stopped while no rover ran: end this one at once
+            self._finisher = asyncio.ensure_future(self._finish(proc))
         while True:
             try:
                 line = await WALL.wait_for(proc.stdout.readline(), HUNG_S)
@@ -254,8 +259,8 @@ class Orchestrator:
             elif t == "kill_me" and killer is None:
                 self.kill_request = msg
                 killer = asyncio.ensure_future(self._kill_later(proc, msg))
-            elif t == "end" and finisher is None:
-                finisher = asyncio.ensure_future(self._finish(proc))
+            elif t == "end" and self._finisher is None:
+                self._finisher = asyncio.ensure_future(self._finish(proc))
             elif t == "beat":
                 self._progress()
             elif t == "soak_error":
@@ -263,10 +268,10 @@ class Orchestrator:
                                      f"{msg.get('error')}")
         self.up = False
         await proc.wait()
-        if finisher is not None:
-            finisher.cancel()
+        if self._finisher is not None:
+            self._finisher.cancel()
             with contextlib.suppress(BaseException):
-                await finisher
+                await self._finisher
         if killer is not None:
             with contextlib.suppress(BaseException):
                 await killer
@@ -375,7 +380,7 @@ class Orchestrator:
                 proc = await self._start(restart)
                 why = await self._supervise(proc)
                 self._child_cpu()
-                if why == "done" or self._ended():
+                if why == "done" or self._ended() or self.stopped_early is not None:
                     break
                 if why != "killed":
                     self.failures.append(f"rover run {self.boot} ended: {why}")
@@ -399,6 +404,27 @@ class Orchestrator:
             self.file_checks.append({"boot": self.boot, "why": "end",
                                      "checks": [c.__dict__ for c in final]})
             self.disk.unmount(self.dir / "data-copy" if self.opts.keep else None)
+
+    def stop_early(self, why: str) -> None:
+        """End the soak now, as at its end (the clients stop, unanswered commands are asked
+        about, the rover stops cleanly), and mark the report as stopped early with ``why``."""
+        if self.stopped_early is not None:
+            return
+        beat = self.obs.beat or {}
+        self.stopped_early = {
+            "why": why, "wall_s": round(wall_perf_counter() - self.started, 1),
+            "building_h": round((float(beat.get("wall_s", self.start_wall)) - self.start_wall)
+                                / 3600.0, 3)}
+        log.warning("soak: stopping early (%s); the report covers what ran", why)
+        proc = self.proc
+        if proc is not None and proc.returncode is None and self._finisher is None:
+            self._finisher = asyncio.ensure_future(self._finish(proc))
+
+    def progress_text(self) -> str:
+        """Where the soak is, for people: ``7.90 of 24 building hours``."""
+        beat = self.obs.beat or {}
+        done_h = (float(beat.get("wall_s", self.start_wall)) - self.start_wall) / 3600.0
+        return f"{max(0.0, done_h):.2f} of {self.opts.hours:g} building hours"
 
     def _ended(self) -> bool:
         """The building's clock reached the end: a rover that dies now is not restarted."""

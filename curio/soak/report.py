@@ -213,6 +213,7 @@ def build_report(o: Orchestrator) -> dict[str, Any]:
     }
     report: dict[str, Any] = {
         "command": "soak", "seed": o.opts.seed, "hours": o.opts.hours,
+        "stopped_early": o.stopped_early,
         "clients": o.opts.clients, "metrics": metrics, "faults": faults, "commands": ledger,
         "restarts": [w.to_json() for w in o.obs.restarts], "files": o.file_checks,
         "resources": resources, "timing": timing, "time": times,
@@ -240,6 +241,9 @@ def format_table(report: dict[str, Any]) -> str:
     """The summary printed at the end: faults per kind, then the checks and the figures."""
     lines = [f"curio soak: seed {report['seed']}, {report['hours']:g} h, {report['clients']} "
              f"clients — {'PASSED' if report['success'] else 'FAILED'}"]
+    stop = report.get("stopped_early")
+    if stop:
+        lines.append(f"  stopped early ({stop['why']}): the figures cover what ran")
     head = f"{'fault kind':<15}{'plan':>5}{'done':>5}{'rec':>5}{'safe':>5}{'fail':>5}" \
            f"{'health':>7}{'log':>5}{'recover s (median/max)':>24}"
     lines += ["", head, "-" * len(head)]

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # pragma: no cover
     from curio.soak.orchestrator import Orchestrator
 
-__all__ = ["checks_of"]
+__all__ = ["checks_of", "collision_check", "whole_time_check"]
 
 # The budgets the checks hold the soak to (the report prints them beside the figures).
 NAV_P99_BUDGET_S = 0.025
@@ -42,6 +42,11 @@ def _fault_checks(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
     judged = {int(x["id"]) for x in results}
     missing = [f"{f.id}:{f.kind}" + ("" if f.id in o.obs.injected else " (not reached)")
                for f in o.plan if f.id not in judged]
+    if o.stopped_early is not None:
+        # Stopped early: the faults not reached by then are not a rover failure (the check
+        # "ran its whole time" fails instead); one injected and not judged still is.
+        unreached = [m for m in missing if m.endswith("(not reached)")]
+        missing = [m for m in missing if not m.endswith("(not reached)")]
     not_health = [f"{x['id']}:{x['kind']}" for x in results if x.get("detected_health_s") is None]
     not_log = [f"{x['id']}:{x['kind']}" for x in results if x.get("detected_log_s") is None]
     bad = [f"{x['id']}:{x['kind']}:{x.get('outcome')}" for x in results
@@ -49,7 +54,9 @@ def _fault_checks(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
     return [
         _check("every planned fault was injected and judged", not missing,
                f"{len(results)} judged of {len(o.plan)}" + (f"; missing {missing[:20]}"
-                                                            if missing else "")),
+                                                            if missing else "")
+               + (f"; {len(unreached)} not reached before the soak was stopped"
+                  if o.stopped_early is not None else "")),
         _check("every fault showed in /health", not not_health,
                f"not seen: {not_health[:20]}" if not_health else f"{len(results)} seen"),
         _check("every fault reached the event log", not not_log,
@@ -139,6 +146,14 @@ def _resource_checks(rep: dict[str, Any]) -> list[dict[str, Any]]:
     ]
 
 
+def whole_time_check(o: Orchestrator) -> dict[str, Any]:
+    """The soak ran the building hours it was asked for (not stopped early by Ctrl-C)."""
+    stop = o.stopped_early
+    return _check(f"ran its whole time ({o.opts.hours:g} building hours)", stop is None,
+                  "yes" if stop is None else
+                  f"stopped early: {stop['why']} after {stop['wall_s']:g} s of wall time")
+
+
 def collision_check(rep: dict[str, Any]) -> dict[str, Any]:
     """No collision the rover caused (moving into a wall, a thing or a visitor); those of
     visitors walking into a rover that was not moving towards them are counted, not failed
@@ -154,7 +169,8 @@ def collision_check(rep: dict[str, Any]) -> dict[str, Any]:
 
 def checks_of(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
     """Every check of the report (see the module docstring)."""
-    out = [collision_check(rep)]
+    out = [whole_time_check(o)]
+    out.append(collision_check(rep))
     out += _fault_checks(o, rep)
     out += _command_checks(rep)
     out += _restart_checks(o, rep)

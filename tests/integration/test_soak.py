@@ -65,3 +65,47 @@ def test_an_hour_of_soak_with_a_kill_9_and_a_kidnap_passes_every_check(tmp_path:
     assert all(c["ok"] for f in rep["files"] for c in f["checks"])
     assert rep["time"]["time_lapse_s"] > 600.0
     assert "PASSED" in proc.stdout and "[FAIL]" not in proc.stdout
+
+
+def test_ctrl_c_ends_a_soak_early_with_a_report_of_what_ran(tmp_path: Path) -> None:
+    """An engineer who stops a day-long soak after an hour gets its findings: the first Ctrl-C
+    ends it as at its end (clients stop, unanswered commands asked about, the rover stopped
+    cleanly) and writes a report that says it stopped early and fails for that reason only."""
+    import os
+    import signal
+
+    from curio.core.clock import wall_perf_counter, wall_sleep
+
+    report = tmp_path / "soak.json"
+    work = tmp_path / "work"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "curio", "soak", "--hours", "24", "--clients", "3",
+         "--faults", "0", "--seed", "5", "--disk", "none", "--workdir", str(work),
+         "--report", str(report), "--set", f'data_dir="{tmp_path / "data"}"'],
+        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    beats = work / "seed5" / "boot0.jsonl"
+    try:
+        deadline = wall_perf_counter() + 120.0
+        while wall_perf_counter() < deadline:  # until the rover has run a little while
+            if beats.exists() and beats.read_text(encoding="utf-8").count('"t":"beat"') >= 20:
+                break
+            wall_sleep(0.5)
+        else:
+            raise AssertionError("the rover never reported")
+        os.kill(proc.pid, signal.SIGINT)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 1, out[-3000:]
+    rep = json.loads(report.read_text(encoding="utf-8"))
+    assert rep["stopped_early"]["why"].startswith("SIGINT at "), rep["stopped_early"]
+    assert 0.0 < rep["time"]["building_h"] < 24.0
+    failed = [c["name"] for c in rep["checks"] if c["ok"] is False]
+    assert failed == ["ran its whole time (24 building hours)"], rep["checks"]
+    assert rep["metrics"]["commands_sent"] > 0 and rep["metrics"]["commands_lost"] == 0
+    assert [f["why"] for f in rep["files"]] == ["end"]
+    assert "stopped early (SIGINT at " in out and "FAILED" in out
+    ends = [json.loads(line)["t"] for line in beats.read_text(encoding="utf-8").splitlines()
+            if '"t":"stopped"' in line or '"t":"done"' in line]
+    assert ends == ["stopped"], ends  # the rover was stopped cleanly, not killed
