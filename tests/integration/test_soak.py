@@ -87,7 +87,7 @@ def test_ctrl_c_ends_a_soak_early_with_a_report_of_what_ran(tmp_path: Path) -> N
     try:
         deadline = wall_perf_counter() + 120.0
         while wall_perf_counter() < deadline:  # until the rover has run a little while
-            if beats.exists() and beats.read_text(encoding="utf-8").count('"t":"beat"') >= 20:
+            if beats.exists() and beats.read_text(encoding="utf-8").count('"t":"beat"') >= 5:
                 break
             wall_sleep(0.5)
         else:
