@@ -18,6 +18,7 @@ from curio.nav.api import GoalHandle, GoalState
 from .context import CurioBehaviour, TreeContext
 from .follower import Route
 from .paths import HOME_PATH_ID, PathError, format_xy
+from .unattended import LostReport
 
 __all__ = [
     "Ask4Help",
@@ -74,11 +75,18 @@ class Pause(CurioBehaviour):
 
     Pause keeps the waypoint; Resume re-sends the same waypoint. Resume when not paused retries
     a failed or interrupted waypoint, else says there is nothing to resume. Pausing an idle
-    rover is allowed (nothing moves on resume, §9.14).
+    rover is allowed (nothing moves on resume, §9.14). Paused and lost (``lost``: carried
+    elsewhere, say), it reports it as the Lost branch would, without the turn
+    (:class:`~curio.bt.unattended.LostReport`: the localiser's search, ``localization.lost``,
+    a help request after ``relocalise_timeout_s``, ``localization.found``) and stays paused.
     """
 
     def __init__(self, ctx: TreeContext, name: str = "Pause") -> None:
-        super().__init__(name, ctx, write=("paused", "pause_request"))
+        super().__init__(name, ctx, read=("lost", "lost_hint"),
+                         write=("paused", "pause_request"))
+        # Paused and lost (carried elsewhere, say): the Lost branch below is held, so the
+        # pause says so and lets the localiser search itself, without moving.
+        self.lost = LostReport(ctx, self.get)
 
     def update(self) -> Status:
         """Apply a pending pause/resume, then FAILURE (not paused) or RUNNING (paused)."""
@@ -95,6 +103,7 @@ class Pause(CurioBehaviour):
                     ctx.accept(req, "pause", "Paused.")
             elif self.get("paused"):
                 self.set("paused", False)
+                self._lost_over()
                 if ctx.follower.resume():
                     ctx.accept(req, "resume", "Resumed.")
                 else:
@@ -111,9 +120,25 @@ class Pause(CurioBehaviour):
             if ctx.follower.phase != "held":
                 ctx.follower.hold("pause")
             ctx.cancel_foreign_goal()
-            ctx.sink.status("Paused", "paused")
+            if self.get("lost"):
+                if not self.lost.active:
+                    self.lost.begin(0.0, paused=True)
+                self.lost.update()
+            else:
+                self._lost_over()
+                ctx.sink.status("Paused", "paused")
             return Status.RUNNING
         return Status.FAILURE
+
+    def _lost_over(self) -> None:
+        """Found while paused, or no longer paused (the Lost branch takes over if still lost)."""
+        if self.lost.active:
+            self.lost.end()
+
+    def terminate(self, new_status: Status) -> None:
+        """Pre-empted (the e-stop) or resumed: end the paused lost report."""
+        if new_status == Status.INVALID:
+            self._lost_over()
 
 
 class DriveHome(CurioBehaviour):

@@ -17,7 +17,8 @@ Branches (:func:`unattended_branches`, placed after E-stop and Pause in every tr
   searches by itself), turn in place through at most ``relocalise_rotation_rad`` so the lidar
   sees more, and after ``relocalise_timeout_s`` ask a person (``help.requested``, reason
   ``lost``). Found (the feed clears ``lost``): ``localization.found``, the held route resumes
-  where it was.
+  where it was. While paused this branch is held; Pause then reports and searches the same way
+  without turning (:class:`LostReport`, shared by both).
 * **Battery** (low) — ``BatteryHome``: with a dock, asks to dock (``dock_request``, reason
   ``battery``) and abandons the route; without one, drives path 0 as before.
 * **Dock** — :class:`DockAction`: drives the docker (staging, approach, retries) until docked;
@@ -35,6 +36,8 @@ import contextlib
 import logging
 import math
 import operator
+from collections.abc import Callable
+from typing import Any
 
 import py_trees
 from py_trees.behaviour import Behaviour
@@ -55,8 +58,8 @@ from curio.core.topics import (
 from .context import CurioBehaviour, TreeContext
 from .guards import check_key
 
-__all__ = ["BatteryCritical", "Dock2BB", "DockAction", "Localization2BB", "NeedsUndock",
-           "Relocalise", "RequestDock", "ShowDocked", "Spinner", "Undock",
+__all__ = ["BatteryCritical", "Dock2BB", "DockAction", "Localization2BB", "LostReport",
+           "NeedsUndock", "Relocalise", "RequestDock", "ShowDocked", "Spinner", "Undock",
            "docked_branch", "unattended_branches", "unattended_feeds", "undock_branch"]
 
 log = logging.getLogger("curio.bt.unattended")
@@ -358,38 +361,53 @@ class BatteryCritical(CurioBehaviour):
 # --- lost and found -----------------------------------------------------------------------------
 
 
-class Relocalise(CurioBehaviour):
-    """Lost: hold, relocalise in place (bounded turn), then ask for help; found: resume."""
+class LostReport:
+    """What a lost rover says and asks, moving or not: the localiser asked to search, the event
+    and status, a person asked after ``relocalise_timeout_s``, and found or withdrawn at the
+    end. :class:`Relocalise` adds the hold and the turn; :class:`~curio.bt.actions.Pause` uses
+    it alone while paused (a paused rover carried elsewhere must still say it is lost and let
+    the localiser search, without moving).
 
-    def __init__(self, ctx: TreeContext, name: str = "Relocalise") -> None:
-        super().__init__(name, ctx, read=("lost", "docked", "lost_hint"),
-                         write=("relocalising",))
-        self.spinner = Spinner(ctx)
+    Args:
+        ctx: the tree's context.
+        get: the owning behaviour's blackboard read (keys ``lost``, ``lost_hint``).
+    """
+
+    def __init__(self, ctx: TreeContext, get: Callable[[str], Any]) -> None:
+        self.ctx = ctx
+        self.get = get
+        self.active = False
         self.started_s = 0.0
         self.asked = False
-        self.held = False
+        self.paused = False
 
-    def initialise(self) -> None:
-        """Stop, say so, start the global search and the turn."""
+    def begin(self, turning_rad: float, paused: bool = False) -> None:
+        """Lost now: ask the localiser, say so (``turning_rad``: the turn that helps)."""
         ctx = self.ctx
-        cfg = ctx.cfg
+        self.active, self.asked, self.paused = True, False, paused
         self.started_s = ctx.clock.now()
-        self.asked = False
-        self.held = ctx.follower.active
-        if self.held:
-            ctx.follower.hold("lost")
-        if ctx.docker is not None and ctx.docker.busy:
-            ctx.docker.cancel("localisation lost")
-        ctx.cancel_foreign_goal()
         self._ask_localiser()
-        turn = 0.0 if self.get("docked") else cfg.relocalise_rotation_rad
-        self.spinner.start(turn, cfg.relocalise_speed_radps)
-        self.set("relocalising", not self.spinner.done)
-        ctx.sink.event("localization.lost", message="I am not sure where I am: looking "
-                       "around to find my way.", turning_rad=round(turn, 3))
+        if paused:
+            message = "I am not sure where I am. I stay paused; the search goes on."
+        else:
+            message = "I am not sure where I am: looking around to find my way."
+        ctx.sink.event("localization.lost", message=message, turning_rad=round(turning_rad, 3),
+                       paused=paused)
         if ctx.follower.speak is not None:
-            ctx.follower.speak("I am not sure where I am. Let me look around.")
-        ctx.sink.status("Lost: looking around to find my way", "lost")
+            ctx.follower.speak("I am not sure where I am." + (
+                "" if paused else " Let me look around."))
+        self._status()
+
+    def _status(self) -> None:
+        ctx = self.ctx
+        if self.asked:
+            ctx.sink.status(("Paused and lost" if self.paused else "Lost")
+                            + ": please set my position on the map or press Relocalise",
+                            "needs_help")
+        elif self.paused:
+            ctx.sink.status("Paused and lost: searching for my position", "paused")
+        else:
+            ctx.sink.status("Lost: looking around to find my way", "lost")
 
     def _ask_localiser(self) -> None:
         """After a jump: start again around where the rover was (it stopped at once). Uncertain
@@ -411,28 +429,21 @@ class Relocalise(CurioBehaviour):
         ctx.bus.publish(INITIAL_POSE, PoseWithCovariance(ctx.clock.now(), pose, covariance=(
             std_xy ** 2, 0.0, 0.0, 0.0, std_xy ** 2, 0.0, 0.0, 0.0, std_yaw ** 2)))
 
-    def update(self) -> Status:
-        """Turn, wait for the localiser, then ask a person."""
+    def update(self, turn_done: bool = True) -> None:
+        """Ask a person once the turn is over and ``relocalise_timeout_s`` has passed."""
         ctx = self.ctx
-        ctx.cancel_foreign_goal()
-        self.set("relocalising", not self.spinner.done)
         now = ctx.clock.now()
-        if not self.asked and self.spinner.done and \
-                now - self.started_s >= ctx.cfg.relocalise_timeout_s:
+        if not self.asked and turn_done and now - self.started_s >= ctx.cfg.relocalise_timeout_s:
             self.asked = True
             ctx.sink.event("help.requested", reason="lost", trigger="lost",
                            message="I am lost: please set my position on the map or press "
                                    "Relocalise.")
-        if self.asked:
-            ctx.sink.status("Lost: please set my position on the map or press Relocalise",
-                            "needs_help")
-        return Status.RUNNING
+        self._status()
 
-    def terminate(self, new_status: Status) -> None:
-        """Found: resume the route; pre-empted: withdraw the help request."""
+    def end(self) -> bool:
+        """Found (``lost`` cleared) or pre-empted: say which; withdraw the help request.
+        Returns whether the rover was found."""
         ctx = self.ctx
-        self.spinner.stop()
-        self.set("relocalising", False)
         found = not self.get("lost")
         if found:
             ctx.sink.event("localization.found", message="I know where I am again.",
@@ -442,7 +453,48 @@ class Relocalise(CurioBehaviour):
                            message="Thanks!" if found else "Help is no longer needed.",
                            help_reason="lost",
                            waited_s=round(ctx.clock.now() - self.started_s, 3))
-        self.asked = False
+        self.active = self.asked = False
+        return found
+
+
+class Relocalise(CurioBehaviour):
+    """Lost: hold, relocalise in place (bounded turn), then ask for help; found: resume."""
+
+    def __init__(self, ctx: TreeContext, name: str = "Relocalise") -> None:
+        super().__init__(name, ctx, read=("lost", "docked", "lost_hint"),
+                         write=("relocalising",))
+        self.spinner = Spinner(ctx)
+        self.report = LostReport(ctx, self.get)
+        self.held = False
+
+    def initialise(self) -> None:
+        """Stop, say so, start the global search and the turn."""
+        ctx = self.ctx
+        cfg = ctx.cfg
+        self.held = ctx.follower.active
+        if self.held:
+            ctx.follower.hold("lost")
+        if ctx.docker is not None and ctx.docker.busy:
+            ctx.docker.cancel("localisation lost")
+        ctx.cancel_foreign_goal()
+        turn = 0.0 if self.get("docked") else cfg.relocalise_rotation_rad
+        self.report.begin(turn)
+        self.spinner.start(turn, cfg.relocalise_speed_radps)
+        self.set("relocalising", not self.spinner.done)
+
+    def update(self) -> Status:
+        """Turn, wait for the localiser, then ask a person."""
+        self.ctx.cancel_foreign_goal()
+        self.set("relocalising", not self.spinner.done)
+        self.report.update(self.spinner.done)
+        return Status.RUNNING
+
+    def terminate(self, new_status: Status) -> None:
+        """Found: resume the route; pre-empted: withdraw the help request."""
+        ctx = self.ctx
+        self.spinner.stop()
+        self.set("relocalising", False)
+        found = self.report.end() if self.report.active else not self.get("lost")
         if found and self.held and ctx.follower.phase == "held":
             ctx.follower.resume()
         elif found:  # nothing to resume: the status must not keep saying "Lost"

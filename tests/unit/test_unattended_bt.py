@@ -20,7 +20,7 @@ from curio.core.messages import (
     PoseWithCovariance,
     Transform,
 )
-from curio.core.topics import INITIAL_POSE, LOCALIZATION, MAP_TO_ODOM, ODOM, POSE
+from curio.core.topics import CMD_VEL_NAV, INITIAL_POSE, LOCALIZATION, MAP_TO_ODOM, ODOM, POSE
 from curio.docking.docker import Docker
 
 from .bt_fakes import Harness, make_harness
@@ -319,6 +319,42 @@ def test_a_whole_map_search_is_not_narrowed_back_to_the_old_pose() -> None:
     localization(h, "ok")
     h.tick(6)
     assert not h.bb("lost") and h.of("localization.found")
+
+
+def test_a_paused_rover_that_gets_lost_says_so_and_lets_the_localiser_search() -> None:
+    """Found by the 24-hour soak (seed 1, fault 6): an operator paused the tour, the rover was
+    carried elsewhere, and it sat "Paused" for good — the Lost branch is held below Pause, so
+    nobody asked the localiser to search and nobody was asked for help. Now the pause says it
+    is lost, asks for the whole-map search without moving, asks a person after the timeout,
+    and stays paused when found."""
+    h = harness(relocalise_timeout_s=5.0, lost_uncertain_s=2.0, found_confirm_s=1.0)
+    drive(h)
+    h.press("pause")
+    h.tick()
+    assert h.status.text == "Paused" and h.nav.active is None
+    asks = h.bus.subscribe(INITIAL_POSE, maxsize=10)
+    turns = h.bus.subscribe(CMD_VEL_NAV, maxsize=10)
+    localization(h, "uncertain", 3.0)  # carried off: the fit is gone
+    h.tick(3, dt=1.0)
+    assert h.bb("lost") and h.bb("paused")
+    (lost,) = h.of("localization.lost")
+    assert lost.detail["paused"] is True and lost.detail["turning_rad"] == 0.0
+    (search,) = asks.drain()
+    assert search.covariance[0] > 1e5  # the whole-map search
+    assert (h.status.state, h.status.text) == ("paused", "Paused and lost: searching for my "
+                                                         "position")
+    h.tick(6, dt=1.0)
+    (ask,) = h.of("help.requested")
+    assert ask.detail["reason"] == "lost" and h.status.state == "needs_help"
+    assert h.nav.active is None and turns.drain() == []  # it never moved
+    localization(h, "ok")
+    h.tick(3, dt=1.0)
+    assert not h.bb("lost") and h.of("localization.found")
+    assert h.of("help.resolved")[-1].detail["reason"] == "found"
+    assert h.status.text == "Paused" and h.nav.active is None  # found, still paused
+    h.press("resume")
+    h.tick()
+    assert h.nav.active is not None and h.nav.target() == (1.0, 1.0)
 
 
 def test_lost_is_pre_empted_by_the_e_stop_and_does_not_resume() -> None:
