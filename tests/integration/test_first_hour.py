@@ -129,6 +129,7 @@ def test_an_emulated_scenario_does_not_depend_on_an_earlier_run(tmp_path: Path,
         result = curio("sim", "square", "--seed", "3", "--set", data,
                        "--set", "drivers.mode=emulated", "--report", str(path), timeout=300)
         assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+        assert "restored the BNO055 calibration" not in result.stdout + result.stderr
         report = json.loads(path.read_text())
         report.pop("wall_time_s")
         reports.append(report)
@@ -138,12 +139,15 @@ def test_an_emulated_scenario_does_not_depend_on_an_earlier_run(tmp_path: Path,
     assert [e["kind"] for e in reports[0]["events"]] == [e["kind"] for e in reports[1]["events"]]
     # Not to the last bit: the real drivers read the emulators' bytes from pseudo-terminals,
     # whose delivery against the simulated clock depends on the host's scheduling (CI once saw
-    # a localisation RMSE of 4.39 against 4.52 mm). A restored calibration changed far more.
+    # a localisation RMSE of 4.39 against 4.52 mm, and under load a worst error of 15.2
+    # against 20.7 mm: a maximum over one run is one sample). A restored calibration changed
+    # far more.
     m0, m1 = reports[0]["metrics"], reports[1]["metrics"]
     assert m0.keys() == m1.keys()
     for key, value in m0.items():
         if isinstance(value, float):
-            assert m1[key] == pytest.approx(value, rel=0.1, abs=1e-3), key
+            rel = 0.5 if "_max_" in key else 0.1
+            assert m1[key] == pytest.approx(value, rel=rel, abs=1e-3), key
 
 
 def test_scripts_run_starts_without_the_network(tmp_path: Path) -> None:
