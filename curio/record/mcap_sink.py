@@ -98,6 +98,7 @@ class McapSink:
         self.deleted: list[Path] = []
         self.messages = 0
         self.bytes_closed = 0
+        self._open_bytes_seen = 0
 
     # --- files ------------------------------------------------------------------------------
     def _next_path(self) -> Path:
@@ -160,12 +161,12 @@ class McapSink:
                 "channels": json.dumps(dict(sorted(self._counts.items()))),
                 "events": json.dumps(self._events)})
             self._writer.finish()  # type: ignore[no-untyped-call]
-        if self._fh is not None:
-            self._fh.close()
+        fh, self._fh = self._fh, None  # health (another thread) must not read a closing file
+        if fh is not None:
+            fh.close()
             if self.current is not None and self.current.exists():
                 self.bytes_closed += self.current.stat().st_size
         self._writer = None
-        self._fh = None
 
     def _channel_id(self, spec: ChannelSpec) -> int:
         assert self._writer is not None
@@ -224,8 +225,17 @@ class McapSink:
 
     @property
     def bytes_written(self) -> int:
-        """Bytes in the files written so far (the open one included)."""
-        open_bytes = self._fh.tell() if self._fh is not None else 0
+        """Bytes in the files written so far (the open one included). Safe to read from
+        another thread than the writer's (health): a file the writer closes meanwhile counts
+        as its last size seen (once the soak saw ``tell()`` on a file closed by a rotation
+        crash the recorder part, and so the rover)."""
+        fh = self._fh
+        open_bytes = 0
+        if fh is not None:
+            try:
+                open_bytes = self._open_bytes_seen = fh.tell()
+            except (ValueError, OSError):  # closed by the writer thread just now
+                open_bytes = self._open_bytes_seen
         return self.bytes_closed + open_bytes
 
     def close(self) -> None:

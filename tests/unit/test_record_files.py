@@ -151,3 +151,18 @@ def test_an_unfinished_file_is_listed_from_its_chunks_without_reading_it_through
     (scanned,) = list_recordings(tmp_path)  # read through: the same span, counted
     assert scanned.messages == 60 and scanned.duration_s == pytest.approx(59.0)
     s.close()
+
+
+def test_health_reads_the_size_while_the_writer_thread_closes_a_file(tmp_path: Path) -> None:
+    """Found by the soak: health (the loop's thread) read the open file's size while the writer
+    thread closed it for a rotation — ``tell()`` on a closed file raised, the recorder part
+    crashed and took the rover down."""
+    s = sink(tmp_path)
+    for i in range(20):
+        s.write(SCAN, i * S, i * S, i, payload(i))
+    s.flush()
+    before = s.describe()["bytes_written"]
+    assert before > 0
+    assert s._fh is not None
+    s._fh.close()  # what the writer thread does while health holds the handle
+    assert s.describe()["bytes_written"] == before  # its last size seen, no exception
