@@ -18,7 +18,7 @@ from curio.nav.api import GoalHandle, GoalState
 from .context import CurioBehaviour, TreeContext
 from .follower import Route
 from .paths import HOME_PATH_ID, PathError, format_xy
-from .unattended import LostReport
+from .unattended import lost_report
 
 __all__ = [
     "Ask4Help",
@@ -86,7 +86,7 @@ class Pause(CurioBehaviour):
                          write=("paused", "pause_request"))
         # Paused and lost (carried elsewhere, say): the Lost branch below is held, so the
         # pause says so and lets the localiser search itself, without moving.
-        self.lost = LostReport(ctx, self.get)
+        self.lost = lost_report(ctx, self.get)
 
     def update(self) -> Status:
         """Apply a pending pause/resume, then FAILURE (not paused) or RUNNING (paused)."""
@@ -121,7 +121,7 @@ class Pause(CurioBehaviour):
                 ctx.follower.hold("pause")
             ctx.cancel_foreign_goal()
             if self.get("lost"):
-                if not self.lost.active:
+                if not (self.lost.active and self.lost.paused):
                     self.lost.begin(0.0, paused=True)
                 self.lost.update()
             else:
@@ -131,14 +131,10 @@ class Pause(CurioBehaviour):
         return Status.FAILURE
 
     def _lost_over(self) -> None:
-        """Found while paused, or no longer paused (the Lost branch takes over if still lost)."""
-        if self.lost.active:
+        """Found while paused: end the lost episode (still lost: the Lost branch carries the
+        same episode on once resumed)."""
+        if self.lost.active and not self.get("lost"):
             self.lost.end()
-
-    def terminate(self, new_status: Status) -> None:
-        """Pre-empted (the e-stop) or resumed: end the paused lost report."""
-        if new_status == Status.INVALID:
-            self._lost_over()
 
 
 class DriveHome(CurioBehaviour):

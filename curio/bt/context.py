@@ -78,6 +78,7 @@ class TreeContext:
         tree_kind: ``follow_path``, ``two_step`` or ``tour``.
         tour_route: the configured tour as a route (None when no stops are configured).
         docker: docks and undocks the rover (None without a dock).
+        lost: the lost episode being reported (:func:`curio.bt.unattended.lost_report`).
     """
 
     cfg: BtConfig
@@ -93,6 +94,7 @@ class TreeContext:
     probe: WayProbe | None = None
     clients: list[py_trees.blackboard.Client] = field(default_factory=list)
     docker: Any = None  # curio/docking/docker.py (None: no dock, Go Home drives path 0)
+    lost: Any = None  # curio/bt/unattended.py LostReport: one lost episode, shared by branches
 
     def key(self, name: str) -> str:
         """The absolute blackboard key of ``name`` in this tree's namespace."""

@@ -60,7 +60,8 @@ from .guards import check_key
 
 __all__ = ["BatteryCritical", "Dock2BB", "DockAction", "Localization2BB", "LostReport",
            "NeedsUndock", "Relocalise", "RequestDock", "ShowDocked", "Spinner", "Undock",
-           "docked_branch", "unattended_branches", "unattended_feeds", "undock_branch"]
+           "docked_branch", "lost_report", "unattended_branches", "unattended_feeds",
+           "undock_branch"]
 
 log = logging.getLogger("curio.bt.unattended")
 
@@ -223,6 +224,9 @@ class Localization2BB(CurioBehaviour):
             self.set("lost", False)
             self._anchor = None
             self._remember()
+            report = self.ctx.lost
+            if report is not None and report.active:
+                report.end()  # found, whichever branch held the rover meanwhile
         return Status.SUCCESS
 
 
@@ -382,8 +386,13 @@ class LostReport:
         self.paused = False
 
     def begin(self, turning_rad: float, paused: bool = False) -> None:
-        """Lost now: ask the localiser, say so (``turning_rad``: the turn that helps)."""
+        """Lost now: ask the localiser, say so (``turning_rad``: the turn that helps). An
+        episode already being reported (lost, then paused or resumed) goes on: said once."""
         ctx = self.ctx
+        if self.active:
+            self.paused = paused
+            self._status()
+            return
         self.active, self.asked, self.paused = True, False, paused
         self.started_s = ctx.clock.now()
         self._ask_localiser()
@@ -457,6 +466,14 @@ class LostReport:
         return found
 
 
+def lost_report(ctx: TreeContext, get: Callable[[str], Any]) -> LostReport:
+    """The tree's one :class:`LostReport` (created by the first behaviour that asks)."""
+    if ctx.lost is None:
+        ctx.lost = LostReport(ctx, get)
+    report: LostReport = ctx.lost
+    return report
+
+
 class Relocalise(CurioBehaviour):
     """Lost: hold, relocalise in place (bounded turn), then ask for help; found: resume."""
 
@@ -464,7 +481,7 @@ class Relocalise(CurioBehaviour):
         super().__init__(name, ctx, read=("lost", "docked", "lost_hint"),
                          write=("relocalising",))
         self.spinner = Spinner(ctx)
-        self.report = LostReport(ctx, self.get)
+        self.report = lost_report(ctx, self.get)
         self.held = False
 
     def initialise(self) -> None:
@@ -494,7 +511,9 @@ class Relocalise(CurioBehaviour):
         ctx = self.ctx
         self.spinner.stop()
         self.set("relocalising", False)
-        found = self.report.end() if self.report.active else not self.get("lost")
+        found = not self.get("lost")
+        if found and self.report.active:
+            self.report.end()
         if found and self.held and ctx.follower.phase == "held":
             ctx.follower.resume()
         elif found:  # nothing to resume: the status must not keep saying "Lost"

@@ -357,6 +357,31 @@ def test_a_paused_rover_that_gets_lost_says_so_and_lets_the_localiser_search() -
     assert h.nav.active is not None and h.nav.target() == (1.0, 1.0)
 
 
+def test_one_lost_episode_is_reported_once_across_pause_and_resume() -> None:
+    """Seen in the soak: operators pausing and resuming a rover that stayed lost restarted the
+    report at every toggle (`localization.lost` 90 times in one run, a help request 30 s after
+    each). One episode: said once, one help request, found once."""
+    h = harness(relocalise_timeout_s=5.0, lost_confirm_s=1.0, found_confirm_s=1.0)
+    drive(h)
+    localization(h, "lost", 2.0)
+    h.tick(3, dt=1.0)
+    assert h.bb("lost") and h.status.state == "lost"
+    for _ in range(3):  # Pause, Resume, Pause, Resume ... while still lost
+        h.press("pause")
+        h.tick(2, dt=1.0)
+        assert h.status.text.startswith("Paused and lost")
+        h.press("resume")
+        h.tick(2, dt=1.0)
+    assert len(h.of("localization.lost")) == 1
+    assert len(h.of("help.requested")) == 1 and h.status.state == "needs_help"
+    assert not h.of("help.resolved")
+    localization(h, "ok")
+    h.tick(3, dt=1.0)
+    assert len(h.of("localization.found")) == 1
+    assert [e.detail["reason"] for e in h.of("help.resolved")] == ["found"]
+    assert h.nav.active is not None and h.nav.target() == (1.0, 1.0)  # the route goes on
+
+
 def test_lost_is_pre_empted_by_the_e_stop_and_does_not_resume() -> None:
     h = harness()
     drive(h)
