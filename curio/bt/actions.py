@@ -103,7 +103,6 @@ class Pause(CurioBehaviour):
                     ctx.accept(req, "pause", "Paused.")
             elif self.get("paused"):
                 self.set("paused", False)
-                self._lost_over()
                 if ctx.follower.resume():
                     ctx.accept(req, "resume", "Resumed.")
                 else:
@@ -125,16 +124,9 @@ class Pause(CurioBehaviour):
                     self.lost.begin(0.0, paused=True)
                 self.lost.update()
             else:
-                self._lost_over()
                 ctx.sink.status("Paused", "paused")
             return Status.RUNNING
         return Status.FAILURE
-
-    def _lost_over(self) -> None:
-        """Found while paused: end the lost episode (still lost: the Lost branch carries the
-        same episode on once resumed)."""
-        if self.lost.active and not self.get("lost"):
-            self.lost.end()
 
 
 class DriveHome(CurioBehaviour):

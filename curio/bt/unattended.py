@@ -187,7 +187,7 @@ class Localization2BB(CurioBehaviour):
         cfg = self.ctx.cfg
         jump = self._jumped(now)
         if msg is None or msg.state == "off":
-            self.set("lost", False)
+            self._clear_lost()
             return Status.SUCCESS
         lost_for = self._held("lost", msg.state == "lost", now)
         bad_for = self._held("bad", msg.state == "uncertain"
@@ -221,13 +221,18 @@ class Localization2BB(CurioBehaviour):
                 self.set("lost", True)
         elif not self.get("relocalising") and good_for >= cfg.found_confirm_s and \
                 self._near_anchor():
-            self.set("lost", False)
+            self._clear_lost()
             self._anchor = None
             self._remember()
-            report = self.ctx.lost
-            if report is not None and report.active:
-                report.end()  # found, whichever branch held the rover meanwhile
         return Status.SUCCESS
+
+    def _clear_lost(self) -> None:
+        """Not lost any more: the lost episode being reported ends here (found), whichever
+        branch held the rover meanwhile."""
+        self.set("lost", False)
+        report = self.ctx.lost
+        if report is not None and report.active:
+            report.end()
 
 
 class Dock2BB(CurioBehaviour):
@@ -449,9 +454,8 @@ class LostReport:
                                    "Relocalise.")
         self._status()
 
-    def end(self) -> bool:
-        """Found (``lost`` cleared) or pre-empted: say which; withdraw the help request.
-        Returns whether the rover was found."""
+    def end(self) -> None:
+        """Found (``lost`` cleared) or pre-empted: say which; withdraw the help request."""
         ctx = self.ctx
         found = not self.get("lost")
         if found:
@@ -463,7 +467,6 @@ class LostReport:
                            help_reason="lost",
                            waited_s=round(ctx.clock.now() - self.started_s, 3))
         self.active = self.asked = False
-        return found
 
 
 def lost_report(ctx: TreeContext, get: Callable[[str], Any]) -> LostReport:
@@ -511,9 +514,7 @@ class Relocalise(CurioBehaviour):
         ctx = self.ctx
         self.spinner.stop()
         self.set("relocalising", False)
-        found = not self.get("lost")
-        if found and self.report.active:
-            self.report.end()
+        found = not self.get("lost")  # the feed has ended the lost episode
         if found and self.held and ctx.follower.phase == "held":
             ctx.follower.resume()
         elif found:  # nothing to resume: the status must not keep saying "Lost"

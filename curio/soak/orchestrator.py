@@ -410,21 +410,22 @@ class Orchestrator:
         about, the rover stops cleanly), and mark the report as stopped early with ``why``."""
         if self.stopped_early is not None:
             return
-        beat = self.obs.beat or {}
-        self.stopped_early = {
-            "why": why, "wall_s": round(wall_perf_counter() - self.started, 1),
-            "building_h": round((float(beat.get("wall_s", self.start_wall)) - self.start_wall)
-                                / 3600.0, 3)}
+        self.stopped_early = {"why": why,
+                              "wall_s": round(wall_perf_counter() - self.started, 1),
+                              "building_h": round(self._building_h(), 3)}
         log.warning("soak: stopping early (%s); the report covers what ran", why)
         proc = self.proc
         if proc is not None and proc.returncode is None and self._finisher is None:
             self._finisher = asyncio.ensure_future(self._finish(proc))
 
+    def _building_h(self) -> float:
+        """Building hours run so far (the last beat's clock since the start)."""
+        beat = self.obs.beat or {}
+        return max(0.0, (float(beat.get("wall_s", self.start_wall)) - self.start_wall) / 3600.0)
+
     def progress_text(self) -> str:
         """Where the soak is, for people: ``7.90 of 24 building hours``."""
-        beat = self.obs.beat or {}
-        done_h = (float(beat.get("wall_s", self.start_wall)) - self.start_wall) / 3600.0
-        return f"{max(0.0, done_h):.2f} of {self.opts.hours:g} building hours"
+        return f"{self._building_h():.2f} of {self.opts.hours:g} building hours"
 
     def _ended(self) -> bool:
         """The building's clock reached the end: a rover that dies now is not restarted."""

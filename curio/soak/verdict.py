@@ -40,13 +40,14 @@ def _memory_check(res: dict[str, Any]) -> dict[str, Any]:
 def _fault_checks(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
     results = rep["faults"]["list"]
     judged = {int(x["id"]) for x in results}
-    missing = [f"{f.id}:{f.kind}" + ("" if f.id in o.obs.injected else " (not reached)")
-               for f in o.plan if f.id not in judged]
+    absent = [f for f in o.plan if f.id not in judged]
+    unreached = [f for f in absent if f.id not in o.obs.injected]
     if o.stopped_early is not None:
         # Stopped early: the faults not reached by then are not a rover failure (the check
         # "ran its whole time" fails instead); one injected and not judged still is.
-        unreached = [m for m in missing if m.endswith("(not reached)")]
-        missing = [m for m in missing if not m.endswith("(not reached)")]
+        absent = [f for f in absent if f.id in o.obs.injected]
+    missing = [f"{f.id}:{f.kind}" + ("" if f.id in o.obs.injected else " (not reached)")
+               for f in absent]
     not_health = [f"{x['id']}:{x['kind']}" for x in results if x.get("detected_health_s") is None]
     not_log = [f"{x['id']}:{x['kind']}" for x in results if x.get("detected_log_s") is None]
     bad = [f"{x['id']}:{x['kind']}:{x.get('outcome')}" for x in results
@@ -169,8 +170,7 @@ def collision_check(rep: dict[str, Any]) -> dict[str, Any]:
 
 def checks_of(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
     """Every check of the report (see the module docstring)."""
-    out = [whole_time_check(o)]
-    out.append(collision_check(rep))
+    out = [whole_time_check(o), collision_check(rep)]
     out += _fault_checks(o, rep)
     out += _command_checks(rep)
     out += _restart_checks(o, rep)
