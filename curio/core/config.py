@@ -309,6 +309,10 @@ class LocalizationConfig(Section):
     max_particles: int = Field(3000, ge=10)
     update_min_d_m: float = Field(0.02, ge=0.0, description="filter update after this travel")
     update_min_a_rad: float = Field(0.02, ge=0.0, description="or after this rotation")
+    stationary_check_s: float = Field(
+        1.0, gt=0.0, description="standing still, the filter does not update; this often the "
+        "scan is compared with the map at the estimate instead, and a poor fit updates the "
+        "filter (a rover carried away while parked is noticed, lost after lost_after_scans)")
     laser_beams: int = Field(60, ge=8, le=2000)
     laser_sigma_hit_m: float = Field(0.1, gt=0.0)
     laser_z_hit: float = Field(0.9, ge=0.0, le=1.0)

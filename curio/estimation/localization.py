@@ -381,6 +381,7 @@ class Localizer:
         # Tracking prior: the last estimate moved by odometry, with its covariance (map frame).
         self._delta = Pose2D()
         self.track_cov: F64 | None = None
+        self._stationary_due_s = -math.inf  # scan time of the next check while standing still
 
     # --- initialisation --------------------------------------------------------------------
     def initialize(self, pose: Pose2D, std_xy_m: float | None = None,
@@ -443,7 +444,7 @@ class Localizer:
         moved = (math.hypot(delta.x, delta.y) >= self.cfg.update_min_d_m
                  or abs(delta.yaw) >= self.cfg.update_min_a_rad)
         searching = self.search is not None
-        if not (moved or self._force_update or searching):
+        if not (moved or self._force_update or searching or self._stationary_misfit(scan)):
             return False
         self._force_update = False
         self._last_odom = odom_pose
@@ -469,6 +470,28 @@ class Localizer:
             self._search_step(scan, pts_pf)
         self._resample()
         self.updates += 1
+        return True
+
+    def _stationary_misfit(self, scan: LaserScan) -> bool:
+        """Standing still: whether this scan (every ``stationary_check_s`` of scan time) fits
+        the map so poorly at the estimate that the filter must update.
+
+        The filter does not update without motion (repeating one view would make it
+        overconfident), so a rover lifted and put down elsewhere while parked kept its old pose
+        and ``ok``. A poor fit now updates the filter, scan after scan, which counts the poor
+        scans as driving does (``lost`` after ``lost_after_scans``); a good one ends the count.
+        """
+        if scan.stamp < self._stationary_due_s:
+            return False
+        self._stationary_due_s = scan.stamp + self.cfg.stationary_check_s
+        pts = scan.points(self.laser_pose, max_beams=self.cfg.laser_beams,
+                          range_max_m=scan.range_max_m - 0.05)
+        if len(pts) < 8:
+            return False
+        if self._fit(pts, self.pose) >= self.cfg.lost_inlier_fraction:
+            self.poor_scans = 0
+            return False
+        self._stationary_due_s = -math.inf  # poor: update with every scan until it fits
         return True
 
     def _motion_update(self, delta: Pose2D) -> None:

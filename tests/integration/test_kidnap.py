@@ -26,3 +26,20 @@ async def test_kidnapped_rover_relocalises_and_the_report_has_the_figures(
     kinds = [e["kind"] for e in report["events"]]
     assert "kidnap" in kinds and "relocalized" in kinds
     assert (tmp_path / "report.json").exists()
+
+
+@pytest.mark.slow
+async def test_a_rover_carried_away_while_parked_notices_and_relocalises(
+        cfg: Config, tmp_path: Path) -> None:
+    """No motion, so no filter update: the periodic check of the scan against the map must
+    notice (before, the pose stayed ``ok`` at the old place for as long as it stood). Seed 1:
+    seed 3 puts the rover at the default building's mirror image of home (13.5, 8.6, facing
+    back), where the scan is the same as at home and no localiser can tell."""
+    scenario = get_scenario("kidnap")
+    scenario.kidnap_at_s = 8.0  # type: ignore[attr-defined]
+    scenario.parked = True  # type: ignore[attr-defined]
+    report = await run_scenario(scenario, cfg, ScenarioArgs(seed=1, duration_s=26.0),
+                                tmp_path / "report.json")
+    assert report["success"], report["failure"]
+    assert report["metrics"]["lost_reported"] is True
+    assert 0.0 < report["metrics"]["relocalization_time_s"] <= 15.0

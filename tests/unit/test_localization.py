@@ -150,6 +150,52 @@ def test_lost_rover_with_global_search_relocalises() -> None:
     assert loc.pose.distance_to(truth) < 0.1
 
 
+def _parked_then_carried(cfg: LocalizationConfig, scans: int) -> tuple[list[str], Pose2D,
+                                                                         Localizer]:
+    """Track a drive, stand still, then the scans come from elsewhere while the odometry
+    stands (the rover lifted and put down): 10 scans per second of scan time."""
+    grid = room_grid()
+    rng = np.random.default_rng(5)
+    loc = Localizer(grid, cfg, LASER, seed=3)
+    path = _path(60)
+    loc.initialize(path[0])
+    _drive(loc, grid, path[:20], rng)
+    odom = loc._last_odom  # where the odometry stops
+    assert odom is not None
+    truth = Pose2D(9.5, 3.5, 2.0)
+    states = []
+    for i in range(scans):
+        at = path[19] if i < 20 else truth
+        loc.update(cast_scan(grid, at, LASER, sigma_m=0.02, rng=rng, stamp=0.1 * i), odom)
+        states.append(loc.state)
+    return states, truth, loc
+
+
+def test_a_rover_carried_away_while_standing_still_is_noticed_and_found() -> None:
+    """The filter skips scans without motion; a poor fit at a standstill still counts."""
+    states, truth, loc = _parked_then_carried(LocalizationConfig(), 120)
+    assert states[19] == "ok"  # parked, still fitting
+    assert "lost" in states[20:40]  # within 2 s of scan time
+    assert loc.state == "ok"  # the search found it where it stands
+    assert loc.pose.distance_to(truth) < 0.1
+
+
+def test_a_parked_rover_whose_scan_fits_is_not_updated() -> None:
+    """Standing still with a scan that fits: no filter update (no overconfidence from one
+    repeated view), only the periodic check."""
+    _, _, loc = _parked_then_carried(LocalizationConfig(), 20)
+    before = loc.updates
+    grid = loc.grid
+    rng = np.random.default_rng(9)
+    odom = loc._last_odom
+    assert odom is not None
+    for i in range(30):
+        loc.update(cast_scan(grid, _path(60)[19], LASER, sigma_m=0.02, rng=rng,
+                             stamp=2.0 + 0.1 * i), odom)
+    assert loc.updates == before
+    assert loc.state == "ok"
+
+
 def test_global_localization_finds_the_pose() -> None:
     grid = room_grid()
     rng = np.random.default_rng(6)
