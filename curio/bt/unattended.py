@@ -83,10 +83,17 @@ class Localization2BB(CurioBehaviour):
     the right place after a drift; either way the rover stops and checks). After a jump
     ``lost_hint`` holds where the rover was before it, moved on by odometry (the Relocalise
     behaviour starts from there), and the estimate must come back near it (or near a pose the
-    operator sets) to count: a far-away answer alone is not trusted, the rover asks a person.
+    operator sets) to count: a far-away answer alone is not trusted — unless the localiser,
+    started again there, says ``lost`` (its poor-fit count ran out there): the scan does not
+    fit where the rover was, so it was carried away (lifted, pushed), and the localiser's
+    whole-map answer is the evidence left (before, a carried rover stayed lost and out of
+    service for good, asking for help, while the localiser knew where it was).
     Found again when, with the turn in place over
     (``relocalising`` false), the localiser has not been ``lost``, has not jumped and has been
-    confident (``ok``, or a spread within half of ``lost_std_xy_m``) for ``found_confirm_s``.
+    confident (``ok``, or a spread within half of ``lost_std_xy_m``) for ``found_confirm_s``;
+    after a jump only ``ok`` counts until a person sets the pose: a small spread with a
+    mediocre fit near the old pose can be a look-alike place after a carry (the soak saw a
+    rover "found" that way 7 m from the truth, which then drove 10 m off).
     No localiser (or state ``off``): never lost.
     """
 
@@ -101,6 +108,9 @@ class Localization2BB(CurioBehaviour):
         self._initial_stamp = -math.inf
         self._track: tuple[Pose2D, Pose2D] | None = None  # (pose in map, odometry) last tick
         self._anchor: tuple[Pose2D, Pose2D] | None = None  # after a jump: (pose, odometry)
+        # After a jump, until found or a person sets the pose: found needs ``ok``, not only a
+        # small spread (a mediocre fit near the old pose may be a look-alike place).
+        self._need_ok = False
         self._expect_jump = False
         self._searching = False  # a whole-map search was asked for and has not settled yet
         self._search_asked = False  # ... and the tree has not taken note of it yet
@@ -133,6 +143,9 @@ class Localization2BB(CurioBehaviour):
             if ip.covariance[0] < GLOBAL_STD_XY_M and odom_now is not None and self.get("lost") \
                     and self._anchor is not None:
                 self._anchor = (ip.pose, odom_now.pose)  # the operator (or the tree) set the pose
+            hint = self.get("lost_hint")
+            if hint is None or ip.pose.distance_to(Pose2D(*hint)) > 1e-6:
+                self._need_ok = False  # a person set the pose (or asked for the whole map)
         corr_msg = bus.latest(MAP_TO_ODOM)
         corr = corr_msg.transform if corr_msg is not None else None
         prev, self._correction = self._correction, corr
@@ -193,7 +206,8 @@ class Localization2BB(CurioBehaviour):
         bad_for = self._held("bad", msg.state == "uncertain"
                              and msg.std_xy_m > cfg.lost_std_xy_m, now)
         good_for = self._held("good", jump is None and msg.state != "lost" and (
-            msg.state == "ok" or msg.std_xy_m <= 0.5 * cfg.lost_std_xy_m), now)
+            msg.state == "ok" or (not self._need_ok
+                                  and msg.std_xy_m <= 0.5 * cfg.lost_std_xy_m)), now)
         asked, self._search_asked = self._search_asked, False
         if not self.get("lost") and asked:
             # Relocalise pressed (or asked for by the CLI): the rover no longer knows where it
@@ -213,16 +227,24 @@ class Localization2BB(CurioBehaviour):
                 odom = self.ctx.bus.latest(ODOM)
                 self._anchor = ((Pose2D(*hint), odom.pose) if hint is not None
                                 and odom is not None else None)
+                self._need_ok = True
             else:
                 self._remember()
                 self.set("lost_hint", None)
             if (jump is not None or (msg.state == "lost" and lost_for >= cfg.lost_confirm_s)
                     or bad_for >= cfg.lost_uncertain_s):
                 self.set("lost", True)
+        elif self._anchor is not None and msg.state == "lost" and msg.stamp > self._initial_stamp:
+            # Started again at the anchor (the tree's hint or an operator's pose), the localiser
+            # finds the scan does not fit there: the rover was moved; its answer counts.
+            self._anchor = None
+            self.ctx.sink.event("localization.search", message="The view does not fit where I "
+                                "was: I must have been moved. Searching the whole map.")
         elif not self.get("relocalising") and good_for >= cfg.found_confirm_s and \
                 self._near_anchor():
             self._clear_lost()
             self._anchor = None
+            self._need_ok = False
             self._remember()
         return Status.SUCCESS
 

@@ -254,8 +254,8 @@ def test_uncertain_with_a_wide_spread_for_long_counts_as_lost() -> None:
     assert ask is not None and ask.covariance[0] > 1e5
 
 
-def test_a_jump_of_the_estimate_stops_the_rover_at_once() -> None:
-    h = harness()
+def jump_while_driving(h: Harness) -> None:
+    """Drive path 2 at (1, 0); the localiser's correction then jumps by (8, 3)."""
     drive(h)
     h.bus.publish(ODOM, Odometry(h.clock.now(), Pose2D(1.0, 0.0, 0.0)))
     h.bus.publish(POSE, PoseWithCovariance(h.clock.now(), Pose2D(1.0, 0.0, 0.0)))
@@ -263,6 +263,11 @@ def test_a_jump_of_the_estimate_stops_the_rover_at_once() -> None:
     h.tick()
     h.bus.publish(MAP_TO_ODOM, Transform(h.clock.now(), Pose2D(8.0, 3.0, 0.0)))
     h.tick()
+
+
+def test_a_jump_of_the_estimate_stops_the_rover_at_once() -> None:
+    h = harness()
+    jump_while_driving(h)
     assert h.bb("lost") and h.of("localization.jump")
     # The localiser is asked to start again where the rover was (it stopped at once).
     ask = h.bus.latest(INITIAL_POSE)
@@ -445,3 +450,38 @@ def test_a_tour_asked_for_while_lost_is_refused_not_left_waiting() -> None:
     (refused,) = [e for e in h.of("bt.command_rejected") if e.detail["request_id"] == "k1"]
     assert "not sure where I am" in refused.detail["message"]
     assert not [e for e in h.of("bt.command_accepted") if e.detail["request_id"] == "k1"]
+
+
+def test_a_rover_carried_away_is_found_where_the_localiser_says_once_the_old_place_is_refuted(
+        ) -> None:
+    """After a jump the far-away answer is not trusted alone — but when the localiser, started
+    again where the rover was, is lost there, the rover was carried: the whole-map answer
+    counts (before, the soak's kidnapped rovers stayed lost and out of service for good)."""
+    h = harness(relocalise_timeout_s=5.0)
+    jump_while_driving(h)
+    assert h.bb("lost") and h.bus.latest(INITIAL_POSE) is not None  # the hint: where it was
+    h.tick()
+    localization(h, "lost", 2.0)  # started again there, the scan does not fit
+    h.tick()
+    assert h.of("localization.search")[-1].detail["message"].startswith("The view does not fit")
+    h.bus.publish(POSE, PoseWithCovariance(h.clock.now(), Pose2D(9.0, 3.0, 0.0)))
+    localization(h, "ok")
+    h.tick(40)  # the turn in place, then found
+    assert not h.bb("lost") and h.of("localization.found")
+    assert h.nav.target() == (1.0, 1.0)  # the held route resumes
+
+
+def test_after_a_jump_a_mediocre_fit_near_the_old_pose_is_not_found() -> None:
+    """A carried rover, started again at its old pose, can track a look-alike place there
+    with a small spread and a mediocre fit (``uncertain``); found only counts ``ok`` then —
+    the soak saw one "found" 7 m from the truth that drove on 10 m off."""
+    h = harness(relocalise_timeout_s=5.0)
+    jump_while_driving(h)
+    h.bus.publish(MAP_TO_ODOM, Transform(h.clock.now(), Pose2D()))  # back at the hint
+    h.tick()
+    localization(h, "uncertain", 0.05)
+    h.tick(40)
+    assert h.bb("lost") and not h.of("localization.found")
+    localization(h, "ok")
+    h.tick(3)
+    assert not h.bb("lost") and h.of("localization.found")
