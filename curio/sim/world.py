@@ -94,6 +94,7 @@ DUTY_DEADBAND = 20  # |duty| below this does not turn the motor
 WHEEL_ACCEL_RADPS2 = 40.0  # servo shaft acceleration limit
 CONTACT_RELEASE_M = 0.05  # a contact ends after moving this far from where it began
 CONTACT_RELEASE_RAD = 0.1
+TURNING_RADPS = 0.05  # a rover turning faster than this: scripted people keep out of its sweep
 LIDAR_NOISE_BLOCK = 50  # lidar noise is drawn for this many scans at a time
 IMU_NOISE_BLOCK = 1000  # IMU noise is drawn in blocks (fast, and still deterministic)
 IMU_YAW_SIGMA_RAD = 0.002  # BNO055 fusion heading jitter
@@ -511,11 +512,18 @@ class World:
     def _move_people(self, dt_s: float) -> None:
         if not self._people:
             return
+        turning = abs(self._w) > TURNING_RADPS
         for person in self._people.values():
             state = person.next_position(dt_s)
-            if (state[0], state[1]) != (person.x_m, person.y_m) and self._person_touches(
-                    state[0], state[1], person.radius_m, self._pose):
-                continue  # people wait rather than walk into the rover
+            if (state[0], state[1]) != (person.x_m, person.y_m) and (
+                    self._person_touches(state[0], state[1], person.radius_m, self._pose)
+                    or (turning and math.hypot(state[0] - self._pose.x, state[1] - self._pose.y)
+                        <= self._fp_radius + person.radius_m)):
+                # People wait rather than walk into the rover, or into the circle its corners
+                # sweep while it turns in place (before, the workshop's walker walked up to a
+                # lost rover turning to search, stopped 1 cm from its side, and the corner hit
+                # it: no stop zone can see a person step into the sweep that late).
+                continue
             person.commit(state)
         self._shapes_dirty = True
 

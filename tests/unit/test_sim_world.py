@@ -278,3 +278,21 @@ def test_a_door_closed_onto_the_rover_does_not_trap_it() -> None:
     drive(w, 0.3, 0.0, 3.0)
     assert w.truth_pose.x > 2.5
     assert w.collisions == 0
+
+
+def test_a_walker_keeps_out_of_the_circle_a_turning_rover_sweeps() -> None:
+    """Scripted people wait rather than walk into the rover, and into the circle its corners
+    sweep while it turns in place: before, the workshop's walker walked up to a lost rover
+    turning to search and its corner hit them (a contact charged to the rover)."""
+    w = World(room(), no_noise(), Pose2D(3.0, 2.0, 0.0))
+    # The walker heads for a spot beside the rover: 0.4 m from its centre to their edge,
+    # clear of its sides (0.31 m) but inside the circle of its corners (0.45 m).
+    pid = w.add_person([(0.5, 2.6), (3.0, 2.6)], speed_mps=1.0, radius_m=0.2, loop=False)
+    p = w.people[pid]
+    drive(w, 0.0, 0.6, 6.0)  # turning in place meanwhile
+    assert w.collisions == 0, w.pop_events()
+    assert math.hypot(p.x_m - 3.0, p.y_m - 2.0) >= 0.45 + 0.2  # waiting outside the circle
+    drive(w, 0.0, 0.0, 1.0)  # the rover stops, turned back as it started: the walker goes on
+    w.teleport(Pose2D(3.0, 2.0, 0.0))
+    drive(w, 0.0, 0.0, 6.0)
+    assert p.x_m == pytest.approx(3.0) and w.collisions == 0
