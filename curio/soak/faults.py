@@ -23,6 +23,7 @@ loop_stall         the event loop is blocked for ``stall_s`` (``SimClock.block``
 disk_full          a ballast file fills the data directory's filesystem (a size-limited
                    tmpfs), removed after ``duration_s``
 kidnap             ``World.teleport`` to a free pose at least 3 m away while driving
+kidnap_parked      the same while the rover stands still (no odometry motion to update on)
 kill9, corrupt     the orchestrator kills the process (``SIGKILL``); ``corrupt_file`` then
 _file              damages tours, paths or schedules before the restart
 =================  ===================================================================
@@ -51,7 +52,7 @@ __all__ = ["DEADLINES_S", "Injection", "Targets", "fill_disk", "inject"]
 DEADLINES_S = {
     "lidar_unplug": 20.0, "lidar_garbage": 20.0, "arduino_reset": 20.0, "crc_burst": 20.0,
     "i2c_errors": 25.0, "imu_stuck": 25.0, "loop_stall": 25.0, "disk_full": 40.0,
-    "kidnap": 60.0, "kill9": 120.0, "corrupt_file": 120.0,
+    "kidnap": 60.0, "kidnap_parked": 60.0, "kill9": 120.0, "corrupt_file": 120.0,
 }
 BALLAST_CHUNK = 1 << 20
 DISK_WALL_DEADLINE_S = 20.0  # wall seconds for the writer threads' retries after a full disk
@@ -237,7 +238,7 @@ def _inject_more(fault: PlannedFault, t: Targets, deadline: float) -> Injection:
         return Injection(("recorder", "eventlog"), (), free, deadline,
                          note={"ballast_mb": round(written / 1e6, 1)},
                          wall_deadline_s=DISK_WALL_DEADLINE_S)
-    if kind == "kidnap":
+    if kind in ("kidnap", "kidnap_parked"):
         target = _kidnap_target(t.app.world, int(p["seed"]))
         before = t.app.world.truth_pose
         t.app.world.teleport(target)

@@ -37,8 +37,18 @@ from typing import Any
 from curio.core.bus import Subscription
 from curio.core.clock import wall_perf_counter
 from curio.core.geometry import wrap_angle
-from curio.core.messages import DriverHealth, Event, OperatorCommand
-from curio.core.topics import ESTOP, EVENTS, HEALTH, LOCALIZATION, OPERATOR, POSE, STATUS, TOUR
+from curio.core.messages import DriverHealth, Event, OperatorCommand, PoseWithCovariance
+from curio.core.topics import (
+    ESTOP,
+    EVENTS,
+    HEALTH,
+    INITIAL_POSE,
+    LOCALIZATION,
+    OPERATOR,
+    POSE,
+    STATUS,
+    TOUR,
+)
 from curio.eventlog.store import LogQuery
 from curio.soak.faults import DEADLINES_S, Injection, Targets, inject
 from curio.soak.link import Link
@@ -51,6 +61,7 @@ log = logging.getLogger("curio.soak")
 POLL_S = 0.25
 LOG_POLL_S = 2.0
 MOVING_MPS = 0.05
+STILL_RADPS = 0.05  # and not turning faster than this: standing still (``still`` faults)
 HEALTHY_WAIT_S = 60.0
 NUDGE_S = 120.0  # simulated seconds a due fault waits for the rover to drive before a tour
 KILL_WAIT_S = 30.0
@@ -126,6 +137,7 @@ class FaultRunner:
         self.states: dict[str, str] = {}
         self.health_seen: dict[str, float] = {}
         self.help_open_s: float | None = None
+        self.tree_lost = False  # between the tree's localization.lost and .found
         self.unhealthy_since_s: float | None = None
         self._waiting_since_s: float | None = None  # a due fault has waited for a drive since
         self._nudged_s = -math.inf
@@ -199,6 +211,8 @@ class FaultRunner:
                     self.current.help_s = ev.stamp
             elif ev.kind == "help.resolved":
                 self.help_open_s = None
+            elif ev.kind in ("localization.lost", "localization.found"):
+                self.tree_lost = ev.kind == "localization.lost"
         status = self.app.bus.latest(STATUS)
         if self.current is not None and self.current.help_s is None and status is not None \
                 and status.state == "needs_help":
@@ -208,10 +222,12 @@ class FaultRunner:
         need = KINDS[fault.kind].need
         if need == "any":
             return True
-        v, _w = self.app.world.truth_twist
+        v, w = self.app.world.truth_twist
         moving = bool(abs(v) > MOVING_MPS)
         if need == "moving":
             return moving
+        if need == "still":
+            return not moving and abs(w) < STILL_RADPS
         tour = self.app.bus.latest(TOUR)
         return moving and tour is not None and tour.tour_id is not None
 
@@ -236,7 +252,8 @@ class FaultRunner:
         start a tour for it, as the kiosk would (``source`` ``soak``), at most every
         ``NUDGE_S``."""
         wall = self.clock.wall_time()
-        waiting = [f for f in self.plan if f.at_wall_s <= wall and not self._need_met(f)]
+        waiting = [f for f in self.plan if f.at_wall_s <= wall and not self._need_met(f)
+                   and KINDS[f.kind].need != "still"]
         if not waiting or now - self._nudged_s < NUDGE_S:
             return
         if self._waiting_since_s is None:
@@ -321,6 +338,8 @@ class FaultRunner:
                 run.outcome = "recovered"
             elif self._stopped_safely(run):
                 run.outcome = "stopped_safely"
+                if run.fault.kind in ("kidnap", "kidnap_parked"):
+                    self._answer_lost_help(run, now)
             else:
                 run.outcome = "failed"
             self.link.send("fault", phase="result", **run.result())
@@ -339,14 +358,28 @@ class FaultRunner:
                  for name in run.inj.must_recover)
         if ok and run.inj.recovered is not None:
             ok = run.inj.recovered()
-        if ok and run.fault.kind == "kidnap":
-            ok = self.localised()
+        if ok and run.fault.kind in ("kidnap", "kidnap_parked"):
+            # the localiser's pose and state, and the tree back at work (found), not only the
+            # localiser: a tree that stays lost keeps the rover out of service
+            ok = self.localised() and not self.tree_lost
         if not ok:
             run.good_since_s = None
             return False
         if run.good_since_s is None:
             run.good_since_s = now
         return now - run.good_since_s >= 1.0
+
+    def _answer_lost_help(self, run: FaultRun, now: float) -> None:
+        """A carried rover that stopped and asked for help is answered as the help desk's
+        person would: its pose set on the map where it stands (0.1 m, 0.05 rad), the
+        dashboard's set-pose. Without it the rest of the soak ran with a rover out of service
+        (a far-away answer is not trusted alone: docs/unattended.md)."""
+        truth = self.app.world.truth_pose
+        self.app.bus.publish(INITIAL_POSE, PoseWithCovariance(now, truth, covariance=(
+            0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.0025)))
+        run.notes.append("help answered: the pose set where the rover stands")
+        log.info("soak: fault %d: a person answers the help request and sets the pose",
+                 run.fault.id)
 
     def localised(self) -> bool:
         """Localisation ``ok`` and the pose within ``LOCALISED_M`` of the simulated rover."""

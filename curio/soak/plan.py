@@ -19,7 +19,7 @@ import numpy as np
 
 __all__ = ["KINDS", "KindSpec", "PlannedFault", "draw_campaign"]
 
-Need = Literal["any", "moving", "tour"]
+Need = Literal["any", "moving", "still", "tour"]
 
 
 @dataclass(frozen=True)
@@ -28,7 +28,8 @@ class KindSpec:
 
     Attributes:
         name: the kind (the report's key).
-        need: ``any`` (inject whenever), ``moving`` (while the rover drives), ``tour`` (in the
+        need: ``any`` (inject whenever), ``moving`` (while the rover drives), ``still`` (while
+            it stands: not held for a tour, never a reason to start one), ``tour`` (in the
             middle of a tour).
         weight: how often it is drawn after the first round.
         restart: it kills the rover process (the orchestrator does it).
@@ -53,6 +54,8 @@ KINDS: dict[str, KindSpec] = {k.name: k for k in (
     KindSpec("loop_stall", "any", 0.7, what="a part blocks the event loop for 2 s"),
     KindSpec("disk_full", "any", 0.5, what="the data disk fills up (recorder, event log)"),
     KindSpec("kidnap", "moving", 0.7, what="the rover is carried elsewhere while driving"),
+    KindSpec("kidnap_parked", "still", 0.35,
+             what="the rover is lifted and put down elsewhere while it stands still"),
     KindSpec("corrupt_file", "any", 0.25, restart=True,
              what="kill -9, then a corrupt tours/paths/schedules file at the restart"),
     KindSpec("kill9", "tour", 0.35, restart=True, what="kill -9 in the middle of a tour"),
@@ -107,7 +110,7 @@ def _params(kind: str, rng: np.random.Generator) -> dict[str, Any]:
     if kind == "corrupt_file":
         return {"file": str(rng.choice(["tours", "paths", "schedules"])),
                 "how": str(rng.choice(["truncate", "garbage", "empty"]))}
-    if kind == "kidnap":
+    if kind in ("kidnap", "kidnap_parked"):
         return {"seed": int(rng.integers(0, 2**31 - 1))}
     if kind == "kill9":
         return {"delay_ms": int(rng.integers(0, 300))}
@@ -136,7 +139,7 @@ def draw_campaign(seed: int, start_wall_s: float, end_wall_s: float, count: int,
     out: list[PlannedFault] = []
     for kind in chosen:
         spec = KINDS[kind]
-        if spec.need != "any" and tours:
+        if spec.need in ("moving", "tour") and tours:
             at = float(rng.choice(tours)) + float(rng.uniform(*TOUR_OFFSET_S))
         else:
             at = float(rng.uniform(first, max(first + 1.0, last)))
@@ -144,7 +147,7 @@ def draw_campaign(seed: int, start_wall_s: float, end_wall_s: float, count: int,
     out.sort(key=lambda f: f.at_wall_s)
     for i, fault in enumerate(out):
         if i and fault.at_wall_s < out[i - 1].at_wall_s + MIN_GAP_S \
-                and KINDS[fault.kind].need == "any":
+                and KINDS[fault.kind].need in ("any", "still"):
             fault.at_wall_s = round(out[i - 1].at_wall_s + MIN_GAP_S, 1)
         fault.id = i + 1
     out.sort(key=lambda f: f.at_wall_s)

@@ -23,6 +23,7 @@ def _runner() -> tuple[FaultRunner, list[dict[str, Any]]]:
     runner.states, runner.health_seen = {"recorder": "error", "eventlog": "error"}, {}
     runner.help_open_s = None
     runner.judged = 0
+    runner.tree_lost = False
     return runner, sent
 
 
@@ -73,3 +74,38 @@ def test_only_collisions_the_rover_caused_fail_the_soak() -> None:
     assert ok["ok"] and "2 by visitors" in ok["detail"]
     bad = collision_check(rep("person", "rover"))
     assert not bad["ok"] and bad["detail"].startswith("1 by the rover")
+
+
+def test_a_parked_kidnap_waits_for_the_rover_to_stand_and_never_starts_a_tour() -> None:
+    """``kidnap_parked`` needs the rover still: held while it drives or turns, injected once
+    it stands; unlike a fault that needs driving, it never makes the soak start a tour."""
+    runner, _ = _runner()
+    published: list[Any] = []
+    runner.app.bus = SimpleNamespace(latest=lambda topic: None,
+                                     publish=lambda topic, msg: published.append(msg))
+    runner.clock = SimpleNamespace(wall_time=lambda: 1000.0)
+    runner.plan = [PlannedFault(1, "kidnap_parked", 900.0, {"seed": 1})]
+    runner._nudged_s, runner._waiting_since_s = -1e9, None
+    for twist in ((0.3, 0.0), (0.0, 0.4)):
+        runner.app.world.truth_twist = twist
+        assert runner._next_ready() is None
+        for now in (0.0, 200.0, 400.0):
+            runner._nudge(now)
+    assert not published, "a tour was started for a fault that needs the rover still"
+    runner.app.world.truth_twist = (0.0, 0.0)
+    assert runner._next_ready() is runner.plan[0]
+
+
+def test_a_kidnap_is_recovered_when_the_tree_is_back_at_work_not_only_the_localiser() -> None:
+    """The localiser found the pose in seconds, but the tree stayed lost (out of service,
+    asking for help) for the rest of the day: that was judged "recovered" before."""
+    runner, _ = _runner()
+    runner.localised = lambda: True  # type: ignore[method-assign]
+    runner.states, runner.health_seen = {"localization": "ok"}, {"localization": 5.0}
+    inj = Injection(("localization",), ("localization.lost",), None, 60.0)
+    run = FaultRun(PlannedFault(1, "kidnap", 0.0), inj, injected_s=0.0, injected_wall_s=0.0)
+    runner.tree_lost = True
+    assert not runner._recovered(run, 6.0) and not runner._recovered(run, 8.0)
+    runner.tree_lost = False
+    assert not runner._recovered(run, 9.0)
+    assert runner._recovered(run, 10.0)  # found, for a second
