@@ -2,11 +2,12 @@
 
 ``curio soak [--hours H] [--clients N] [--faults N] [--seed N] [--report PATH]
 [--workdir DIR] [--disk auto|tmpfs|none] [--kinds K,K...] [--start HH:MM] [--keep]
-[--config PATH] [--set KEY=VALUE]...``
+[--visitors N] [--config PATH] [--set KEY=VALUE]...``
 
 Runs the whole rover in emulated mode on simulated time for ``--hours`` of the building's
-clock (default 24) with ``--clients`` scripted dashboard clients (default 10) and a campaign of
-``--faults`` faults (default 200) drawn from ``--seed``; prints a progress bar while it runs
+clock (default 24) with ``--clients`` scripted dashboard clients (default 10), ``--visitors``
+simulated visitors walking the building (default 6) and a campaign of ``--faults`` faults
+(default 200) drawn from ``--seed``; prints a progress bar while it runs
 (on a terminal; a line every 5 % otherwise), then the summary table, and writes the JSON report
 to ``--report``. Exit code 0 when every check passed, 1 when one failed, 2 on bad arguments.
 Ctrl-C (or SIGTERM) ends a soak early as at its end: the report covers what ran and fails
@@ -55,6 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "docs/reliability.md)")
     parser.add_argument("--start", help="the building's local time at the start, HH:MM "
                                         "(default 07:50, before the first tour)")
+    parser.add_argument("--visitors", type=int, default=6,
+                        help="simulated visitors walking the building (default 6; 0: none)")
     parser.add_argument("--keep", action="store_true",
                         help="copy the rover's data directory out of the tmpfs at the end")
 
@@ -147,6 +150,8 @@ def run(args: argparse.Namespace) -> int:
         raise SetupError(f"--faults takes a whole number >= 0, got {args.faults}")
     if args.seed < 0:
         raise SetupError(f"--seed takes a whole number >= 0, got {args.seed}")
+    if not 0 <= args.visitors <= 100:
+        raise SetupError(f"--visitors takes a whole number 0..100, got {args.visitors}")
     kinds, start = _kinds(args.kinds), _start(args.start)
     cfg = load_config(args.config, args.overrides)
     workdir = args.workdir or cfg.resolve(cfg.data_dir) / "soak"
@@ -154,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     opts = SoakOptions(hours=args.hours, clients=args.clients, faults=args.faults,
                        seed=args.seed, config=args.config, overrides=list(args.overrides),
                        workdir=Path(workdir), disk=args.disk, keep=args.keep, kinds=kinds,
-                       start=start,
+                       start=start, visitors=args.visitors,
                        progress=progress)
     orchestrator = Orchestrator(opts)
     try:

@@ -75,6 +75,7 @@ class SoakOptions:
     keep: bool = False
     kinds: list[str] | None = None
     start: dt.time | None = None
+    visitors: int = 6
     progress: Callable[[dict[str, Any]], None] | None = None
 
 
@@ -137,6 +138,7 @@ class Orchestrator:
             "web.enabled=true", "web.port=0",
             f'tours.timezone="{TIMEZONE}"', "record.enabled=true", "record.max_total_mb=96",
             "record.max_file_mb=16", "foxglove.enabled=false",
+            f"sim.crowd.visitors={self.opts.visitors}",
         ]
         # the data directory is the soak's own (checked between runs): it comes last
         return cfg_overrides + list(self.opts.overrides) + [f'data_dir="{self.data_dir}"']

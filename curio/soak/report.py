@@ -214,7 +214,8 @@ def build_report(o: Orchestrator) -> dict[str, Any]:
     report: dict[str, Any] = {
         "command": "soak", "seed": o.opts.seed, "hours": o.opts.hours,
         "stopped_early": o.stopped_early,
-        "clients": o.opts.clients, "metrics": metrics, "faults": faults, "commands": ledger,
+        "clients": o.opts.clients, "visitors": o.opts.visitors, "metrics": metrics,
+        "faults": faults, "commands": ledger,
         "restarts": [w.to_json() for w in o.obs.restarts], "files": o.file_checks,
         "resources": resources, "timing": timing, "time": times,
         "load": o.load, "disk": {"method": o.disk.method, "reason": o.disk.reason},
@@ -240,7 +241,8 @@ def build_report(o: Orchestrator) -> dict[str, Any]:
 def format_table(report: dict[str, Any]) -> str:
     """The summary printed at the end: faults per kind, then the checks and the figures."""
     lines = [f"curio soak: seed {report['seed']}, {report['hours']:g} h, {report['clients']} "
-             f"clients — {'PASSED' if report['success'] else 'FAILED'}"]
+             f"clients, {report.get('visitors', 0)} visitors — "
+             f"{'PASSED' if report['success'] else 'FAILED'}"]
     stop = report.get("stopped_early")
     if stop:
         lines.append(f"  stopped early ({stop['why']}): the figures cover what ran")

@@ -29,7 +29,8 @@ def _soak(tmp_path: Path) -> tuple[subprocess.CompletedProcess[str], dict[str, A
     report = tmp_path / "soak.json"
     proc = subprocess.run(
         [sys.executable, "-m", "curio", "soak", "--hours", "1", "--start", "20:00",
-         "--clients", "3", "--faults", "5", "--kinds", ",".join(KINDS), "--seed", "2",
+         "--clients", "3", "--visitors", "0", "--faults", "5", "--kinds", ",".join(KINDS),
+         "--seed", "2",
          "--disk", "none", "--workdir", str(tmp_path / "work"), "--report", str(report),
          "--set", f'data_dir="{tmp_path / "data"}"'],
         cwd=REPO_ROOT, capture_output=True, text=True, timeout=240, check=False)

@@ -22,6 +22,7 @@ from curio.cli import main
         (["bench", "nosuch"], "unknown benchmark 'nosuch'; known:"),
         (["bench", "sim", "--pairs", "0"], "--pairs takes a whole number > 0"),
         (["sim", "crowd", "--visitors", "-1"], "--visitors takes a whole number 0..100"),
+        (["soak", "--visitors", "101"], "--visitors takes a whole number 0..100, got 101"),
         (["bench", "crowd", "--set", "counts=5,x"], "counts= takes visitor counts 0..100"),
         (["bench", "crowd", "--set", "maps=atlantis"], "unknown map 'atlantis'"),
     ],

@@ -109,3 +109,12 @@ def test_a_kidnap_is_recovered_when_the_tree_is_back_at_work_not_only_the_locali
     runner.tree_lost = False
     assert not runner._recovered(run, 9.0)
     assert runner._recovered(run, 10.0)  # found, for a second
+
+
+def test_visitors_walk_in_the_soak_by_default() -> None:
+    """The issue's soak has visitors walking: ``--visitors`` (default 6) reaches the rover's
+    configuration; CI's one-hour soak asks for none."""
+    from curio.soak.orchestrator import Orchestrator, SoakOptions
+
+    assert "sim.crowd.visitors=6" in Orchestrator(SoakOptions())._overrides()
+    assert "sim.crowd.visitors=0" in Orchestrator(SoakOptions(visitors=0))._overrides()
