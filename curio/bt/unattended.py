@@ -462,8 +462,8 @@ class LostReport:
             std_xy, std_yaw, pose = GLOBAL_STD_XY_M, math.pi, Pose2D()
         else:
             return
-        ctx.bus.publish(INITIAL_POSE, PoseWithCovariance(ctx.clock.now(), pose, covariance=(
-            std_xy ** 2, 0.0, 0.0, 0.0, std_xy ** 2, 0.0, 0.0, 0.0, std_yaw ** 2)))
+        ctx.bus.publish(INITIAL_POSE, PoseWithCovariance.from_std(ctx.clock.now(), pose, std_xy,
+                                                                  std_yaw))
 
     def update(self, turn_done: bool = True) -> None:
         """Ask a person once the turn is over and ``relocalise_timeout_s`` has passed."""

@@ -185,6 +185,13 @@ class PoseWithCovariance:
     covariance: tuple[float, ...] = (0.25, 0.0, 0.0, 0.0, 0.25, 0.0, 0.0, 0.0, 0.07)
     frame_id: str = "map"
 
+    @classmethod
+    def from_std(cls, stamp: float, pose: Pose2D, std_xy_m: float,
+                 std_yaw_rad: float) -> PoseWithCovariance:
+        """A pose with independent spreads: ``std_xy_m`` in x and y (m), ``std_yaw_rad``."""
+        return cls(stamp, pose, covariance=(std_xy_m ** 2, 0.0, 0.0, 0.0, std_xy_m ** 2, 0.0,
+                                            0.0, 0.0, std_yaw_rad ** 2))
+
 
 @dataclass(frozen=True, slots=True)
 class Transform:

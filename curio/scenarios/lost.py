@@ -123,8 +123,7 @@ class LostScenario(Scenario):
                 == "lost"]
         if len(asks) > state["answered"] and ctx.now() - asks[-1].stamp >= OPERATOR_S:
             state["answered"] = len(asks)
-            ctx.bus.publish(INITIAL_POSE, PoseWithCovariance(
-                ctx.now(), truth, covariance=(0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.0025)))
+            ctx.bus.publish(INITIAL_POSE, PoseWithCovariance.from_std(ctx.now(), truth, 0.1, 0.05))
             ctx.record("script", action="operator sets the pose on the map",
                        x=round(truth.x, 3), y=round(truth.y, 3), yaw=round(truth.yaw, 3))
 

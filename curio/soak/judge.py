@@ -375,8 +375,7 @@ class FaultRunner:
         dashboard's set-pose. Without it the rest of the soak ran with a rover out of service
         (a far-away answer is not trusted alone: docs/unattended.md)."""
         truth = self.app.world.truth_pose
-        self.app.bus.publish(INITIAL_POSE, PoseWithCovariance(now, truth, covariance=(
-            0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.0025)))
+        self.app.bus.publish(INITIAL_POSE, PoseWithCovariance.from_std(now, truth, 0.1, 0.05))
         run.notes.append("help answered: the pose set where the rover stands")
         log.info("soak: fault %d: a person answers the help request and sets the pose",
                  run.fault.id)

@@ -128,9 +128,8 @@ def _publish_pose(request: web.Request, x: float, y: float, yaw: float, std_xy: 
     from curio.core.geometry import Pose2D
 
     services = request.app[SERVICES]
-    services.bus.publish(INITIAL_POSE, PoseWithCovariance(
-        services.clock.now(), Pose2D(x, y, yaw),
-        covariance=(std_xy ** 2, 0.0, 0.0, 0.0, std_xy ** 2, 0.0, 0.0, 0.0, std_yaw ** 2)))
+    services.bus.publish(INITIAL_POSE, PoseWithCovariance.from_std(
+        services.clock.now(), Pose2D(x, y, yaw), std_xy, std_yaw))
 
 
 async def relocalise(request: web.Request) -> web.Response:
