@@ -44,7 +44,7 @@ import numpy as np
 
 from curio.core.geometry import Pose2D
 from curio.drivers.arduino.protocol import McuState
-from curio.soak.plan import PlannedFault
+from curio.soak.plan import KIDNAP_KINDS, PlannedFault
 
 __all__ = ["DEADLINES_S", "Injection", "Targets", "fill_disk", "inject"]
 
@@ -238,7 +238,7 @@ def _inject_more(fault: PlannedFault, t: Targets, deadline: float) -> Injection:
         return Injection(("recorder", "eventlog"), (), free, deadline,
                          note={"ballast_mb": round(written / 1e6, 1)},
                          wall_deadline_s=DISK_WALL_DEADLINE_S)
-    if kind in ("kidnap", "kidnap_parked"):
+    if kind in KIDNAP_KINDS:
         target = _kidnap_target(t.app.world, int(p["seed"]))
         before = t.app.world.truth_pose
         t.app.world.teleport(target)

@@ -52,7 +52,7 @@ from curio.core.topics import (
 from curio.eventlog.store import LogQuery
 from curio.soak.faults import DEADLINES_S, Injection, Targets, inject
 from curio.soak.link import Link
-from curio.soak.plan import KINDS, PlannedFault
+from curio.soak.plan import KIDNAP_KINDS, KINDS, PlannedFault
 
 __all__ = ["FaultRun", "FaultRunner"]
 
@@ -338,7 +338,7 @@ class FaultRunner:
                 run.outcome = "recovered"
             elif self._stopped_safely(run):
                 run.outcome = "stopped_safely"
-                if run.fault.kind in ("kidnap", "kidnap_parked"):
+                if run.fault.kind in KIDNAP_KINDS:
                     self._answer_lost_help(run, now)
             else:
                 run.outcome = "failed"
@@ -358,7 +358,7 @@ class FaultRunner:
                  for name in run.inj.must_recover)
         if ok and run.inj.recovered is not None:
             ok = run.inj.recovered()
-        if ok and run.fault.kind in ("kidnap", "kidnap_parked"):
+        if ok and run.fault.kind in KIDNAP_KINDS:
             # the localiser's pose and state, and the tree back at work (found), not only the
             # localiser: a tree that stays lost keeps the rover out of service
             ok = self.localised() and not self.tree_lost

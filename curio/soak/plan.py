@@ -17,7 +17,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-__all__ = ["KINDS", "KindSpec", "PlannedFault", "draw_campaign"]
+__all__ = ["KIDNAP_KINDS", "KINDS", "KindSpec", "PlannedFault", "draw_campaign"]
 
 Need = Literal["any", "moving", "still", "tour"]
 
@@ -61,6 +61,7 @@ KINDS: dict[str, KindSpec] = {k.name: k for k in (
     KindSpec("kill9", "tour", 0.35, restart=True, what="kill -9 in the middle of a tour"),
 )}
 
+KIDNAP_KINDS = ("kidnap", "kidnap_parked")  # the rover carried away: judged by localisation
 TOUR_OFFSET_S = (30.0, 170.0)
 MIN_GAP_S = 45.0
 
@@ -110,7 +111,7 @@ def _params(kind: str, rng: np.random.Generator) -> dict[str, Any]:
     if kind == "corrupt_file":
         return {"file": str(rng.choice(["tours", "paths", "schedules"])),
                 "how": str(rng.choice(["truncate", "garbage", "empty"]))}
-    if kind in ("kidnap", "kidnap_parked"):
+    if kind in KIDNAP_KINDS:
         return {"seed": int(rng.integers(0, 2**31 - 1))}
     if kind == "kill9":
         return {"delay_ms": int(rng.integers(0, 300))}
