@@ -90,6 +90,8 @@ PROGRESS = Topic(
     "/progress", Progress, kind="reliable", latched=True, doc="path manager: waypoint states"
 )
 EVENTS = Topic("/events", Event, kind="reliable", doc="everyone: reliable events for reports")
+ANSWERS = Topic("/operator/answers", Event, kind="reliable",
+                doc="command journal: an answer to an operator command, once it is in the log")
 TREE = Topic("/tree", TreeSnapshot, latched=True, doc="tree runner: snapshot after a change")
 HEALTH = Topic("/health", DriverHealth, doc="every driver/component: health, counters")
 TOUR = Topic("/tour", TourState, kind="reliable", latched=True,
@@ -138,6 +140,7 @@ ALL_TOPICS: list[Topic[Any]] = [
     STATUS,
     PROGRESS,
     EVENTS,
+    ANSWERS,
     TREE,
     HEALTH,
     TOUR,

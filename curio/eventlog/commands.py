@@ -17,12 +17,29 @@ recorder writes every command as ``operator.<action>`` and every answer), so tha
   answer at the next start: rejected, "the rover restarted before carrying this out; it is
   not resumed", so every command is answered once and none is replayed after a restart.
 
+**Written ahead.** The journal is the one writer of commands and answers into the event log
+(``operator.<action>`` with the command's ids, and the answer's kind; the event recorder leaves
+both to it). A dashboard command is committed before it is published
+(:meth:`CommandJournal.write_ahead`, awaited by :class:`~curio.web.control.RoverControl`
+before the bus and the acknowledgement; the e-stop is published first and committed before
+its acknowledgement), and an answer is committed before anyone hears it: the journal
+republishes it on ``/operator/answers`` (``ANSWERS``) once it is in the log, and the dashboard
+forwards answers from there. So a ``kill -9`` can never leave a page with an acknowledgement
+the next run does not know, nor with an answer the next run contradicts: a command the next
+run finds without an answer is answered "restarted before confirming" (it may have been begun;
+nothing is resumed). While the disk is full the log cannot commit: commands and answers go on
+at once, written when it has room, and ``not_durable`` counts them. Commands published
+straight on the bus by other parts (the scheduler, the fleet link, scenarios) are written
+behind, as they are seen.
+
 History is read once at construction (a blocking read of the event log); records older than
 ``history_s`` of wall time are not answered any more (nobody waits for them).
 """
 
 from __future__ import annotations
 
+import asyncio
+import functools
 import logging
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -30,20 +47,34 @@ from typing import Any, get_args
 
 from curio.core.bus import Bus
 from curio.core.clock import Clock
+from curio.core.jsonable import to_jsonable
 from curio.core.messages import Event, OperatorAction, OperatorCommand
-from curio.core.topics import EVENTS, OPERATOR
+from curio.core.topics import ANSWERS, EVENTS, OPERATOR
 
 from .store import EventLog, LogQuery
 
-__all__ = ["ANSWER_KINDS", "RESTART_ANSWER", "CommandJournal", "JournalEntry"]
+__all__ = ["ANSWER_KINDS", "RESTART_ANSWER", "CommandJournal", "JournalEntry", "command_record"]
 
 log = logging.getLogger("curio.eventlog.commands")
 
-POLL_S = 0.1
 ANSWER_KINDS = ("bt.command_accepted", "bt.command_rejected")
 ACTIONS = frozenset(get_args(OperatorAction))
-RESTART_ANSWER = ("Not carried out: the rover restarted before answering this command, and "
-                  "nothing is resumed after a restart; send it again if you still want it.")
+RESTART_ANSWER = ("Not confirmed: the rover restarted before answering this command (it may "
+                  "have been begun), and nothing is resumed after a restart; check the rover "
+                  "and send it again if you still want it.")
+
+
+def command_record(cmd: OperatorCommand) -> tuple[str, dict[str, Any]]:
+    """The event log's record of ``cmd``: ``(operator.<action>, {request_id, path_id?,
+    tour_id?, goal?})``."""
+    detail: dict[str, Any] = {"request_id": cmd.request_id}
+    if cmd.path_id is not None:
+        detail["path_id"] = cmd.path_id
+    if cmd.tour_id is not None:
+        detail["tour_id"] = cmd.tour_id
+    if cmd.goal is not None:
+        detail["goal"] = to_jsonable(cmd.goal, 4)
+    return f"operator.{cmd.action}", detail
 
 
 @dataclass
@@ -55,6 +86,7 @@ class JournalEntry:
         wall_s: when it was published (UNIX seconds).
         earlier: it was received by an earlier run of Curio.
         answer: ``{kind, message, wall_s}`` once answered.
+        logged: its record is in the event log (or queued for it).
     """
 
     request_id: str
@@ -63,6 +95,7 @@ class JournalEntry:
     wall_s: float
     earlier: bool = False
     answer: dict[str, Any] | None = None
+    logged: bool = False
 
     def to_json(self) -> dict[str, Any]:
         """``{request_id, state, action, source, wall_s, run, answer}``."""
@@ -80,6 +113,10 @@ class CommandJournal:
         eventlog: the event log (None: this run only).
         size: commands remembered.
         history_s: earlier runs' commands younger than this (wall seconds) are loaded.
+
+    Attributes:
+        not_durable: commands and answers that went on before their record was committed
+            (the disk was full, or the commit took longer than ``COMMIT_WAIT_S``).
     """
 
     def __init__(self, bus: Bus, clock: Clock, eventlog: EventLog | None, size: int = 5000,
@@ -88,8 +125,10 @@ class CommandJournal:
         self.clock = clock
         self.size = size
         self.history_s = history_s
+        self.log = eventlog
         self.entries: OrderedDict[str, JournalEntry] = OrderedDict()
         self.unanswered_earlier: list[JournalEntry] = []
+        self.not_durable = 0
         self._ops = bus.subscribe(OPERATOR)
         self._events = bus.subscribe(EVENTS)
         if eventlog is not None:
@@ -117,7 +156,8 @@ class CommandJournal:
                                          "wall_s": rec.wall_s})
             elif rec.kind.removeprefix("operator.") in ACTIONS and rid not in self.entries:
                 self.entries[rid] = JournalEntry(rid, rec.kind.removeprefix("operator."),
-                                                 rec.source, rec.wall_s, earlier=True)
+                                                 rec.source, rec.wall_s, earlier=True,
+                                                 logged=True)
         for rid, entry in self.entries.items():
             entry.answer = answers.get(rid)
         self.entries = OrderedDict(sorted(self.entries.items(), key=lambda kv: kv[1].wall_s))
@@ -146,14 +186,52 @@ class CommandJournal:
         while len(self.entries) > self.size:
             self.entries.popitem(last=False)
 
+    async def write_ahead(self, cmd: OperatorCommand) -> bool:
+        """Remember ``cmd`` and commit its record to the event log, before it is published
+        (the e-stop: right after); True once committed. From now on ``seen`` knows its id.
+        False without an event log, without a request id (written when seen on the bus), or
+        when the log could not commit in time (counted in ``not_durable``; the record is
+        still written when the log can)."""
+        if not cmd.request_id:
+            return False
+        entry = self.entries.get(cmd.request_id)
+        if entry is None:
+            entry = JournalEntry(cmd.request_id, cmd.action, cmd.source, self._wall(cmd.stamp))
+            self._remember(entry)
+        if self.log is None or entry.logged:
+            return False
+        entry.logged = True
+        kind, detail = command_record(cmd)
+        return await self._commit(kind, detail, entry.wall_s, cmd.source)
+
+    async def _commit(self, kind: str, detail: dict[str, Any], wall_s: float,
+                      source: str) -> bool:
+        """Write one record and wait for its commit (inline on a simulated clock, in a worker
+        thread on the real one); count it in ``not_durable`` when that failed."""
+        assert self.log is not None
+        committed = await self.clock.offload(functools.partial(
+            self.log.append_committed, kind, detail, wall_s=wall_s, source=source))
+        if not committed:
+            self.not_durable += 1
+        return bool(committed)
+
     def on_command(self, cmd: OperatorCommand) -> None:
-        """A command was published."""
-        if cmd.request_id and cmd.request_id not in self.entries:
-            self._remember(JournalEntry(cmd.request_id, cmd.action, cmd.source,
-                                        self._wall(cmd.stamp)))
+        """A command was published: remember it, and write its record unless it was written
+        ahead."""
+        entry = self.entries.get(cmd.request_id) if cmd.request_id else None
+        if entry is None and cmd.request_id:
+            entry = JournalEntry(cmd.request_id, cmd.action, cmd.source, self._wall(cmd.stamp))
+            self._remember(entry)
+        if entry is not None and entry.logged:
+            return
+        if entry is not None:
+            entry.logged = True
+        if self.log is not None:
+            kind, detail = command_record(cmd)
+            self.log.append(kind, detail, wall_s=self._wall(cmd.stamp), source=cmd.source)
 
     def on_event(self, ev: Event) -> None:
-        """An answer (other events are ignored)."""
+        """An answer: noted on its command (other events are ignored)."""
         if ev.kind not in ANSWER_KINDS:
             return
         rid = str(ev.detail.get("request_id") or "")
@@ -161,6 +239,18 @@ class CommandJournal:
         if entry is not None and entry.answer is None:
             entry.answer = {"kind": ev.kind, "message": str(ev.detail.get("message", "")),
                             "wall_s": self._wall(ev.stamp)}
+
+    async def deliver(self, ev: Event) -> None:
+        """An answer: noted, committed to the event log, then published on ``ANSWERS`` for
+        whoever tells the operator (other events are ignored)."""
+        if ev.kind not in ANSWER_KINDS:
+            return
+        self.on_event(ev)
+        if self.log is not None:
+            source = ev.detail.get("source", "")
+            await self._commit(ev.kind, dict(ev.detail), self._wall(ev.stamp),
+                               source if isinstance(source, str) else "")
+        self.bus.publish(ANSWERS, ev)
 
     def _wall(self, stamp: float) -> float:
         return round(self.clock.wall_time() - (self.clock.now() - stamp), 3)
@@ -181,20 +271,31 @@ class CommandJournal:
 
     async def run(self) -> None:
         """Answer the earlier run's leftovers, then follow commands and answers until
-        cancelled (every ``POLL_S``)."""
+        cancelled."""
         self.answer_earlier()
-        async for _ in self.clock.every(POLL_S, immediate=True):
-            self.poll()
+        async with asyncio.TaskGroup() as tg:
+            tg.create_task(self._follow_commands(), name="commands.follow")
+            tg.create_task(self._follow_answers(), name="commands.answers")
+
+    async def _follow_commands(self) -> None:
+        async for cmd in self._ops:
+            self.on_command(cmd)
+
+    async def _follow_answers(self) -> None:
+        async for ev in self._events:
+            if ev.kind in ANSWER_KINDS:
+                self.poll()  # its command first: it was published before its answer
+                await self.deliver(ev)
 
     def poll(self) -> None:
-        """Take what was published since the last poll."""
+        """Take the commands published since the last look (tests; the answers' follower)."""
         for cmd in self._ops.drain():
             self.on_command(cmd)
-        for ev in self._events.drain():
-            self.on_event(ev)
 
     async def close(self) -> None:
-        """Stop following."""
+        """Stop following (what is queued is taken first)."""
+        self.poll()
+        for ev in self._events.drain():
+            await self.deliver(ev)
         self._ops.close()
         self._events.close()
-

@@ -4,8 +4,9 @@ A part polling its subscriptions every ``POLL_S`` of clock time:
 
 * ``/events`` — every event (tour started/finished/stopped/skipped, stop reached ``tour.stop``,
   help requested/resolved with ``waited_s``, collisions, navigation, dock events when they
-  come), kind unchanged, except ``eventlog.ignore_kinds``;
-* ``/operator`` — every operator command as ``operator.<action>`` with its source;
+  come), kind unchanged, except ``eventlog.ignore_kinds`` and the answers to operator
+  commands: the command journal (``curio/eventlog/commands.py``) writes the commands, as
+  ``operator.<action>`` with their source, and their answers, ahead of telling anyone;
 * ``/estop`` — ``estop.engaged`` / ``estop.released`` when the state changes;
 * ``/health`` — ``fault`` when a part goes to ``error`` or ``degraded``, ``fault.cleared``
   when it is ``ok`` again (the event log's own trouble too: its records are written once
@@ -26,10 +27,10 @@ from typing import Any
 from curio.core.bus import Bus
 from curio.core.clock import Clock
 from curio.core.config import EventLogConfig
-from curio.core.jsonable import to_jsonable
-from curio.core.messages import DriverHealth, OperatorCommand
-from curio.core.topics import ESTOP, EVENTS, HEALTH, ODOM, OPERATOR
+from curio.core.messages import DriverHealth
+from curio.core.topics import ESTOP, EVENTS, HEALTH, ODOM
 
+from .commands import ANSWER_KINDS
 from .store import EventLog
 
 __all__ = ["EventRecorder"]
@@ -56,7 +57,6 @@ class EventRecorder:
         self.clock = clock
         self.cfg = cfg
         self._events = bus.subscribe(EVENTS)
-        self._operator = bus.subscribe(OPERATOR)
         self._estop = bus.subscribe(ESTOP)
         self._health = bus.subscribe(HEALTH, maxsize=512)
         self._odom = bus.subscribe(ODOM, maxsize=256)
@@ -88,10 +88,8 @@ class EventRecorder:
 
     def poll(self) -> None:
         """Move everything received to the log."""
-        for cmd in self._operator.drain():  # commands first: they cause the events
-            self._command(cmd)
         for ev in self._events.drain():
-            if not self._ignored(ev.kind):
+            if ev.kind not in ANSWER_KINDS and not self._ignored(ev.kind):
                 source = ev.detail.get("source", "")
                 self._append(ev.stamp, ev.kind, dict(ev.detail),
                              source if isinstance(source, str) else "")
@@ -112,16 +110,6 @@ class EventRecorder:
         if now >= self._health_due_s:
             self._health_due_s = now + HEALTH_PERIOD_S
             self._publish_health()
-
-    def _command(self, cmd: OperatorCommand) -> None:
-        detail: dict[str, Any] = {"request_id": cmd.request_id}
-        if cmd.path_id is not None:
-            detail["path_id"] = cmd.path_id
-        if cmd.tour_id is not None:
-            detail["tour_id"] = cmd.tour_id
-        if cmd.goal is not None:
-            detail["goal"] = to_jsonable(cmd.goal, 4)
-        self._append(cmd.stamp, f"operator.{cmd.action}", detail, cmd.source)
 
     def _health_change(self, health: DriverHealth) -> None:
         before = self._states.get(health.name)
@@ -170,5 +158,5 @@ class EventRecorder:
         """Record what is left, stop listening."""
         self.poll()
         self.summarise()
-        for sub in (self._events, self._operator, self._estop, self._health, self._odom):
+        for sub in (self._events, self._estop, self._health, self._odom):
             sub.close()

@@ -10,7 +10,9 @@ Records are ``(id, wall_s, kind, source, detail)``: UNIX time in seconds, a dott
   ones, never corrupt the file. What is still queued when the process is killed (milliseconds
   of records) is lost. A write that fails (the disk is full) keeps its records in memory (up
   to ``max_retry_rows``) and tries again every ``RETRY_S``, so a disk that fills up for a while
-  loses nothing; ``stats.failing`` says so meanwhile.
+  loses nothing; ``stats.failing`` says so meanwhile. :meth:`EventLog.append_committed`
+  waits for its record's commit: the command journal writes operator commands and their
+  answers ahead of carrying them out and of telling anyone (``curio/eventlog/commands.py``).
 * **Bounded:** after every ``prune_every`` records the writer deletes records older than
   ``max_age_days`` before the newest one, and the oldest beyond ``max_rows``. Age is measured
   from the newest record, so no clock is read here.
@@ -159,6 +161,9 @@ class WriterStats:
 
 _STOP = object()
 RETRY_S = 2.0  # while writes fail, they are tried again this often (wall seconds)
+# append_committed waits at most this long (wall seconds): a commit takes milliseconds, even
+# on an SD card; longer means the disk is in trouble, and a command must not wait for it.
+COMMIT_WAIT_S = 0.5
 WRITER_CACHE_KIB = 256  # the writer connection's page cache (SQLite's default: 2000 KiB)
 
 
@@ -243,6 +248,28 @@ class EventLog:
         self._queue.put(_Row(float(wall_s), kind, source, text))
         self.stats.queued += 1
 
+    def append_committed(self, kind: str, detail: Mapping[str, Any] | None = None, *,
+                         wall_s: float, source: str = "",
+                         timeout_s: float = COMMIT_WAIT_S) -> bool:
+        """Queue one record and block until the writer thread has committed it (a write
+        ahead: once this returns True the record survives ``kill -9``). Returns False at once
+        while writes fail (a full disk: the record stays queued and is written when they work
+        again) or with a stopped writer, and after ``timeout_s`` wall seconds otherwise. Call
+        it through ``clock.offload`` from the loop."""
+        self.append(kind, detail, wall_s=wall_s, source=source)
+        if self.stats.failing:
+            return False
+        return self._committed(timeout_s)
+
+    def _committed(self, timeout_s: float) -> bool:
+        """Block until everything queued so far is committed; False on timeout, while writes
+        fail, or with a stopped writer."""
+        if not self._thread.is_alive():
+            return False
+        done = threading.Event()
+        self._queue.put(done)
+        return done.wait(timeout_s)
+
     def pending(self) -> int:
         """Records (and requests) queued for the writer thread, not yet taken."""
         return self._queue.qsize()
@@ -250,11 +277,7 @@ class EventLog:
     def flush(self, timeout_s: float = 10.0) -> bool:
         """Block until everything queued so far is committed; False on timeout or a stopped
         writer (for tests, reports and shutdown — not for the loop's hot path)."""
-        if not self._thread.is_alive():
-            return False
-        done = threading.Event()
-        self._queue.put(done)
-        return done.wait(timeout_s)
+        return self._committed(timeout_s)
 
     def close(self, timeout_s: float = 10.0) -> None:
         """Commit what is queued and stop the writer."""

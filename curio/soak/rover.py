@@ -30,7 +30,9 @@ from curio.app import App
 from curio.core.clock import SimClock
 from curio.core.config import load_config
 from curio.core.geometry import Pose2D
-from curio.core.topics import ESTOP, EVENTS, LOCALIZATION, OPERATOR, POSE, STATUS, TOUR
+from curio.core.messages import Event
+from curio.core.topics import ANSWERS, ESTOP, EVENTS, LOCALIZATION, OPERATOR, POSE, STATUS, TOUR
+from curio.eventlog.commands import ANSWER_KINDS
 from curio.soak.day import Building, SoakHooks
 from curio.soak.faults import Targets
 from curio.soak.judge import FaultRunner
@@ -79,6 +81,7 @@ class Rover:
         # restart, a restored data file, an interrupted tour) must reach the orchestrator too
         self._ops = self.app.bus.subscribe(OPERATOR)
         self._events = self.app.bus.subscribe(EVENTS)
+        self._answers = self.app.bus.subscribe(ANSWERS)
         battery = spec.get("battery_v")
         if battery is not None and self.app.world is not None:
             self.app.world.set_battery_voltage(float(battery))
@@ -108,7 +111,7 @@ class Rover:
 
     async def forward(self) -> None:
         """Send the events and operator commands the orchestrator's ledger needs."""
-        ops, events = self._ops, self._events
+        ops, events, answers = self._ops, self._events, self._answers
 
         async def commands() -> None:
             async for cmd in ops:
@@ -117,17 +120,25 @@ class Rover:
                                    "action": cmd.action, "request_id": cmd.request_id,
                                    "source": cmd.source})
 
+        def send(ev: Event) -> None:
+            self.link.send("ev", kind=ev.kind, sim_s=ev.stamp, wall_s=self.clock.wall_time(),
+                           detail=ev.detail)
+
         async def others() -> None:
             async for ev in events:
-                if ev.kind.startswith(FORWARDED):
-                    self.link.send("ev", kind=ev.kind, sim_s=ev.stamp,
-                                   wall_s=self.clock.wall_time(), detail=ev.detail)
+                if ev.kind.startswith(FORWARDED) and ev.kind not in ANSWER_KINDS:
+                    send(ev)
+
+        async def given() -> None:  # the answers the rover gave: once in its event log
+            async for ev in answers:
+                send(ev)
 
         try:
-            await asyncio.gather(commands(), others())
+            await asyncio.gather(commands(), others(), given())
         finally:
             ops.close()
             events.close()
+            answers.close()
 
     async def probe(self) -> None:
         """A resource and timing sample every ``RES_S`` (and a first one at once)."""

@@ -233,7 +233,7 @@ async def estop(request: web.Request) -> web.Response:
     one the page also sent over the WebSocket) makes a second copy a duplicate."""
     who = request.app[GATE].require(request, "estop")
     body = await _body(request)
-    cmd = request.app[ROVER].estop(who, _request_id(body.get("request_id")))
+    cmd = await request.app[ROVER].estop(who, _request_id(body.get("request_id")))
     return web.json_response({"ok": True, "action": "estop", "request_id": cmd.request_id,
                               "by": who.name}, status=202)
 
@@ -243,7 +243,7 @@ async def command(request: web.Request) -> web.Response:
     body = await _body(request)
     who = request.app[GATE].require(request, action_permission(body.get("action")))
     hub = request.app[HUB]
-    cmd, published = request.app[ROVER].command(body, who)
+    cmd, published = await request.app[ROVER].command(body, who)
     return web.json_response(
         {"ok": True, "request_id": cmd.request_id, "duplicate": not published,
          "action": cmd.action, "path_id": cmd.path_id, "by": who.name,

@@ -8,9 +8,12 @@ REST API and the WebSocket cannot disagree.
 
 * Commands go out on :data:`~curio.core.topics.OPERATOR` with ``source = "web:<name>"``.
   Each carries a ``request_id``; a duplicate id is acknowledged without being published again,
-  also when it was received before a restart (the command journal).
+  also when it was received before a restart (the command journal). A command is written
+  ahead: its record is committed to the event log before it is published, and so before the
+  page's acknowledgement (:meth:`RoverControl.publish_command`).
   A goal off the map is refused with the map's bounds.
-* The e-stop (:meth:`RoverControl.estop`) is never rate-limited and needs no parsing. An e-stop
+* The e-stop (:meth:`RoverControl.estop`) is never rate-limited and needs no parsing; it is
+  published before its record is written (stopping comes first). An e-stop
   set by a named operator may be released by that operator or an admin only.
 * The initial pose goes out on :data:`~curio.core.topics.INITIAL_POSE` (map, metres/radians).
 * Teleop publishes :data:`~curio.core.topics.CMD_VEL_TELEOP` (source ``web:<name>``), clamped
@@ -154,7 +157,8 @@ class RoverControl:
 
     # --- commands, the e-stop and the initial pose --------------------------------------------
 
-    def command(self, body: dict[str, Any], who: Identity) -> tuple[OperatorCommand, bool]:
+    async def command(self, body: dict[str, Any],
+                      who: Identity) -> tuple[OperatorCommand, bool]:
         """Validate ``{action, path_id?, goal?, request_id?}`` from ``who`` and publish it.
 
         Returns:
@@ -170,13 +174,13 @@ class RoverControl:
         if action == "release_estop":
             self._check_release(who)
         cmd = build_command(body, self.clock, self.paths, who.source, map_bounds(self.bus))
-        return cmd, self.publish_command(cmd, who)
+        return cmd, await self.publish_command(cmd, who)
 
-    def estop(self, who: Identity, request_id: str = "") -> OperatorCommand:
-        """Engage the e-stop now (never limited, nothing to parse)."""
+    async def estop(self, who: Identity, request_id: str = "") -> OperatorCommand:
+        """Engage the e-stop now (never limited, nothing to parse), then write its record."""
         cmd = OperatorCommand(self.clock.now(), "estop", source=who.source,
                               request_id=request_id)
-        self.publish_command(cmd, who)
+        await self.publish_command(cmd, who, write_first=False)
         return cmd
 
     def _check_release(self, who: Identity) -> None:
@@ -189,8 +193,13 @@ class RoverControl:
             raise CommandError(f"the e-stop was set by {owner}; only {owner} or an admin may "
                                "release it", status=403)
 
-    def publish_command(self, cmd: OperatorCommand, who: Identity | None = None) -> bool:
-        """Publish ``cmd`` on OPERATOR unless its request id was seen; return True if published."""
+    async def publish_command(self, cmd: OperatorCommand, who: Identity | None = None, *,
+                              write_first: bool = True) -> bool:
+        """Publish ``cmd`` on OPERATOR unless its request id was seen; return True if published.
+
+        With the journal, the command's record is committed first (``write_first``: for the
+        e-stop it is published first, then written), so that whoever is told "published"
+        can ask the next run about it after a ``kill -9``."""
         if cmd.request_id:
             if cmd.request_id in self._recent_requests or (
                     self.journal is not None and self.journal.seen(cmd.request_id)):
@@ -198,7 +207,11 @@ class RoverControl:
             self._recent_requests[cmd.request_id] = cmd.stamp
             while len(self._recent_requests) > RECENT_REQUESTS:
                 self._recent_requests.popitem(last=False)
+        if self.journal is not None and write_first:
+            await self.journal.write_ahead(cmd)
         self.bus.publish(OPERATOR, cmd)
+        if self.journal is not None and not write_first:
+            await self.journal.write_ahead(cmd)
         self.commands_published += 1
         if who is not None:
             detail: dict[str, Any] = {"action": cmd.action, "request_id": cmd.request_id}

@@ -16,7 +16,8 @@ Design (after rosboard's per-client throttling, made safe for a robot):
   latest binary frames.
 * What browsers send in (commands, the initial pose, teleop) is published by
   :class:`~curio.web.control.RoverControl`; when a client goes, the hub tells it, so a client
-  that was driving stops the rover. Who holds the driving lease is sent to every page
+  that was driving stops the rover. Answers to commands come from the command journal
+  (``ANSWERS``), once they are in the event log. Who holds the driving lease is sent to every page
   (``{"t": "lease"}``); who did what arrives as ``operator.*`` events.
 * The hub keeps what the pages need to tell the truth: who set and who released the e-stop
   (``estop_log``), the navigator's current goal (from ``nav.goal_*`` events), what blocks the
@@ -66,6 +67,7 @@ from curio.core.messages import (
     Twist,
 )
 from curio.core.topics import (
+    ANSWERS,
     BATTERY,
     BLOCKED,
     CMD_VEL,
@@ -90,6 +92,7 @@ from curio.core.topics import (
     TOUR,
     TREE,
 )
+from curio.eventlog.commands import ANSWER_KINDS
 from curio.robot import RobotModel
 from curio.web.blocker import find_blocker
 from curio.web.control import RoverControl, map_bounds
@@ -218,7 +221,13 @@ class Hub:
         self._sub(OBSTACLES, self._on_obstacles)
         self._sub(STATUS, self._on_status)
         self._sub(PROGRESS, self._on_progress)
-        self._sub(EVENTS, self._on_event)
+        if self.rover.journal is not None:
+            # The journal republishes an answer once it is in the event log (written ahead):
+            # a page is never told an answer that a kill -9 would take back.
+            self._sub(EVENTS, self._on_event_not_answer)
+            self._sub(ANSWERS, self._on_event)
+        else:
+            self._sub(EVENTS, self._on_event)
         self._sub(ESTOP, self._on_estop)
         self._sub(TREE, self._on_tree)
         self._sub(HEALTH, self._on_health, maxsize=64)
@@ -539,6 +548,10 @@ class Hub:
     def _on_progress(self, msg: Progress) -> None:
         self.progress = msg
         self._reliable({"t": "progress", "progress": to_jsonable(msg)})
+
+    def _on_event_not_answer(self, msg: Event) -> None:
+        if msg.kind not in ANSWER_KINDS:
+            self._on_event(msg)
 
     def _on_event(self, msg: Event) -> None:
         if msg.kind == "help.requested":

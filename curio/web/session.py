@@ -34,7 +34,7 @@ import contextlib
 import json
 import logging
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from typing import Any
 
 from aiohttp import WSCloseCode, WSMsgType, web
@@ -89,6 +89,8 @@ class ClientSession:
         self.token_entry: Any = None  # the TokenEntry it authenticated with (None: viewer)
         self.sent_frames = 0
         self.sent_bytes = 0
+        self._command_order = asyncio.Lock()
+        self._commands: set[asyncio.Future[None]] = set()
 
     # --- out ----------------------------------------------------------------------------------
 
@@ -192,24 +194,43 @@ class ClientSession:
                                                "message": message}))
             await self.ws.close(code=WSCloseCode.MESSAGE_TOO_BIG, message=b"message too big")
             return False
-        msg_id: Any = None
         try:
             body = parse_json_object(text)
-            msg_id = body.get("id")
-            if _is_estop(body):  # before the rate limit: the e-stop is never refused for speed
-                self._op_estop(body, msg_id)
-                return True
-            if not self.limiter.allow(self.clock.now()):
-                return await self._on_too_fast()
-            self.rejected_in_a_row = 0
-            self._handle_op(body, msg_id)
+        except CommandError as exc:
+            self.rover.rejected_messages += 1
+            self.reply({"t": "error", "id": None, "code": "rejected", "message": str(exc)})
+            return True
+        msg_id = body.get("id")
+        if _is_estop(body):  # before the rate limit: the e-stop is never refused for speed
+            await self._answering(self._op_estop(body, msg_id), msg_id)
+            return True
+        if not self.limiter.allow(self.clock.now()):
+            return await self._on_too_fast()
+        self.rejected_in_a_row = 0
+        if body.get("op") == "command":
+            # Written ahead before it is published: meanwhile this loop goes on, so an e-stop
+            # or a teleop message never waits behind a command's commit; commands keep order.
+            task = asyncio.ensure_future(self._command_in_order(body, msg_id))
+            self._commands.add(task)
+            task.add_done_callback(self._commands.discard)
+        else:
+            await self._answering(self._handle_op(body, msg_id), msg_id)
+        return True
+
+    async def _command_in_order(self, body: dict[str, Any], msg_id: Any) -> None:
+        async with self._command_order:
+            await self._answering(self._handle_op(body, msg_id), msg_id)
+
+    async def _answering(self, handling: Coroutine[Any, Any, None], msg_id: Any) -> None:
+        """Run ``handling``; a refusal becomes the client's ``error`` reply."""
+        try:
+            await handling
         except LeaseHeld as exc:
             self.reply({"t": "error", "id": msg_id, "code": "lease_held", "holder": exc.holder,
                         "message": str(exc)})
         except CommandError as exc:
             self.rover.rejected_messages += 1
             self.reply({"t": "error", "id": msg_id, "code": "rejected", "message": str(exc)})
-        return True
 
     async def _on_too_fast(self) -> bool:
         """A message over the rate limit: dropped, said once; False when the client must go."""
@@ -226,7 +247,7 @@ class ClientSession:
             return False
         return True
 
-    def _handle_op(self, body: dict[str, Any], msg_id: Any) -> None:
+    async def _handle_op(self, body: dict[str, Any], msg_id: Any) -> None:
         op = body.get("op")
         if op not in CLIENT_OPS:
             raise CommandError(f"unknown op {op!r}; allowed: {', '.join(CLIENT_OPS)}")
@@ -241,7 +262,7 @@ class ClientSession:
         elif op == "teleop":
             self._op_teleop(body)
         elif op == "command":
-            cmd, published = self.rover.command(body, self.who)
+            cmd, published = await self.rover.command(body, self.who)
             self.reply({"t": "ack", "id": msg_id, "request_id": cmd.request_id,
                         "action": cmd.action, "duplicate": not published})
         elif op == "initial_pose":
@@ -254,11 +275,11 @@ class ClientSession:
                     "start-up log)")
         return refusal(self.who, permission)
 
-    def _op_estop(self, body: dict[str, Any], msg_id: Any) -> None:
+    async def _op_estop(self, body: dict[str, Any], msg_id: Any) -> None:
         if not self.who.may("estop"):
             raise CommandError(self._refusal("estop"))
         request_id = body.get("request_id")
-        cmd = self.rover.estop(self.who, request_id if isinstance(request_id, str)
+        cmd = await self.rover.estop(self.who, request_id if isinstance(request_id, str)
                                and REQUEST_ID.match(request_id) else "")
         self.reply({"t": "ack", "id": msg_id, "request_id": cmd.request_id, "action": "estop",
                     "duplicate": False})

@@ -18,11 +18,12 @@ from zoneinfo import ZoneInfo
 
 import pytest
 
-from curio.core.clock import SimClock
+from curio.core.clock import SimClock, wall_perf_counter
 from curio.core.config import EventLogConfig
 from curio.core.geometry import Pose2D
 from curio.core.messages import DriverHealth, EStop, Event, Odometry, OperatorCommand
 from curio.core.topics import ESTOP, EVENTS, HEALTH, ODOM, OPERATOR, make_bus
+from curio.eventlog.commands import CommandJournal
 from curio.eventlog.recorder import EventRecorder
 from curio.eventlog.store import EventLog, EventLogError, LogQuery
 
@@ -124,20 +125,25 @@ def test_a_corrupt_database_is_refused_with_the_file(tmp_path: Path) -> None:
         EventLog(tmp_path / "none.sqlite3", readonly=True)
 
 
-async def test_the_recorder_logs_commands_events_estops_faults_and_motion(
+async def test_the_recorder_logs_events_estops_faults_and_motion_the_journal_commands(
         tmp_path: Path) -> None:
     clock = SimClock(epoch_wall_s=T0)
     bus = make_bus()
     log = EventLog(tmp_path / "events.sqlite3")
     rec = EventRecorder(log, bus, clock, EventLogConfig(motion_summary_s=10.0,
                                                         ignore_kinds=["nav."]))
+    journal = CommandJournal(bus, clock, log)
     bus.publish(OPERATOR, OperatorCommand(0.0, "start_tour", source="kiosk", request_id="r1",
                                           tour_id=2))
+    answer = Event(0.0, "bt.command_accepted", {"request_id": "r1", "message": "Starting."})
     bus.publish(EVENTS, Event(0.0, "tour.started", {"tour_id": 2, "source": "kiosk"}))
+    bus.publish(EVENTS, answer)
     bus.publish(EVENTS, Event(0.0, "nav.goal_accepted", {}))
     bus.publish(ESTOP, EStop(0.0, False))
     bus.publish(HEALTH, DriverHealth(0.0, "lidar", "ok"))
-    rec.poll()
+    journal.poll()
+    rec.poll()  # not the answer: the journal writes it
+    await journal.deliver(answer)
     await clock.advance(2.0)
     bus.publish(ESTOP, EStop(clock.now(), True, "web", "operator"))
     bus.publish(HEALTH, DriverHealth(clock.now(), "lidar", "error", "no scans"))
@@ -151,12 +157,12 @@ async def test_the_recorder_logs_commands_events_estops_faults_and_motion(
     log.close()
     got = EventLog(tmp_path / "events.sqlite3", readonly=True).query()
     kinds = [r.kind for r in got if r.kind != "motion"]
-    assert kinds == ["operator.start_tour", "tour.started", "estop.engaged", "fault",
-                     "estop.released", "fault.cleared"]
+    assert kinds == ["operator.start_tour", "tour.started", "bt.command_accepted",
+                     "estop.engaged", "fault", "estop.released", "fault.cleared"]
     op = got[0]
     assert (op.source, op.detail, op.wall_s) == ("kiosk", {"request_id": "r1", "tour_id": 2}, T0)
-    assert got[3].detail == {"name": "lidar", "state": "error", "message": "no scans"}
-    assert got[2].wall_s == pytest.approx(T0 + 2.0)
+    assert got[4].detail == {"name": "lidar", "state": "error", "message": "no scans"}
+    assert got[3].wall_s == pytest.approx(T0 + 2.0)
     motion = [r.detail for r in got if r.kind == "motion"]
     assert len(motion) == 2  # one every 10 s of clock time, the rest at close
     assert sum(m["distance_m"] for m in motion) == pytest.approx(1.0)
@@ -191,6 +197,26 @@ def test_records_written_while_the_disk_is_full_are_kept_and_written_later(
     assert log.flush(timeout_s=10.0)
     assert not log.stats.failing and log.stats.retrying == 0
     assert log.count(LogQuery(kinds=("during",))) == 30 and log.count() == 50
+    log.close()
+
+
+def test_a_write_ahead_on_a_full_disk_gives_up_soon_and_is_written_later(
+        tmp_path: Path) -> None:
+    log = _TinyDisk(tmp_path / "events.sqlite3")
+    assert log.append_committed("operator.pause", {"request_id": "a"}, wall_s=T0)
+    log.pages = 1
+    for i in range(20):  # fill the last pages
+        log.append("pad", {"i": i, "pad": "x" * 400}, wall_s=T0 + i)
+    assert not log.append_committed("operator.pause", {"request_id": "b"}, wall_s=T0 + 30,
+                                    timeout_s=0.5)  # the first failure: waited, in vain
+    assert log.stats.failing
+    t0 = wall_perf_counter()
+    assert not log.append_committed("operator.pause", {"request_id": "c"}, wall_s=T0 + 31)
+    assert wall_perf_counter() - t0 < 0.1  # known to be failing: no wait at all
+    log.pages = 10**6
+    assert log.flush(timeout_s=10.0)
+    assert [r.detail["request_id"] for r in log.query(LogQuery(kinds=("operator.",)))] == [
+        "a", "b", "c"]
     log.close()
 
 

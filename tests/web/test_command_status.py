@@ -10,7 +10,6 @@ from curio.core.bus import Bus
 from curio.core.clock import SimClock
 from curio.core.config import Config
 from curio.core.messages import Event
-from curio.core.topics import EVENTS
 from curio.eventlog.commands import CommandJournal
 from curio.robot import RobotModel
 from curio.web.server import create_app
@@ -35,9 +34,8 @@ async def test_a_command_can_be_looked_up_after_it_was_answered(
     assert resp.status == 202
     journal.poll()
     assert (await (await client.get("/api/commands/r-1")).json())["state"] == "pending"
-    bus.publish(EVENTS, Event(clock.now(), "bt.command_accepted", {"request_id": "r-1",
-                                                                   "message": "Paused."}))
-    journal.poll()
+    await journal.deliver(Event(clock.now(), "bt.command_accepted", {"request_id": "r-1",
+                                                                     "message": "Paused."}))
     got = await (await client.get("/api/commands/r-1")).json()
     assert got["state"] == "answered" and got["answer"]["message"] == "Paused."
     assert got["action"] == "pause" and got["source"] == "web:alice"
