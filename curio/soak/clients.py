@@ -35,7 +35,8 @@ import numpy as np
 from curio.core.clock import RealClock, wall_perf_counter
 from curio.soak.ledger import ANSWER_KINDS, Ledger
 
-__all__ = ["ClientSpec", "PathEdits", "SoakClient", "client_specs"]
+__all__ = ["ClientSpec", "PathEdits", "SoakClient", "answer_in_event", "answer_in_lookup",
+           "client_specs"]
 
 log = logging.getLogger("curio.soak.clients")
 
@@ -54,6 +55,28 @@ OPERATOR_ACTIONS = [
 ]
 VIEWER_ACTIONS = [(4, "viewer_command"), (6, "ping"), (1, "malformed")]
 KIOSK_ACTIONS = [(4, "start_tour"), (1, "stop_tour"), (3, "kiosk_forbidden"), (2, "ping")]
+
+
+def answer_in_event(record: dict[str, Any]) -> tuple[str, str, str, float] | None:
+    """``(request_id, kind, message, wall_s)`` of an answer in a dashboard event record (live
+    or in a page's history), or None. Keyed by the answer's wall time, which a lookup gives
+    too, so the same answer seen live and asked for after a reconnection is one answer."""
+    if record.get("kind") not in ANSWER_KINDS:
+        return None
+    detail = record.get("detail") or {}
+    rid = detail.get("request_id")
+    if not isinstance(rid, str):
+        return None
+    return rid, str(record["kind"]), str(detail.get("message", "")), float(record.get("wall", 0))
+
+
+def answer_in_lookup(rid: str, got: dict[str, Any]) -> tuple[str, str, str, float] | None:
+    """The same from ``GET /api/commands/{rid}`` (its ``answer``), or None."""
+    answer = got.get("answer")
+    if not isinstance(answer, dict) or answer.get("kind") not in ANSWER_KINDS:
+        return None
+    return rid, str(answer["kind"]), str(answer.get("message", "")), float(
+        answer.get("wall_s", 0.0))
 
 
 @dataclass(frozen=True)
@@ -237,12 +260,9 @@ class SoakClient:
                 self._on_event(record, "history")
 
     def _on_event(self, record: dict[str, Any], via: str) -> None:
-        if record.get("kind") in ANSWER_KINDS:
-            detail = record.get("detail") or {}
-            rid = detail.get("request_id")
-            if isinstance(rid, str) and rid.startswith(f"c{self.spec.index}-"):
-                self.ledger.answer(rid, record["kind"], str(detail.get("message", "")),
-                                   float(record.get("stamp", 0.0)), via)
+        answer = answer_in_event(record)
+        if answer is not None and answer[0].startswith(f"c{self.spec.index}-"):
+            self.ledger.answer(*answer, via)
 
     async def _reconcile(self) -> None:
         """Ask the rover about every command of this client still without an answer."""
@@ -254,10 +274,9 @@ class SoakClient:
                 continue
             state = str(got.get("state", ""))
             rec.lookups.append(state)
-            answer = got.get("answer")
-            if isinstance(answer, dict) and answer.get("kind") in ANSWER_KINDS:
-                self.ledger.answer(rec.rid, str(answer["kind"]), str(answer.get("message", "")),
-                                   float(answer.get("stamp", 0.0)), "lookup")
+            answer = answer_in_lookup(rec.rid, got)
+            if answer is not None:
+                self.ledger.answer(*answer, "lookup")
 
     async def lookup(self, rid: str) -> dict[str, Any] | None:
         """``GET /api/commands/{rid}`` (None when the rover cannot be asked). Works after the

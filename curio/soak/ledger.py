@@ -87,12 +87,15 @@ class Ledger:
             rec.acked = True
             rec.duplicate_ack = rec.duplicate_ack or duplicate
 
-    def answer(self, rid: str, kind: str, message: str, stamp: float, via: str) -> None:
-        """Its client got a final answer (the same answer seen twice counts once)."""
+    def answer(self, rid: str, kind: str, message: str, wall_s: float, via: str) -> None:
+        """Its client got a final answer, given at ``wall_s`` (the rover's wall clock, UNIX s;
+        0 for the dashboard's refusals): the same answer seen twice — live and in a lookup —
+        counts once (to the hundredth of a second: a lookup's time is rounded to the
+        millisecond)."""
         rec = self.commands.get(rid)
         if rec is None:
             return
-        key = (kind, message, round(stamp, 3))
+        key = (kind, message, round(wall_s, 2))
         rec.answers.setdefault(key, via)
 
     def pending(self, client: str) -> list[CommandRecord]:

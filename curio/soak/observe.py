@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from curio.soak.ledger import Ledger
+from curio.soak.plan import KIDNAP_KINDS
 from curio.soak.probes import Histogram
 
 __all__ = ["MOTION_PERMITS", "Observations", "RestartWatch"]
@@ -47,6 +48,8 @@ class RestartWatch:
     corruption: dict[str, Any] | None = None
     data_after: list[dict[str, Any]] = field(default_factory=list)
     start_pose_error_m: float | None = None
+    carried: int = 0
+    rebased: int = 0
 
     def to_json(self) -> dict[str, Any]:
         """Plain JSON for the report."""
@@ -86,6 +89,7 @@ class Observations:
         elif t == "fault":
             if msg.get("phase") == "injected":
                 self.injected[int(msg["id"])] = msg
+                self._carried(msg)
             else:
                 self.faults[int(msg["id"])] = msg
         elif t == "res":
@@ -95,6 +99,14 @@ class Observations:
         elif t in ("done", "stopped", "end"):
             self.ends.append(msg)
 
+    def _carried(self, msg: dict[str, Any]) -> None:
+        """A kidnap injected while a restarted rover is watched: the soak carried it, so its
+        stillness is measured from where it was put down (the first beat after)."""
+        w = self.watch
+        if (w is not None and w.boot == msg.get("boot") and w.permitted is None
+                and msg.get("kind") in KIDNAP_KINDS):
+            w.carried += 1  # the next beat moves start_truth where it was put down
+
     def _beat(self, msg: dict[str, Any]) -> None:
         self.beat = msg
         if self.first_beat is None:
@@ -103,6 +115,8 @@ class Observations:
         if w is None or w.boot != msg.get("boot"):
             return
         truth = msg.get("truth") or [0.0, 0.0, 0.0]
+        if w.start_truth is not None and w.carried > w.rebased:
+            w.start_truth, w.rebased = truth, w.carried
         if w.start_truth is None:
             w.start_truth = truth
             w.estop_after = msg.get("estop")
