@@ -138,6 +138,9 @@ class LidarConfig(Section):
         0.0, ge=-6.3, le=6.3, description="added to pi - raw angle (mounting, hardware.md §8)"
     )
     min_nodes_per_scan: int = Field(20, ge=1, description="shorter revolutions are dropped")
+    max_scan_gap_deg: float = Field(
+        15.0, gt=1.0, le=90.0, description="a revolution with a wider gap between its nodes is "
+        "dropped (cut short: what it lacks would read as free space)")
     read_interval_s: float = Field(
         0.04, ge=0.0, le=0.05, description="batch serial reads (CPU); 0 = every chunk"
     )

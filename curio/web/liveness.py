@@ -141,6 +141,7 @@ COUNTERS: dict[str, tuple[str, str, str]] = {
     "unplugs": ("unplugs", "total", ""),
     "resets": ("resets", "total", ""),
     "short_scans": ("short scans", "total", ""),
+    "partial_scans": ("scans dropped (cut short)", "total", ""),
     "samples": ("samples", "total", ""),
     "i2c_errors": ("I2C errors", "total", ""),
     "dropped_samples": ("dropped samples", "total", ""),

@@ -181,8 +181,12 @@ def test_assembler_cuts_revolutions_at_start_flag() -> None:
     assert asm.feed(dec.feed(p.encode_node(True, 1, 0, 0))) == []
     # Nor does a start flag far from the raw 0° (garbage that passed the check bits).
     assert asm.feed(dec.feed(p.encode_node(True, 1, 180 * 64, 0) * 30)) == []
-    revs3 = asm.feed(dec.feed(rev_bytes(20)))
-    assert [len(r) for r in revs3] == [10 + 1 + 30]
+    # The revolution those nodes made (10 nodes 36° apart, 31 at 0° and 180°) leaves wide
+    # gaps round the circle: not a whole scan, dropped (what it lacks would read as free).
+    assert asm.feed(dec.feed(rev_bytes(20))) == [] and asm.partial_scans == 1
+    # 20 nodes 18° apart: dropped too; the A1's 360 nodes a revolution are a scan
+    assert [len(r) for r in asm.feed(dec.feed(rev_bytes(360) + rev_bytes(10)))] == [360]
+    assert asm.partial_scans == 2 and asm.revolutions == 3
 
 
 def test_angle_conversion_matches_rplidar_ros() -> None:

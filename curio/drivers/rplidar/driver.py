@@ -108,6 +108,7 @@ class RplidarDriver(ReportsHealth):
             "unplugs": 0,
             "resets": 0,
             "short_scans": 0,
+            "partial_scans": 0,
         }
         self.reporter = HealthReporter(self.name, clock, bus, log, self.counters)
         self._transport: Any = None
@@ -122,7 +123,8 @@ class RplidarDriver(ReportsHealth):
         self._lost = False
         self._mode = "reply"  # reply | descriptor | stream
         self._decoder = p.NodeStreamDecoder()
-        self._assembler = p.ScanAssembler(min_nodes=cfg.min_nodes_per_scan)
+        self._assembler = p.ScanAssembler(min_nodes=cfg.min_nodes_per_scan,
+                                          max_gap_deg=cfg.max_scan_gap_deg)
         self._rev_start: float | None = None
         self._last_scan_at = -math.inf
         self._scanning: tuple[str, str] = ("ok", "scanning")
@@ -405,21 +407,26 @@ class RplidarDriver(ReportsHealth):
             self._paused.set()
         batch = self._decoder.feed(data)
         self.counters["resync_bytes"] = self._decoder.resync_bytes
-        if len(batch) == 0:
-            return
-        revs = self._assembler.feed(batch)
-        if revs:
+        a = self._assembler
+        completed_before = a.completed
+        revs = a.feed(batch)
+        self._count_dropped()
+        if a.completed > completed_before:  # kept or dropped, a new revolution has begun
             # Reads are batched: date the new revolution's start back by the nodes already
             # received of it, at the node rate of the revolution just completed.
             prev_start = self._rev_start
             node_s = 0.0
             if prev_start is not None:
-                node_s = max(0.0, now - prev_start) / (len(revs[-1]) + self._assembler.in_progress)
-            new_start = now - self._assembler.in_progress * node_s
+                node_s = max(0.0, now - prev_start) / max(1, a.last_length + a.in_progress)
+            new_start = now - a.in_progress * node_s
             for rev in revs:
                 self._publish(rev, new_start)
             self._rev_start = new_start
-        self.counters["short_scans"] = self._assembler.short_scans
+
+    def _count_dropped(self) -> None:
+        a = self._assembler
+        self.counters["short_scans"] = a.short_scans
+        self.counters["partial_scans"] = a.partial_scans
 
     def _publish(self, rev: p.NodeBatch, end: float) -> None:
         """Publish one revolution that ran from ``self._rev_start`` to ``end``."""

@@ -447,20 +447,49 @@ class ScanAssembler:
     revolution with fewer than ``min_nodes`` nodes is dropped and counted in ``short_scans``.
     A start flag counts only on a node within ``start_window_deg`` of the raw 0° (where the A1
     sets it) and after at least ``min_nodes`` nodes of the revolution in progress: a false node
-    made of garbage bytes then almost never cuts a revolution in two.
+    made of garbage bytes then rarely cuts a revolution in two.
+
+    Where one still does, the two pieces are not scans: what a piece lacks would read as
+    free space ("no return") to the stop zone and the costmap. A revolution whose nodes leave
+    a gap wider than ``max_gap_deg`` anywhere round the circle (the A1 reports a node about
+    every degree, with or without a return) is dropped and counted in ``partial_scans``.
+    Garbage nodes inside a whole revolution only add near returns (a bin keeps its nearest),
+    which the stop zone errs on the safe side with. Found by the 24-hour soak: in a
+    lidar-garbage burst the rover started towards a person standing beside it.
     """
 
     min_nodes: int = 20
     start_window_deg: float = 30.0
+    max_gap_deg: float = 15.0
     _parts: list[NodeBatch] = field(default_factory=list)
     _synced: bool = False
     short_scans: int = 0
+    partial_scans: int = 0
     revolutions: int = 0
+    completed: int = 0  # revolutions ended, kept or dropped
+    last_length: int = 0  # nodes of the last one
 
     def reset(self) -> None:
         """Drop the revolution in progress."""
         self._parts.clear()
         self._synced = False
+
+    def _largest_gap_deg(self, rev: NodeBatch) -> float:
+        angles = np.sort(rev.angle_deg)
+        wrap = 360.0 - float(angles[-1]) + float(angles[0])
+        return max(wrap, float(np.max(np.diff(angles)))) if len(angles) > 1 else 360.0
+
+    def _complete(self, rev: NodeBatch, out: list[NodeBatch]) -> None:
+        """A revolution ended: keep it, or drop and count it (see the class docstring)."""
+        self.completed += 1
+        self.last_length = len(rev)
+        if len(rev) < self.min_nodes:
+            self.short_scans += 1
+        elif self._largest_gap_deg(rev) > self.max_gap_deg:
+            self.partial_scans += 1
+        else:
+            out.append(rev)
+            self.revolutions += 1
 
     @property
     def in_progress(self) -> int:
@@ -484,12 +513,7 @@ class ScanAssembler:
                     continue  # too early for a new revolution: a false start flag
                 if i > lo:
                     self._parts.append(batch.slice(lo, i))
-                rev = NodeBatch.concat(self._parts)
-                if len(rev) >= self.min_nodes:
-                    out.append(rev)
-                    self.revolutions += 1
-                else:
-                    self.short_scans += 1
+                self._complete(NodeBatch.concat(self._parts), out)
             self._parts = []
             self._synced = True
             lo = i
