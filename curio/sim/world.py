@@ -95,6 +95,11 @@ WHEEL_ACCEL_RADPS2 = 40.0  # servo shaft acceleration limit
 CONTACT_RELEASE_M = 0.05  # a contact ends after moving this far from where it began
 CONTACT_RELEASE_RAD = 0.1
 TURNING_RADPS = 0.05  # a rover turning faster than this: scripted people keep out of its sweep
+# Scripted people stop this far from the rover's footprint rather than walk up to it: people
+# keep a little room from a machine (before, the walkers stood 1 mm from the rover's side, and
+# a rover driving off along them brushed them with a millimetre of drift — two contacts
+# charged to the rover in the 24-hour soaks of 2026-12-01).
+WALKER_GAP_M = 0.10
 LIDAR_NOISE_BLOCK = 50  # lidar noise is drawn for this many scans at a time
 IMU_NOISE_BLOCK = 1000  # IMU noise is drawn in blocks (fast, and still deterministic)
 IMU_YAW_SIGMA_RAD = 0.002  # BNO055 fusion heading jitter
@@ -513,11 +518,13 @@ class World:
         if not self._people:
             return
         turning = abs(self._w) > TURNING_RADPS
+        here = self._pose
         for person in self._people.values():
             state = person.next_position(dt_s)
             if (state[0], state[1]) != (person.x_m, person.y_m) and (
-                    self._person_touches(state[0], state[1], person.radius_m, self._pose)
-                    or (turning and math.hypot(state[0] - self._pose.x, state[1] - self._pose.y)
+                    self._closing_in(person.x_m, person.y_m, state[0], state[1],
+                                     person.radius_m + WALKER_GAP_M)
+                    or (turning and math.hypot(state[0] - here.x, state[1] - here.y)
                         <= self._fp_radius + person.radius_m)):
                 # People wait rather than walk into the rover, or into the circle its corners
                 # sweep while it turns in place (before, the workshop's walker walked up to a
@@ -526,6 +533,14 @@ class World:
                 continue
             person.commit(state)
         self._shapes_dirty = True
+
+    def _closing_in(self, x0: float, y0: float, x1: float, y1: float, r: float) -> bool:
+        """A step from ``(x0, y0)`` to ``(x1, y1)`` ends within ``r`` of the rover's footprint
+        and nearer to the rover than it began (a step away is always allowed)."""
+        pose = self._pose
+        if not self._person_touches(x1, y1, r, pose):
+            return False
+        return math.hypot(x1 - pose.x, y1 - pose.y) < math.hypot(x0 - pose.x, y0 - pose.y)
 
     def _move_crowd(self, dt_s: float) -> None:
         """Step the visitors; a visitor walking into the rover raises a ``collision`` event

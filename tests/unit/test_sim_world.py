@@ -17,8 +17,8 @@ from curio.drivers.kinematics import twist_to_servo_command
 from curio.estimation.maps import load_map
 from curio.robot import RobotModel
 from curio.sim import worldgen
-from curio.sim.objects import Door
-from curio.sim.world import World, WorldError, WorldSpec, load_world_spec
+from curio.sim.objects import Door, circle_hits_polygon
+from curio.sim.world import WALKER_GAP_M, World, WorldError, WorldSpec, load_world_spec
 from tests.unit.test_sim_raycast import quiet_config, room
 
 DT = 0.02
@@ -280,14 +280,35 @@ def test_a_door_closed_onto_the_rover_does_not_trap_it() -> None:
     assert w.collisions == 0
 
 
+def test_a_walker_stops_short_of_a_still_rover_and_a_rover_driving_off_never_touches_it(
+        ) -> None:
+    """Scripted people stop WALKER_GAP_M from the footprint rather than walk up to it: before,
+    a walker stood 1 mm from the rover's side, and the rover driving off along it brushed it
+    with a millimetre of drift (two contacts charged to the rover in the soaks of
+    2026-12-01; reproduced here at 0.1 m/s with the default noise)."""
+    cfg = Config()  # the default noise: the drift that closes a millimetre
+    w = World(room(), cfg, Pose2D(3.0, 2.0, 0.0))
+    a = math.radians(60.0)
+    pid = w.add_person([(3.0 + 1.5 * math.cos(a), 2.0 + 1.5 * math.sin(a)),
+                        (3.0 - 1.5 * math.cos(a), 2.0 - 1.5 * math.sin(a))],
+                       speed_mps=0.6, radius_m=0.25, loop=True)
+    drive(w, 0.0, 0.0, 8.0)  # the walker's loop runs through the rover: it waits beside it
+    p = w.people[pid]
+    poly = [w.truth_pose.transform_point(x, y) for x, y in w.footprint]
+    assert not circle_hits_polygon(p.x_m, p.y_m, p.radius_m + WALKER_GAP_M - 0.01, poly)
+    drive(w, 0.1, 0.0, 1.6)  # off along it
+    assert w.collisions == 0, w.pop_events()
+
+
 def test_a_walker_keeps_out_of_the_circle_a_turning_rover_sweeps() -> None:
     """Scripted people wait rather than walk into the rover, and into the circle its corners
     sweep while it turns in place: before, the workshop's walker walked up to a lost rover
     turning to search and its corner hit them (a contact charged to the rover)."""
     w = World(room(), no_noise(), Pose2D(3.0, 2.0, 0.0))
-    # The walker heads for a spot beside the rover: 0.4 m from its centre to their edge,
-    # clear of its sides (0.31 m) but inside the circle of its corners (0.45 m).
-    pid = w.add_person([(0.5, 2.6), (3.0, 2.6)], speed_mps=1.0, radius_m=0.2, loop=False)
+    # The walker heads for a spot beside the rover: 0.43 m from its centre to their edge,
+    # clear of its sides (0.31 m) by more than WALKER_GAP_M but inside the circle of its
+    # corners (0.45 m).
+    pid = w.add_person([(0.5, 2.63), (3.0, 2.63)], speed_mps=1.0, radius_m=0.2, loop=False)
     p = w.people[pid]
     drive(w, 0.0, 0.6, 6.0)  # turning in place meanwhile
     assert w.collisions == 0, w.pop_events()
