@@ -132,6 +132,9 @@ class Operator2BB(CurioBehaviour):
             if wanted == "resume" and estop:
                 ctx.reject(_req(cmd), action, "The e-stop is engaged: release it first.")
                 return
+            # An earlier Pause or Resume of this tick is answered, not dropped (the 24-hour
+            # soak: two operators paused within one tick and one was never answered).
+            self._supersede("pause_request", "Pause" if wanted == "pause" else "Resume")
             self.set("pause_request", _req(cmd, action=wanted))
         elif action == "estop":
             self.set("estop_operator", cmd.stamp)

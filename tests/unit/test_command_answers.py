@@ -30,6 +30,20 @@ def test_each_action_is_answered_once(action: str, fields: dict[str, object]) ->
     assert len(answers_for(h, "r1")) == 1, h.kinds("bt.")
 
 
+@pytest.mark.parametrize("first,second", [("pause", "pause"), ("pause", "resume"),
+                                           ("resume", "pause"), ("toggle_pause", "pause")])
+def test_two_pause_or_resume_commands_in_one_tick_are_each_answered_once(
+        first: str, second: str) -> None:
+    """Found by the 24-hour soak (seed 2, 2026-12-01): two operators pressed Pause within one
+    tick; the later one was answered, the earlier never (it was overwritten)."""
+    h = make_harness()
+    h.tick()
+    h.press(first, request_id="a")
+    h.press(second, request_id="b")
+    h.tick(3)
+    assert len(answers_for(h, "a")) == 1 and len(answers_for(h, "b")) == 1, h.kinds("bt.")
+
+
 def test_goto_while_idle_is_accepted_and_while_paused_rejected() -> None:
     h = make_harness()
     h.tick()
