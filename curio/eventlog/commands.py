@@ -186,19 +186,24 @@ class CommandJournal:
         while len(self.entries) > self.size:
             self.entries.popitem(last=False)
 
+    def _entry_for(self, cmd: OperatorCommand) -> JournalEntry | None:
+        """The entry of ``cmd``, made and remembered if new; None without a request id."""
+        if not cmd.request_id:
+            return None
+        entry = self.entries.get(cmd.request_id)
+        if entry is None:
+            entry = JournalEntry(cmd.request_id, cmd.action, cmd.source, self._wall(cmd.stamp))
+            self._remember(entry)
+        return entry
+
     async def write_ahead(self, cmd: OperatorCommand) -> bool:
         """Remember ``cmd`` and commit its record to the event log, before it is published
         (the e-stop: right after); True once committed. From now on ``seen`` knows its id.
         False without an event log, without a request id (written when seen on the bus), or
         when the log could not commit in time (counted in ``not_durable``; the record is
         still written when the log can)."""
-        if not cmd.request_id:
-            return False
-        entry = self.entries.get(cmd.request_id)
-        if entry is None:
-            entry = JournalEntry(cmd.request_id, cmd.action, cmd.source, self._wall(cmd.stamp))
-            self._remember(entry)
-        if self.log is None or entry.logged:
+        entry = self._entry_for(cmd)
+        if entry is None or self.log is None or entry.logged:
             return False
         entry.logged = True
         kind, detail = command_record(cmd)
@@ -218,13 +223,10 @@ class CommandJournal:
     def on_command(self, cmd: OperatorCommand) -> None:
         """A command was published: remember it, and write its record unless it was written
         ahead."""
-        entry = self.entries.get(cmd.request_id) if cmd.request_id else None
-        if entry is None and cmd.request_id:
-            entry = JournalEntry(cmd.request_id, cmd.action, cmd.source, self._wall(cmd.stamp))
-            self._remember(entry)
-        if entry is not None and entry.logged:
-            return
+        entry = self._entry_for(cmd)
         if entry is not None:
+            if entry.logged:
+                return
             entry.logged = True
         if self.log is not None:
             kind, detail = command_record(cmd)

@@ -56,26 +56,31 @@ def _beat(boot: int, sim_s: float, x: float, y: float) -> dict[str, Any]:
             "pose": [x, y, 0.0]}
 
 
-def test_a_rover_the_soak_carried_off_after_a_restart_did_not_move_by_itself() -> None:
+def _fault(obs: Observations, fid: int, kind: str, sim_s: float) -> None:
+    obs.take({"t": "fault", "phase": "injected", "boot": 12, "id": fid, "kind": kind,
+              "sim_s": sim_s})
+
+
+def _restarted_then(kind: str) -> tuple[Observations, RestartWatch]:
+    """Run 12 watched after its restart, standing at its first beat, then fault ``kind``."""
     obs = Observations(Ledger())
     watch = _watched(obs, 12)
     obs.take(_beat(12, 14225.0, 12.17, 0.22))
-    obs.take({"t": "fault", "phase": "injected", "boot": 12, "id": 8, "kind": "kidnap_parked",
-              "sim_s": 14238.0})
+    _fault(obs, 8, kind, 14238.0)
+    return obs, watch
+
+
+def test_a_rover_the_soak_carried_off_after_a_restart_did_not_move_by_itself() -> None:
+    obs, watch = _restarted_then("kidnap_parked")
     obs.take(_beat(12, 14238.5, 6.0, 2.8))  # put down 6.3 m away
     obs.take(_beat(12, 14239.0, 6.01, 2.8))  # the search turn: in place
     assert watch.moved_m < 0.05
 
 
 def test_a_rover_that_drives_off_after_a_restart_is_still_caught() -> None:
-    obs = Observations(Ledger())
-    watch = _watched(obs, 12)
-    obs.take(_beat(12, 14225.0, 12.17, 0.22))
-    obs.take({"t": "fault", "phase": "injected", "boot": 12, "id": 8, "kind": "lidar_unplug",
-              "sim_s": 14238.0})
+    obs, watch = _restarted_then("lidar_unplug")
     obs.take(_beat(12, 14240.0, 11.0, 0.22))  # 1.2 m, no kidnap, no permit
     assert watch.moved_m > 1.0
-    obs.take({"t": "fault", "phase": "injected", "boot": 12, "id": 9, "kind": "kidnap",
-              "sim_s": 14241.0})
+    _fault(obs, 9, "kidnap", 14241.0)
     obs.take(_beat(12, 14241.5, 3.0, 3.0))
     assert 1.0 < watch.moved_m < 1.3  # what it drove before the carry still counts
