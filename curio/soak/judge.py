@@ -16,6 +16,8 @@ judges it:
   time to recover is counted from the end of the condition (and the outage from the injection);
   while an operator's e-stop is engaged the drivers rightly stay disarmed, so that time is not
   counted against the fault (the deadline waits, ``held_by_operator_s`` says how long);
+  a carried rover that is in its bounded relocalisation turn in place at the deadline (an
+  operator's Resume starts one again) is judged when the turn is over (``waited_for_turn_s``);
 * otherwise, **stopped safely and asked for help** — at the deadline the rover stands still
   and a help request is open (``help.requested``, or the tree's ``needs_help``);
   anything else is **failed**.
@@ -39,6 +41,7 @@ from curio.core.clock import wall_perf_counter
 from curio.core.geometry import wrap_angle
 from curio.core.messages import DriverHealth, Event, OperatorCommand, PoseWithCovariance
 from curio.core.topics import (
+    CMD_VEL_NAV,
     ESTOP,
     EVENTS,
     HEALTH,
@@ -89,6 +92,7 @@ class FaultRun:
     good_since_s: float | None = None
     next_log_s: float = 0.0
     held_s: float = 0.0
+    turn_wait_s: float = 0.0  # the deadline waited this long for a relocalisation turn
     cleared_wall_s: float | None = None  # wall_perf_counter() when the condition ended
     recovered_wall_s: float | None = None  # ... and when it was recovered
 
@@ -106,6 +110,7 @@ class FaultRun:
             "recover_s": None if self.recovered_s is None else round(
                 max(0.0, self.recovered_s - cleared - self.held_s), 3),
             "held_by_operator_s": round(self.held_s, 3),
+            "waited_for_turn_s": round(self.turn_wait_s, 3),
             "recover_wall_s": None if self.recovered_wall_s is None or self.cleared_wall_s is None
             else round(self.recovered_wall_s - self.cleared_wall_s, 3),
             "outage_s": rel(self.recovered_s), "help_s": rel(self.help_s),
@@ -329,7 +334,17 @@ class FaultRunner:
                 run.recovered_s = now
                 run.recovered_wall_s = wall_perf_counter()
         deadline = (run.cleared_s if run.cleared_s is not None else now) + run.inj.deadline_s \
-            + run.held_s
+            + run.held_s + run.turn_wait_s
+        if run.cleared_s is not None and now >= deadline and run.recovered_s is None \
+                and run.fault.kind in KIDNAP_KINDS and self._relocalise_turn(now) \
+                and run.turn_wait_s < self._turn_s():
+            # A lost rover in its bounded turn in place (started again by an operator's
+            # Resume, say): the deadline waits for the turn to end, found or standing and
+            # asking. Judged while it turned, it was "failed" for moving.
+            if run.turn_wait_s == 0.0:
+                run.notes.append("the deadline waited for a relocalisation turn")
+            run.turn_wait_s += POLL_S
+            deadline += POLL_S
         settled = run.recovered_s is not None and run.log_s is not None
         wall_wait = run.inj.wall_deadline_s is not None and run.cleared_wall_s is not None \
             and wall_perf_counter() - run.cleared_wall_s < run.inj.wall_deadline_s
@@ -345,6 +360,18 @@ class FaultRunner:
             self.link.send("fault", phase="result", **run.result())
             self.judged += 1
             self.current = None
+
+    def _turn_s(self) -> float:
+        """How long the tree's relocalisation turn in place lasts at most (s)."""
+        bt = self.app.cfg.bt
+        return float(bt.relocalise_rotation_rad / bt.relocalise_speed_radps) + 2.0
+
+    def _relocalise_turn(self, now: float) -> bool:
+        """The tree is turning the rover in place to relocalise (its last drive command, of
+        the last half second, is the turn's)."""
+        cmd = self.app.bus.latest(CMD_VEL_NAV)
+        return cmd is not None and cmd.source == "relocalise" and now - cmd.stamp <= 0.5 \
+            and cmd.linear_mps == 0.0
 
     def _operator_estop(self) -> bool:
         """An operator's e-stop is engaged: the drivers rightly stay degraded (disarmed)

@@ -9,6 +9,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
+from curio.core.geometry import Pose2D
 from curio.soak.faults import Injection
 from curio.soak.judge import FaultRun, FaultRunner
 from curio.soak.plan import PlannedFault
@@ -118,3 +119,76 @@ def test_visitors_walk_in_the_soak_by_default() -> None:
 
     assert "sim.crowd.visitors=6" in Orchestrator(SoakOptions())._overrides()
     assert "sim.crowd.visitors=0" in Orchestrator(SoakOptions(visitors=0))._overrides()
+
+
+def _lost_run(runner: FaultRunner, turn: dict[str, Any]) -> FaultRun:
+    """A kidnap 60 s past its clearing, never found, a help request open; ``turn['cmd']`` is
+    the last drive command on ``/cmd_vel_nav``."""
+    from curio.core.config import load_config
+    from curio.core.topics import CMD_VEL_NAV
+
+    runner.app.cfg = load_config(None, [])
+    runner.app.bus = SimpleNamespace(
+        latest=lambda topic: turn.get("cmd") if topic == CMD_VEL_NAV else None,
+        publish=lambda topic, msg: None)
+    runner.app.world.truth_pose = Pose2D(1.0, 2.0, 0.0)
+    runner.help_open_s = 30.0
+    inj = Injection(("localization",), ("localization.lost",), None, 60.0)
+    run = FaultRun(PlannedFault(1, "kidnap", 0.0), inj, injected_s=0.0, injected_wall_s=0.0)
+    run.cleared_s, run.log_s = 0.0, 1.0
+    runner.current = run
+    return run
+
+
+def test_a_lost_rover_turning_at_the_deadline_is_judged_when_its_turn_ends() -> None:
+    """Seed 3: an operator's Resume started the lost rover's relocalisation turn again and
+    the deadline came while it turned in place, help asked: judged "failed" for moving.
+    The deadline waits for the bounded turn; standing and asking after it, it stopped
+    safely."""
+    from curio.core.messages import Twist
+
+    runner, sent = _runner()
+    runner.localised = lambda: False  # type: ignore[method-assign]
+    turn: dict[str, Any] = {}
+    run = _lost_run(runner, turn)
+    now = 60.0
+    while now < 66.0:  # turning past the deadline
+        runner.app.world.truth_twist = (0.0, 0.4)
+        turn["cmd"] = Twist(now, 0.0, 0.4, source="relocalise")
+        runner._judge(run, now)
+        now += 0.25
+    assert not sent, "judged while the lost rover turned in place"
+    runner.app.world.truth_twist = (0.0, 0.0)  # the turn is over: it stands and asks
+    turn["cmd"] = Twist(now, 0.0, 0.0, source="relocalise")
+    runner._judge(run, now + 1.0)
+    assert sent and sent[0]["outcome"] == "stopped_safely", sent
+    assert sent[0]["waited_for_turn_s"] == 6.0
+
+
+def test_a_turn_that_never_ends_is_not_waited_for_ever() -> None:
+    from curio.core.messages import Twist
+
+    runner, sent = _runner()
+    runner.localised = lambda: False  # type: ignore[method-assign]
+    turn: dict[str, Any] = {}
+    run = _lost_run(runner, turn)
+    runner.app.world.truth_twist = (0.0, 0.4)
+    now = 60.0
+    while not sent and now < 200.0:
+        turn["cmd"] = Twist(now, 0.0, 0.4, source="relocalise")
+        runner._judge(run, now)
+        now += 0.25
+    turn_s = 6.3 / 0.4 + 2.0
+    assert sent and sent[0]["outcome"] == "failed"
+    assert abs(now - 60.0 - turn_s) <= 0.5, now
+
+
+def test_a_driving_rover_at_the_deadline_is_not_waited_for() -> None:
+    from curio.core.messages import Twist
+
+    runner, sent = _runner()
+    runner.localised = lambda: False  # type: ignore[method-assign]
+    run = _lost_run(runner, {"cmd": Twist(60.0, 0.3, 0.0, source="nav")})
+    runner.app.world.truth_twist = (0.3, 0.0)
+    runner._judge(run, 60.0)
+    assert sent and sent[0]["outcome"] == "failed"
