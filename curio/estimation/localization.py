@@ -73,6 +73,9 @@ log = logging.getLogger("curio.estimation.localization")
 F64 = npt.NDArray[np.float64]
 State = Literal["ok", "uncertain", "lost", "off"]
 
+# Pose-beam pairs the likelihood is computed for at once (a 512 KiB buffer; see ``_loglik``).
+LOGLIK_BLOCK_VALUES = 1 << 16
+
 
 def _flat(a: F64) -> F64:
     """``a`` as a contiguous 1-D float64 array (a view when it already is one)."""
@@ -124,16 +127,21 @@ class DistanceField:
         idx = np.where(inside, row * self.width + col, 0)
         return np.where(inside, self._flat[idx], self.max_dist_m)
 
-    def lookup_poses(self, poses: F64, pts: F64) -> F64:
+    def lookup_poses(self, poses: F64, pts: F64, out: F64 | None = None) -> F64:
         """Nearest-cell distance ``(M, N)`` at the points ``pts`` ``(N, 2)`` (``base_link``)
-        seen from each of the poses ``poses`` ``(M, 3)`` (x, y, yaw in ``map``), metres."""
+        seen from each of the poses ``poses`` ``(M, 3)`` (x, y, yaw in ``map``), metres;
+        written into ``out`` (a C-contiguous ``(M, N)`` array) when given."""
         c = np.cos(poses[:, 2])
         s = np.sin(poses[:, 2])
         if self._rotated:
             wx = poses[:, 0:1] + c[:, None] * pts[None, :, 0] - s[:, None] * pts[None, :, 1]
             wy = poses[:, 1:2] + s[:, None] * pts[None, :, 0] + c[:, None] * pts[None, :, 1]
-            return self.lookup(wx, wy)
-        out = np.empty((len(poses), len(pts)))
+            if out is None:
+                return self.lookup(wx, wy)
+            out[...] = self.lookup(wx, wy)
+            return out
+        if out is None:
+            out = np.empty((len(poses), len(pts)))
         lookup_poses(self.dist_m, self.origin.x, self.origin.y, self.resolution_m,
                      self.max_dist_m, _flat(poses[:, 0]), _flat(poses[:, 1]), c, s,
                      _flat(pts[:, 0]), _flat(pts[:, 1]), out)
@@ -334,13 +342,34 @@ def _kld_bound(k: F64, err: float, z: float) -> F64:
 
 @dataclass
 class _GlobalSearch:
-    """State of a global search spread over several scans."""
+    """State of a global search spread over several scans.
 
-    poses: F64  # (M, 3) candidates in map
+    The candidates are every lattice position at every heading, ``M = len(xy) * len(yaws)``,
+    visited in the random ``order``: candidate ``k`` is at ``xy[k // len(yaws)]`` heading
+    ``yaws[k % len(yaws)]``. Only the chunk a scan scores is made (:meth:`chunk`): the whole
+    list, 21 MB in the default building, was made and shuffled at every kidnap.
+    """
+
+    xy: F64  # (K, 2) lattice positions in map
+    yaws: F64  # (Y,) headings, rad
+    order: npt.NDArray[np.int32]  # (M,) a permutation of the candidates' indices
     recheck: bool = False  # started by a long middling fit, not by being lost
     next_index: int = 0
     top: F64 | None = None  # (K, 4): x, y, yaw, score — in map at ``top_odom``
     top_odom: Pose2D | None = None
+
+    def __len__(self) -> int:
+        return len(self.order)
+
+    def chunk(self, start: int, end: int) -> F64:
+        """Candidates ``order[start:end]`` as ``(n, 3)`` poses (x, y, yaw in ``map``)."""
+        idx = self.order[start:end]
+        cell, heading = np.divmod(idx, len(self.yaws))
+        poses = np.empty((len(idx), 3))
+        poses[:, 0] = self.xy[cell, 0]
+        poses[:, 1] = self.xy[cell, 1]
+        poses[:, 2] = self.yaws[heading]
+        return poses
 
 
 class Localizer:
@@ -382,6 +411,7 @@ class Localizer:
         self._delta = Pose2D()
         self.track_cov: F64 | None = None
         self._stationary_due_s = -math.inf  # scan time of the next check while standing still
+        self._loglik_buf: F64 = np.empty(0)  # :meth:`_loglik`'s working block
 
     # --- initialisation --------------------------------------------------------------------
     def initialize(self, pose: Pose2D, std_xy_m: float | None = None,
@@ -518,11 +548,36 @@ class Localizer:
         p[:, 2] = wrap_angles(th + h2)
 
     def _loglik(self, poses: F64, pts: F64, sigma_m: float) -> F64:
-        """Per-pose mean log-likelihood per beam (likelihood field), shape ``(M,)``."""
-        d = self.field.lookup_poses(poses, pts) - 0.5 * self.grid.resolution_m
+        """Per-pose mean log-likelihood per beam (likelihood field), shape ``(M,)``.
+
+        Computed in blocks of at most ``LOGLIK_BLOCK_VALUES`` pose-beam pairs in one buffer
+        kept by the localiser, in place: a global search scores 20 000 poses a scan, whose
+        ``(M, N)`` temporaries were six arrays of 6 MB each. The same operations in the same
+        order: the results are identical to the last bit.
+        """
+        m, n = len(poses), len(pts)
+        out: F64 = np.empty(m)
+        if m == 0:
+            return out
+        half = 0.5 * self.grid.resolution_m
         z_rand = self.cfg.laser_z_rand / self.cfg.laser_likelihood_max_dist_m
-        p = self.cfg.laser_z_hit * np.exp(-0.5 * (d / sigma_m) ** 2) + z_rand
-        out: F64 = np.mean(np.log(p), axis=1)
+        z_hit = self.cfg.laser_z_hit
+        rows = max(1, LOGLIK_BLOCK_VALUES // max(1, n))
+        if len(self._loglik_buf) < min(m, rows) * n:
+            self._loglik_buf = np.empty(max(LOGLIK_BLOCK_VALUES, n))
+        for a in range(0, m, rows):
+            b = min(m, a + rows)
+            d = self._loglik_buf[:(b - a) * n].reshape(b - a, n)
+            self.field.lookup_poses(poses[a:b], pts, out=d)
+            d -= half
+            d /= sigma_m
+            np.square(d, out=d)
+            d *= -0.5
+            np.exp(d, out=d)
+            d *= z_hit
+            d += z_rand
+            np.log(d, out=d)
+            np.mean(d, axis=1, out=out[a:b])
         return out
 
     def _sensor_update(self, pts: F64) -> None:
@@ -752,15 +807,13 @@ class Localizer:
         local = (np.stack([cols, rows], axis=1).astype(np.float64) + 0.5) * self.grid.resolution_m
         xy = self.grid.origin.transform_points(local)
         n_yaw = max(4, round(2 * math.pi / self.cfg.global_yaw_step_rad))
-        yaws = -math.pi + (np.arange(n_yaw) + 0.5) * (2 * math.pi / n_yaw)
-        poses = np.empty((len(xy) * n_yaw, 3))
-        poses[:, 0] = np.repeat(xy[:, 0], n_yaw)
-        poses[:, 1] = np.repeat(xy[:, 1], n_yaw)
-        poses[:, 2] = np.tile(yaws, len(xy))
-        poses = poses[self.rng.permutation(len(poses))]
-        self.search = _GlobalSearch(poses, recheck=recheck)
+        yaws = np.asarray(-math.pi + (np.arange(n_yaw) + 0.5) * (2 * math.pi / n_yaw),
+                          dtype=np.float64)
+        # Shuffling the indices draws what shuffling the (M, 3) list did: the same order.
+        order = self.rng.permutation(np.arange(len(xy) * n_yaw, dtype=np.int32))
+        self.search = _GlobalSearch(xy, yaws, order, recheck=recheck)
         self.searches += 1
-        log.info("global localisation: searching %d poses", len(poses))
+        log.info("global localisation: searching %d poses", len(order))
 
     def _propagate_top(self, delta: Pose2D) -> None:
         s = self.search
@@ -776,8 +829,8 @@ class Localizer:
         s = self.search
         assert s is not None
         pts = pts_pf[np.linspace(0, len(pts_pf) - 1, min(len(pts_pf), 36)).astype(int)]
-        end = min(len(s.poses), s.next_index + self.cfg.global_poses_per_scan)
-        chunk = s.poses[s.next_index:end]
+        end = min(len(s), s.next_index + self.cfg.global_poses_per_scan)
+        chunk = s.chunk(s.next_index, end)
         s.next_index = end
         score = self._loglik(chunk, pts, 0.2)
         k = min(60, len(chunk))
@@ -788,7 +841,7 @@ class Localizer:
         # everything higher): keep a generous list, re-scored against one scan at the end.
         order = np.argsort(-s.top[:, 3])[:240]
         s.top = s.top[order]
-        if s.next_index < len(s.poses):
+        if s.next_index < len(s):
             return
         self._finish_search(scan)
 
