@@ -22,7 +22,7 @@ from typing import Any, TextIO
 from curio import kernels
 from curio.commands.common import run_command
 from curio.core.clock import process_cpu_time, wall_perf_counter
-from curio.core.config import Config, load_config
+from curio.core.config import REPO_ROOT, Config, load_config
 
 __all__ = ["main", "prepare", "warm"]
 
@@ -42,6 +42,17 @@ def _workload_config(cfg: Config, data_dir: Path, mode: str, visitors: int) -> C
     run.bt.speak = False
     run.localization.mode = mode  # type: ignore[assignment]
     run.sim.crowd.visitors = visitors
+    if not run.bt.tour_stops:
+        # A rover whose tours are authored on the dashboard has no configured stops, and the
+        # guided tour needs some: the workload drives the shipped building and its tour (the
+        # kernels' argument types do not depend on the building). Before, the warmup failed
+        # on such a rover and every kernel compiled inside the running loop.
+        shipped = load_config(REPO_ROOT / "config.toml")
+        run.bt.tour_stops = shipped.bt.tour_stops
+        run.sim.world = str(shipped.resolve(shipped.sim.world))
+        run.localization.map_yaml = None  # the world's map
+        run.sim.start = None
+        run.robot.home = shipped.robot.home
     return run
 
 

@@ -130,6 +130,26 @@ def test_warmup_compiles_every_kernel_from_a_cold_cache(tmp_path: Path,
     assert check.kernel_cache_row(_cfg(where)).status == "ok"
 
 
+def test_the_warmup_drives_the_shipped_tour_when_the_rover_has_no_stops(tmp_path: Path) -> None:
+    """A rover whose tours are authored on the dashboard configures no ``bt.tour_stops``:
+    the warmup's guided tour refused to start (ScenarioFailed), the warmup failed and every
+    kernel compiled inside the running rover (the soak's rover, 2026-12-01). Its workload
+    now drives the shipped building's tour."""
+    from curio.commands.warmup import _workload_config
+    from curio.scenarios.base import ScenarioArgs
+    from curio.scenarios.guided_tour import GuidedTourScenario
+
+    shipped = _cfg(None)
+    rover = load_config(REPO_ROOT / "config.toml",
+                        ["bt.tour_stops=[]", 'sim.world="elsewhere.yaml"'])
+    run = _workload_config(rover, tmp_path, "localize", 8)
+    assert run.bt.tour_stops == shipped.bt.tour_stops and run.bt.tour_stops
+    assert Path(run.sim.world) == shipped.resolve(shipped.sim.world)
+    GuidedTourScenario().configure(run, ScenarioArgs())  # raised before
+    own = _workload_config(shipped, tmp_path, "localize", 8)  # stops of its own: kept
+    assert own.sim.world == shipped.sim.world
+
+
 def test_a_kernel_compiling_while_the_rover_runs_is_logged(
         caplog: pytest.LogCaptureFixture) -> None:
     """After the start's preload, a compilation (a layout the warmup never made) is a warning
