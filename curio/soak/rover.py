@@ -10,6 +10,10 @@ judge (``restart``), the ballast file for the disk-full faults, and the seed.
 What the rover knows comes from its data directory only: its own pose estimate starts from
 what it persisted (``last_pose.json``), not from the simulator.
 
+It starts as ``curio run`` does: the compiled kernels loaded (or compiled) before the
+application is built (:func:`curio.commands.warmup.prepare`), so a kernel that still compiles
+while the rover runs is a warning in its log.
+
 Parts added beside the application's: the fault runner (:mod:`curio.soak.judge`), the
 director (the time-lapse while parked, the end), a heartbeat with the simulated rover's state,
 a forwarder of the events the ledger needs, and a resource probe (:mod:`curio.soak.probes`).
@@ -272,6 +276,14 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
                         datefmt="%H:%M:%S")
+    # As ``curio run`` starts: the compiled kernels loaded (or compiled) first, and a kernel
+    # that still compiles inside the running loop named in the log.
+    from curio.commands.warmup import prepare
+
+    config = spec.get("config")
+    overrides = list(spec.get("overrides", []))
+    prepare(load_config(config, overrides),
+            [*(["--config", str(config)] if config else []), *(f"--set={o}" for o in overrides)])
     return asyncio.run(run_rover(spec))
 
 
