@@ -2,7 +2,8 @@
 
 It prepares the rover's data directory (on a size-limited tmpfs when it can:
 :mod:`curio.soak.disk`) with named tokens for its clients, draws the campaign
-(:mod:`curio.soak.plan`), then starts the rover (``python -m curio.soak.rover SPEC``) and
+(:mod:`curio.soak.plan`), compiles the kernels into the cache when some are missing (``curio
+warmup``, as after an install), then starts the rover (``python -m curio.soak.rover SPEC``) and
 supervises it:
 
 * every line the rover writes is taken by :class:`~curio.soak.observe.Observations`;
@@ -175,6 +176,26 @@ class Orchestrator:
                                                                             s.index]),
                                    self._address) for s in specs]
         self.expected.path_edits = [c.path for c in self.clients if c.path is not None]
+        self._warm_kernels()
+
+    def _warm_kernels(self) -> None:
+        """As after an install: ``curio warmup`` once, before the first rover, when some
+        kernel has nothing in the cache. Each rover then starts as ``curio run`` does and only
+        loads them; compiling inside a rover's start took longer than ``HUNG_S`` on a busy
+        machine."""
+        import subprocess
+
+        from curio import kernels
+
+        cfg = load_config(self.opts.config, self._overrides())
+        kernels.use_cache_dir(cfg)
+        if all(k.cached for k in kernels.status()):
+            return
+        log.info("soak: compiling the kernels first (curio warmup)")
+        config_args = [*(["--config", str(self.opts.config)] if self.opts.config else []),
+                       *(f"--set={o}" for o in self._overrides())]
+        subprocess.run([sys.executable, "-m", "curio", "warmup", *config_args], check=False,
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
     def _umount_stale(self) -> None:
         """A tmpfs left mounted by an earlier soak that was killed."""

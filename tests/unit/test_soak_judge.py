@@ -192,3 +192,27 @@ def test_a_driving_rover_at_the_deadline_is_not_waited_for() -> None:
     runner.app.world.truth_twist = (0.3, 0.0)
     runner._judge(run, 60.0)
     assert sent and sent[0]["outcome"] == "failed"
+
+
+def test_the_soak_compiles_missing_kernels_once_before_the_first_rover(
+        monkeypatch: Any, tmp_path: Any) -> None:
+    """Each rover starts as ``curio run`` does (the kernels loaded first); with a cold cache
+    that start compiled for minutes and the orchestrator took the silent rover for hung. So
+    the orchestrator runs ``curio warmup`` first, as after an install — only when some kernel
+    has nothing cached."""
+    import subprocess
+
+    from curio import kernels
+    from curio.soak.orchestrator import Orchestrator, SoakOptions
+
+    ran: list[list[str]] = []
+    monkeypatch.setattr(subprocess, "run", lambda args, **kw: ran.append(list(args)))
+    orch = Orchestrator(SoakOptions(workdir=tmp_path))
+    monkeypatch.setattr(kernels, "status", lambda: [kernels.KernelStatus("k", 1)])
+    orch._warm_kernels()
+    assert ran == []
+    monkeypatch.setattr(kernels, "status", lambda: [kernels.KernelStatus("k", 1),
+                                                    kernels.KernelStatus("cold", 0)])
+    orch._warm_kernels()
+    assert len(ran) == 1 and ran[0][1:4] == ["-m", "curio", "warmup"]
+    assert any(a.startswith("--set=data_dir=") for a in ran[0])
