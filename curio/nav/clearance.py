@@ -234,6 +234,9 @@ class ClearanceProbe:
         self._job: asyncio.Future[list[Pose2D]] | None = None
         self._scan_stamp = -math.inf
         self._goal: Pose2D | None = None
+        # (static map, keep-out mask, costs) of the last static_costs()
+        self._static_costs: tuple[Any, npt.NDArray[np.bool_], npt.NDArray[np.uint8]] | None \
+            = None
 
     @property
     def busy(self) -> bool:
@@ -252,17 +255,26 @@ class ClearanceProbe:
         self._scan_stamp = -math.inf
 
     def static_costs(self) -> npt.NDArray[np.uint8]:
-        """The static map and keep-out zones, inflated as in the costmap (no obstacles)."""
+        """The static map and keep-out zones, inflated as in the costmap (no obstacles);
+        read-only, and made again only when the static map or the zones changed (two
+        whole-map distance transforms: a help episode with no route asked for them every
+        quarter second, tens of MB of temporaries each time)."""
         cm = self.costmap
         occupied = cm.static_map.occupied_mask()
         keepout = cm.keepout_mask() if hasattr(cm, "keepout_mask") else np.zeros_like(occupied)
+        cached = self._static_costs
+        if cached is not None and cached[0] is cm.static_map \
+                and np.array_equal(cached[1], keepout):
+            return cached[2]
         lethal = occupied | keepout
         dist = np.asarray(ndimage.distance_transform_edt(~lethal)) * cm.resolution_m
         costs = inflation_costs(dist, cm.inscribed_radius_m, cm.cfg.inflation_radius_m,
                                 cm.cfg.cost_scaling_factor)
         unknown = cm.static_map.unknown_mask() & (costs < INSCRIBED)
         costs[unknown] = NO_INFORMATION
+        costs.setflags(write=False)  # shared by every plan of the probe, as the costmap's
         self.static = StaticView(occupied, cm.resolution_m, cm.origin)
+        self._static_costs = (cm.static_map, keepout, costs)
         return costs
 
     def start(self, goal: Pose2D, now_s: float) -> bool:

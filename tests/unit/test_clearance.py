@@ -19,6 +19,7 @@ from curio.core.topics import HELP_BLOCKAGE, POSE, SCAN, make_bus
 from curio.estimation.maps import OccupancyGrid
 from curio.nav.clearance import ClearanceProbe, StaticView, judge_route
 from curio.nav.costmap import Costmap
+from curio.nav.costs import LETHAL
 from curio.nav.planner import GlobalPlanner
 from curio.robot import RobotModel
 from curio.sim.objects import Door
@@ -103,3 +104,29 @@ def test_judge_route_sees_a_box_beside_the_line_of_sight_and_not_past_a_corner()
     seen = judge_route(bend, world.truth_pose, laser, world.cast_scan(0.2), static, 0.32)
     assert seen.blocked_at_m is None
     assert 2.5 < seen.judged_m < 3.2  # the samples below y = 1.4 are behind the wall
+
+
+def test_the_static_costs_are_made_once_until_the_map_or_the_zones_change(
+        monkeypatch: object) -> None:
+    """A help episode with no route asks for the static costs every quarter second; each
+    time two whole-map distance transforms ran (tens of MB of temporaries: the resident
+    size of the soak's rover swung by 7–11 MB through help episodes)."""
+    from curio.nav import clearance
+
+    _, _, costmap, planner, robot = _setup()
+    probe = ClearanceProbe(planner, costmap, make_bus(), SimClock(), robot.laser_in_base,
+                           costmap.inscribed_radius_m)
+    calls = []
+    edt = clearance.ndimage.distance_transform_edt
+    monkeypatch.setattr(clearance.ndimage, "distance_transform_edt",  # type: ignore[attr-defined]
+                        lambda a, *k, **kw: calls.append(1) or edt(a, *k, **kw))
+    first = probe.static_costs()
+    assert len(calls) == 2 and not first.flags.writeable
+    assert probe.static_costs() is first and len(calls) == 2  # nothing changed: no transform
+    zone = costmap.keepout_mask()
+    zone[10:20, 100:110] = True
+    costmap.set_keepout(zone)
+    again = probe.static_costs()
+    assert len(calls) == 4 and again is not first
+    assert (again[10:20, 100:110] == LETHAL).all()
+    assert probe.static_costs() is again and len(calls) == 4
