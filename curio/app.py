@@ -41,6 +41,7 @@ from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.datanotes import DataNotes
 from curio.core.loopwatch import LoopWatch
+from curio.core.memory import tune_allocator
 from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
 from curio.core.runmarker import RunMarker
@@ -114,6 +115,7 @@ class App:
         self.cfg = cfg
         self.clock = clock
         use_cache_dir(cfg)  # numba_cache_dir, before any kernel compiles or loads
+        tune_allocator()  # glibc's end state from the start (curio/core/memory.py)
         self.bus: Bus = make_bus()
         # Home is the dock and the start pose: the last waypoint of path 0 (one source of
         # truth, curio/docking/home.py); the robot model carries it to every part.
