@@ -347,7 +347,8 @@ class _GlobalSearch:
     The candidates are every lattice position at every heading, ``M = len(xy) * len(yaws)``,
     visited in the random ``order``: candidate ``k`` is at ``xy[k // len(yaws)]`` heading
     ``yaws[k % len(yaws)]``. Only the chunk a scan scores is made (:meth:`chunk`): the whole
-    list, 21 MB in the default building, was made and shuffled at every kidnap.
+    list (195 878 candidates, 4.7 MB in the default building) was made and copied shuffled at
+    every kidnap.
     """
 
     xy: F64  # (K, 2) lattice positions in map
