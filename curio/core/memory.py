@@ -7,7 +7,7 @@ heap-trim threshold to twice that, so that from then on blocks of that size come
 and stay resident. A rover that runs for days gets there anyway — after the first recorder
 chunk, the first compression, the first global search, at times nobody chooses: in the soak the
 resident size swung by 8–11 MB from minute to minute and climbed in steps for the first
-40 minutes of every process (docs/reliability.md, "Memory: the allocator's warm-up").
+40 minutes of every process (docs/reliability.md, "Memory: what the rover keeps, found").
 
 :func:`tune_allocator` puts glibc in that end state at the start: ``M_MMAP_THRESHOLD`` at
 :data:`MMAP_THRESHOLD_BYTES` (32 MiB, glibc's own ceiling) and ``M_TRIM_THRESHOLD`` at
