@@ -41,7 +41,7 @@ from curio.core.clock import Clock
 from curio.core.config import Config
 from curio.core.datanotes import DataNotes
 from curio.core.loopwatch import LoopWatch
-from curio.core.memory import tune_allocator
+from curio.core.memory import reserve_heap, tune_allocator
 from curio.core.messages import Twist
 from curio.core.parts import Part, Parts
 from curio.core.runmarker import RunMarker
@@ -245,6 +245,7 @@ class App:
         # rover: out of the cyclic collector's sight, a full collection no longer walks ~130 000
         # objects (86 ms of CPU here, ~0.35 s on a Pi 4 core, with the safety stage held).
         gc.freeze()
+        reserve_heap()  # the heap's room for the large work still to come (curio/core/memory.py)
 
     async def _guard(self, run: Callable[[], Awaitable[None]], name: str) -> None:
         try:

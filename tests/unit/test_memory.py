@@ -45,3 +45,40 @@ def test_large_blocks_come_from_the_heap_from_the_start() -> None:
     default, tuned = _run("default"), _run("tuned")
     assert float(default["mapped_mb"]) >= 8.0  # type: ignore[arg-type]
     assert tuned["tuned"] is True and float(tuned["mapped_mb"]) < 1.0  # type: ignore[arg-type]
+
+
+RESERVE = textwrap.dedent("""
+    import json, sys
+    import numpy as np
+    from curio.core.memory import reserve_heap, tune_allocator
+
+    def rss_mb():
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * 4096 / 1e6
+
+    if sys.argv[1] == "tuned":
+        tune_allocator()
+    before = rss_mb()
+    taken = reserve_heap()
+    reserved = rss_mb()
+    for _ in range(3):  # large transient work met later: a global search, a help episode
+        work = np.ones(2 * 1024 * 1024)  # 16 MB
+        del work
+    print(json.dumps({"taken": taken, "reserve_mb": reserved - before,
+                      "later_mb": rss_mb() - reserved}))
+""")
+
+
+def test_the_heap_reserve_holds_large_work_met_later() -> None:
+    """The reserve is resident at once, and 16 MB of work afterwards fits in it (the
+    resident size does not grow); untuned, no reserve is taken (glibc would trim it)."""
+    env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("MALLOC_")}
+    runs = {}
+    for mode in ("tuned", "default"):
+        out = subprocess.run([sys.executable, "-c", RESERVE, mode], capture_output=True,
+                             text=True, check=True, env=env, timeout=60)
+        runs[mode] = json.loads(out.stdout.strip().splitlines()[-1])
+    tuned = runs["tuned"]
+    assert tuned["taken"] is True and tuned["reserve_mb"] >= 20.0, tuned
+    assert tuned["later_mb"] < 1.0, tuned
+    assert runs["default"]["taken"] is False
