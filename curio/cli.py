@@ -250,11 +250,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from curio.drivers.modes import driver_mode
 
     cfg = _load(args)
-    from curio.commands.warmup import prepare
+    from curio.commands.warmup import config_args, prepare
 
-    config_args = [*(["--config", str(args.config)] if args.config else []),
-                   *(f"--set={o}" for o in args.overrides)]
-    prepare(cfg, config_args)  # the compiled kernels loaded (or compiled) before the start
+    # the compiled kernels loaded (or compiled) before the start
+    prepare(cfg, config_args(args.config, args.overrides))
     clock: Clock
     sim_clock: SimClock | None = None
     if driver_mode(cfg).world and cfg.sim.speed is not None:

@@ -24,7 +24,7 @@ from curio.commands.common import run_command
 from curio.core.clock import process_cpu_time, wall_perf_counter
 from curio.core.config import REPO_ROOT, Config, load_config
 
-__all__ = ["main", "prepare", "warm"]
+__all__ = ["config_args", "main", "prepare", "run_warmup", "warm"]
 
 log = logging.getLogger("curio.kernels")
 
@@ -110,6 +110,20 @@ def warm(cfg: Config, sim_s: float = 30.0) -> dict[str, Any]:
             "compiled": compiled, "cold": cold}
 
 
+def config_args(config: Path | str | None, overrides: list[str]) -> list[str]:
+    """The ``--config``/``--set`` arguments that give a child ``curio`` the same config."""
+    return [*(["--config", str(config)] if config else []), *(f"--set={o}" for o in overrides)]
+
+
+def run_warmup(args: list[str]) -> int:
+    """``curio warmup ARGS`` in a child process, its output thrown away (its simulated drive's
+    log is not the caller's); its exit code."""
+    import subprocess
+
+    return subprocess.run([sys.executable, "-m", "curio", "warmup", *args], check=False,
+                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
+
+
 def prepare(cfg: Config, config_args: list[str]) -> None:
     """Before the rover starts: use the configured cache and load every cached kernel; when
     some kernel has nothing cached (a first start, or new sources), compile them all first by
@@ -117,8 +131,6 @@ def prepare(cfg: Config, config_args: list[str]) -> None:
     (the workload's memory is not kept by the rover's process), then load them. A kernel
     compiling inside the running loop would stall it for seconds (longer than the systemd
     watchdog allows on a Pi)."""
-    import subprocess
-
     where = kernels.describe(kernels.use_cache_dir(cfg))
     t0 = wall_perf_counter()
     loaded, cold = kernels.preload()
@@ -133,10 +145,9 @@ def prepare(cfg: Config, config_args: list[str]) -> None:
     # The child's own output (its simulated drive's log) is not the rover's: only what is
     # still missing afterwards is said (a warmup that failed, e.g. on a map the rover cannot
     # load either: the rover's own start then says what is wrong).
-    child = subprocess.run([sys.executable, "-m", "curio", "warmup", *config_args],
-                           check=False, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    code = run_warmup(config_args)
     more, cold = kernels.preload()
-    if cold and child.returncode != 2:  # 2: a setup error the rover's start will name
+    if cold and code != 2:  # 2: a setup error the rover's start will name
         log.warning("compiled kernels: still not cached after the warmup (they compile at "
                     "their first call): %s", ", ".join(cold))
     else:

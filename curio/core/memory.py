@@ -48,6 +48,11 @@ _ENVIRONMENT = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 _tuned: list[bool] = []  # tune_allocator fixed the thresholds in this process
 
 
+def _libc() -> ctypes.CDLL:
+    """The C library (raises OSError where there is none to load)."""
+    return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+
+
 def tune_allocator() -> bool:
     """Fix glibc's mmap and trim thresholds for this process (calling it again changes
     nothing). Returns True when they are fixed, by this call or by the environment; False
@@ -55,8 +60,7 @@ def tune_allocator() -> bool:
     if any(name in os.environ for name in _ENVIRONMENT):
         return True
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
+        mallopt = _libc().mallopt
     except (OSError, AttributeError):
         return False
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
@@ -76,7 +80,7 @@ def reserve_heap() -> bool:
     the block and unmap it, or trim it); returns whether the reserve was taken."""
     if not _tuned:
         return False
-    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+    libc = _libc()
     libc.malloc.restype = ctypes.c_void_p
     libc.malloc.argtypes = [ctypes.c_size_t]
     libc.free.argtypes = [ctypes.c_void_p]

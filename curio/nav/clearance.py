@@ -260,12 +260,13 @@ class ClearanceProbe:
         whole-map distance transforms: a help episode with no route asked for them every
         quarter second, tens of MB of temporaries each time)."""
         cm = self.costmap
-        occupied = cm.static_map.occupied_mask()
-        keepout = cm.keepout_mask() if hasattr(cm, "keepout_mask") else np.zeros_like(occupied)
+        keepout = cm.keepout_mask() if hasattr(cm, "keepout_mask") \
+            else np.zeros(cm.static_map.data.shape, dtype=bool)
         cached = self._static_costs
         if cached is not None and cached[0] is cm.static_map \
                 and np.array_equal(cached[1], keepout):
             return cached[2]
+        occupied = cm.static_map.occupied_mask()
         lethal = occupied | keepout
         dist = np.asarray(ndimage.distance_transform_edt(~lethal)) * cm.resolution_m
         costs = inflation_costs(dist, cm.inscribed_radius_m, cm.cfg.inflation_radius_m,

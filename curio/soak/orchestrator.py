@@ -183,19 +183,15 @@ class Orchestrator:
         kernel has nothing in the cache. Each rover then starts as ``curio run`` does and only
         loads them; compiling inside a rover's start took longer than ``HUNG_S`` on a busy
         machine."""
-        import subprocess
-
         from curio import kernels
+        from curio.commands.warmup import config_args, run_warmup
 
         cfg = load_config(self.opts.config, self._overrides())
         kernels.use_cache_dir(cfg)
         if all(k.cached for k in kernels.status()):
             return
         log.info("soak: compiling the kernels first (curio warmup)")
-        config_args = [*(["--config", str(self.opts.config)] if self.opts.config else []),
-                       *(f"--set={o}" for o in self._overrides())]
-        subprocess.run([sys.executable, "-m", "curio", "warmup", *config_args], check=False,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        run_warmup(config_args(self.opts.config, self._overrides()))
 
     def _umount_stale(self) -> None:
         """A tmpfs left mounted by an earlier soak that was killed."""

@@ -278,12 +278,11 @@ def main(argv: list[str] | None = None) -> int:
                         datefmt="%H:%M:%S")
     # As ``curio run`` starts: the compiled kernels loaded (or compiled) first, and a kernel
     # that still compiles inside the running loop named in the log.
-    from curio.commands.warmup import prepare
+    from curio.commands.warmup import config_args, prepare
 
     config = spec.get("config")
     overrides = list(spec.get("overrides", []))
-    prepare(load_config(config, overrides),
-            [*(["--config", str(config)] if config else []), *(f"--set={o}" for o in overrides)])
+    prepare(load_config(config, overrides), config_args(config, overrides))
     return asyncio.run(run_rover(spec))
 
 

@@ -206,7 +206,8 @@ def test_the_soak_compiles_missing_kernels_once_before_the_first_rover(
     from curio.soak.orchestrator import Orchestrator, SoakOptions
 
     ran: list[list[str]] = []
-    monkeypatch.setattr(subprocess, "run", lambda args, **kw: ran.append(list(args)))
+    monkeypatch.setattr(subprocess, "run", lambda args, **kw: ran.append(list(args))
+                        or SimpleNamespace(returncode=0))
     orch = Orchestrator(SoakOptions(workdir=tmp_path))
     monkeypatch.setattr(kernels, "status", lambda: [kernels.KernelStatus("k", 1)])
     orch._warm_kernels()
