@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from curio.commands.bench import BenchOptions
+from curio.commands.bench import BenchOptions, prepare_kernels
 from curio.core.config import REPO_ROOT, Config, load_config
 from curio.core.geometry import Pose2D, wrap_angle
 from curio.estimation.maps import OccupancyGrid, load_map
@@ -159,6 +159,7 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
     grid = load_map(cfg.resolve(cfg.sim.world))
     n = opts.pairs or 20
     pairs = _pairs(cfg, n, opts.seed)
+    prepare_kernels()
     GlobalPlanner(cfg.nav.planner).warm_up()
     rows: list[dict[str, Any]] = []
     rows.append({"subject": "curio", "map": cfg.sim.world, **_drive(cfg, grid, pairs, False),

@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from curio.commands.bench import BenchOptions
+from curio.commands.bench import BenchOptions, prepare_kernels
 from curio.core.clock import process_cpu_time, wall_perf_counter
 from curio.core.config import REPO_ROOT, load_config
 from curio.core.errors import SetupError
@@ -286,6 +286,7 @@ def rtf_row(visitors: int, seed: int) -> dict[str, Any]:
 
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    prepare_kernels()
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(REPO_ROOT / "config.toml",
                           [f'data_dir="{tmp}"', "web.port=0", "bt.speak=false"])

@@ -30,7 +30,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from curio.commands.bench import BenchOptions
+from curio.commands.bench import BenchOptions, prepare_kernels
 from curio.core.clock import process_cpu_time, wall_perf_counter
 from curio.core.config import REPO_ROOT, load_config
 from curio.scenarios import get_scenario
@@ -81,6 +81,7 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
     scenario_name = str(opts.extra.get("scenario", "guided-tour"))
     duration_s = float(opts.extra.get("duration", 1800))
+    prepare_kernels()
     _one("warm-up", scenario_name, True, [], opts.seed, 5.0)  # imports, compiled kernels
     off = _one("curio, recorder off", scenario_name, False, [], opts.seed, duration_s)
     rows = [

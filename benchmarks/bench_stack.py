@@ -45,7 +45,7 @@ from typing import Any
 
 from benchmarks.calibration import naive_scans_per_cpu_s
 from curio.app import App
-from curio.commands.bench import BenchOptions
+from curio.commands.bench import BenchOptions, prepare_kernels
 from curio.core.clock import process_cpu_time, wall_perf_counter
 from curio.core.config import REPO_ROOT, load_config
 from curio.core.cpu_meter import CpuMeter
@@ -151,6 +151,7 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
     with_web = str(opts.extra.get("web", "1")) not in ("0", "false", "")
     # Untimed warm-up: imports and compiled-kernel loading are paid once per process, not by
     # whichever subject happens to run first.
+    prepare_kernels()
     _measure(scenario_name, [], True, opts.seed, 5.0, False)
     calib = [naive_scans_per_cpu_s()]
     rows = []
