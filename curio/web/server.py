@@ -94,6 +94,9 @@ def create_app(services: WebServices) -> web.Application:
     app[ROVER] = rover
     app[HUB] = Hub(services.cfg, services.robot, services.clock, services.bus, rover,
                    services.paths, services.part_states)
+    # Subscribed now, before the rover's parts start: what they say at their start (an unclean
+    # restart, an interrupted tour, a file restored from its backup) reaches the pages too.
+    app[HUB].open()
     app[GATE] = Gate(cfg, services.tokens, services.clock)
     app[STATIC_VERSION] = _static_version()
     app.on_response_prepare.append(_security_headers)

@@ -169,3 +169,49 @@ async def test_replay_timeline_pauses_and_seeks(tmp_path: Path) -> None:
         thread.join(timeout=30)
         with contextlib.suppress(Exception):
             out.close()
+
+
+async def test_a_start_after_a_crash_reads_as_sentences(tmp_path: Path, viewport: str) -> None:
+    """What a rover finds at a start after ``kill -9`` or a power cut — the run marker of a
+    process that never stopped, the journal of a tour it was running, a damaged schedules file
+    — reaches the operator as sentences that stand out, on the dashboard and in the event log.
+    Drives: the run marker, the tour journal, the data notes, the event log, the two pages."""
+    from tests.unit.test_schedules import store
+
+    cfg = kit.make_cfg(tmp_path / "data", 'tours.timezone="Europe/London"')
+    marker = cfg.data_path("running.json")
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    marker.write_text('{"pid": 999999, "started_wall_s": 1699990000.0, '
+                      '"alive_wall_s": 1699999880.0}')
+    cfg.data_path("tours.running.json").write_text(
+        '{"tour_id": 1, "tour": "Highlights", "source": "schedule", "request_id": null, '
+        '"stops": 5, "stops_reached": 2, "started_wall_s": 1699999700.0}')
+    schedules = cfg.data_path(cfg.tours.schedules_file)
+    store(schedules).add(1, ["mon"], ["10:00"])
+    schedules.write_bytes(b"\x00" * 40)  # torn by the power cut; its backup is whole
+    token = kit.add_token(cfg, "alice")
+    async with kit.running_app(cfg) as (app, _clock):
+        base = (app.web_url or "").split("?")[0]
+        async with kit.chromium() as browser:
+            b = await kit.open_page(browser, base + f"?token={token}", viewport)
+            rows = "[...document.querySelectorAll('#events li')]"
+            for cls, text in (("ev-bad", "restarted after an unclean stop"),
+                              ("ev-bad", "The tour 'Highlights' was interrupted after 2 of 5"),
+                              ("ev-warn", "schedules.json")):
+                await b.wait_js(f"{rows}.some(li => li.className === '{cls}' && "
+                                f"li.textContent.includes({text!r}))")
+            await b.shot("after-a-crash", "#events")
+
+            await b.page.goto(base + f"events?token={token}")
+            await b.page.select_option("#kind", label="restarts, stalls and damaged files")
+            await b.wait_js("[...document.querySelectorAll('#log tbody tr')].map(r => "
+                            "r.dataset.kind).sort().join() === "
+                            "'data.restored,system.unclean_restart,tour.interrupted'")
+            log_rows = b.page.locator("#log tbody tr")
+            classes = {await r.get_attribute("data-kind"): await r.get_attribute("class")
+                       for r in await log_rows.all()}
+            assert classes == {"system.unclean_restart": "bad", "tour.interrupted": "bad",
+                               "data.restored": "warn"}
+            assert "restarted after an unclean stop" in await b.text("#log tbody")
+            await b.shot("events-after-a-crash")
+            assert b.errors == []

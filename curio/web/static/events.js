@@ -44,6 +44,10 @@
       case "motion": return ["", "Drove " + num(d.distance_m, 1) + " m, moving " + C.fmtDuration(d.moving_s)];
       case "tours.changed": return ["who", (d.actor || "someone") + " changed tour " + d.tour_id + " (" + String(d.change).replace(/_/g, " ") + ")"];
       case "schedules.changed": return ["who", (d.actor || "someone") + " changed the schedule (" + d.change + ")"];
+      case "system.unclean_restart": case "tour.interrupted": case "data.reset":
+        return ["bad", d.message || k.replace(/[._]/g, " ")];
+      case "data.restored": case "loop.stalled":
+        return ["warn", d.message || k.replace(/[._]/g, " ")];
       default: {
         const parts = Object.entries(d).slice(0, 4).map(([key, v]) => key.replace(/_/g, " ") + " " + (typeof v === "object" ? JSON.stringify(v) : v));
         return ["", (d.message ? d.message : k.replace(/[._]/g, " ") + (parts.length ? ": " + parts.join(", ") : ""))];

@@ -413,6 +413,14 @@
     "driver.imu_lost": (d) => ["bad", "IMU lost: " + (d.reason || "")],
     "driver.imu_recovered": () => ["ok", "IMU back"],
     "paths.load_failed": (d) => ["bad", d.message || "The saved paths could not be read"],
+    // After a crash, a power cut or a damaged file: what the rover found at its start.
+    "system.unclean_restart": (d) => ["bad", d.message || "Restarted after an unclean stop (crash, kill or power cut)"],
+    "data.restored": (d) => ["warn", d.message || "A damaged file was replaced by its backup"],
+    "data.reset": (d) => ["bad", d.message || "A file and its backup could not be read: defaults are used"],
+    "loop.stalled": (d) => ["warn", d.message || "The rover's loop was blocked for " + Number(d.blocked_s || 0).toFixed(1) + " s"],
+    "driver.arduino_reset": () => ["warn", "The motor controller (Arduino) reset: its configuration was sent again"],
+    "driver.imu_calibration_saved": () => ["ok", "IMU calibration saved"],
+    "driver.imu_calibration_ignored": (d) => ["warn", "IMU calibration not restored" + (d.reason ? ": " + d.reason : "")],
   };
   // Told better by other lines (who changed which path is an operator.path event).
   const QUIET_EVENTS = new Set(["paths.changed"]);
@@ -421,6 +429,7 @@
     if (ev.kind.startsWith("operator.")) return [ev.kind === "operator.command" && d.action === "estop" ? "bad" : "who", (d.who === S.who.name ? "You (" + d.who + ")" : d.who) + " " + d.what];
     const f = EVENT_TEXT[ev.kind];
     if (f) return f(d);
+    if (d.message) return ["", String(d.message)];  // the rover's own sentence
     const parts = Object.entries(d).slice(0, 4).map(([k, v]) => k.replace(/_/g, " ") + " " + (typeof v === "object" ? JSON.stringify(v) : v));
     return ["", ev.kind.replace(/[._]/g, " ") + (parts.length ? ": " + parts.join(", ") : "")];
   }

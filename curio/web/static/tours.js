@@ -480,6 +480,7 @@
   Object.assign(C.EVENT_TEXT, {
     "tour.started": (d) => ["ok", "Tour " + name(d) + " started" + (d.source ? " by " + C.nameOf(d.source) : "")],
     "tour.finished": (d) => ["ok", "Tour " + name(d) + " finished" + (d.stops_reached !== undefined ? ": " + d.stops_reached + " of " + d.stops + " stops" : "")],
+    "tour.interrupted": (d) => ["bad", d.message || "Tour " + name(d) + " was interrupted: Curio stopped during it"],
     "tour.stopped": (d) => ["warn", "Tour " + name(d) + " stopped" + (d.reason ? ": " + d.reason : "")],
     "tour.scheduled_start": (d) => ["ok", "Scheduled tour " + name(d) + " (" + String(d.due || "").slice(11, 16) + ") started" + (d.late_s > 1 ? ", " + Math.round(d.late_s) + " s late" : "")],
     "tour.delayed": (d) => ["warn", d.message || "A scheduled tour waits: " + (d.reason || "")],
