@@ -175,6 +175,7 @@ class App:
         self.costmap: Costmap = nav.costmap
         self.planner: GlobalPlanner = nav.planner
         self.controller: LocalController = nav.controller
+        self.controller.motion_allowed = self.safety.would_allow  # its manoeuvres ask the stop zone
         self.navigator: NavigatorNode = nav.navigator
         self.obstacles: ObstacleNode = nav.obstacles
         self.blocked: BlockedDetector = nav.obstacles.detector

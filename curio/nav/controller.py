@@ -75,6 +75,10 @@ __all__ = [
 F64 = npt.NDArray[np.float64]
 
 OUTLINE_MARGIN_M = 0.015
+# Gentle curvatures (1/m) the make-room manoeuvre tries besides its nine (4 to 10 m radius),
+# and how far along each it looks for a place to turn in, metres.
+GENTLE_KAPPAS = np.array([-0.25, -0.1, -0.05, 0.05, 0.1, 0.25])
+MAKE_ROOM_M = 3.0
 
 
 class ControlStatus(enum.Enum):
@@ -321,6 +325,7 @@ class LocalController:
         self._blocked_since: float | None = None
         self._reverse_until = -math.inf
         self._reverse_kappa = 0.0
+        self._reverse_v = -self.REVERSE_SPEED_MPS
         self._reverses = 0
         self._best_remaining = math.inf
         self.progress.reset()
@@ -451,8 +456,9 @@ class LocalController:
 
     _perimeter_pts: F64 | None = None
 
-    def trajectory_costs(self, trajs: F64) -> npt.NDArray[np.uint8]:
-        """Max cost under the footprint's outline for each pose of ``(M, K, 3)`` trajectories.
+    def trajectory_costs(self, trajs: F64, outline: bool = False) -> npt.NDArray[np.uint8]:
+        """Max cost under the footprint's outline for each pose of ``(M, K, 3)`` trajectories
+        (``outline``: the cost at each outline sample instead, ``(M, K, P)``).
 
         Only the outline is sampled: between poses a few centimetres apart, nothing can get
         inside the footprint without crossing it. Off-grid poses count as lethal.
@@ -480,6 +486,8 @@ class LocalController:
         inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
         vals = np.full(rows.shape, LETHAL, dtype=np.uint8)
         vals[inside] = grid[rows[inside], cols[inside]]
+        if outline:
+            return vals
         return np.asarray(vals.max(axis=2), dtype=np.uint8)
 
     def _collides(self, traj: F64) -> tuple[bool, int]:
@@ -661,40 +669,78 @@ class LocalController:
         hit, _ = self._collides(traj)
         return hit
 
+    # Optional: whether the safety stage would let a command ``(v m/s, ω rad/s)`` through now
+    # (its stop zone on the latest scan); the make-room manoeuvre drives only such arcs.
+    motion_allowed: Callable[[float, float], bool] | None = None
+
     REVERSE_SPEED_MPS = 0.15
     REVERSE_TIME_S = 1.5
     MAX_REVERSES = 4  # per 0.3 m of progress along the plan
 
     def _start_reverse(self, cyc: _Cycle, target: tuple[float, float]) -> ControlOutput | None:
-        """Back out along the admissible arc that best turns the rover towards ``target``
-        (a three-point turn where it cannot turn in place); None if none is admissible."""
+        """Make room to turn where the rover cannot turn in place: drive the admissible arc
+        (backwards or forwards, sharp or gentle) that reaches, in the shortest distance, a
+        pose where it can turn towards ``target`` (a three-point turn; out of a wedge along a
+        wall, where only a gentle arc away from it fits). None if no arc is admissible."""
         if self.costmap is None or self._reverses >= self.MAX_REVERSES:
             return None
         kmax = 1.0 / max(self.cfg.min_turning_radius_m, 0.05)
-        kappas = np.linspace(-kmax, kmax, 9)
-        v = -self.REVERSE_SPEED_MPS
-        trajs = np.stack([rollout(cyc.pose, v, v * float(k), 1.0, 0.1) for k in kappas])
+        kappas = np.concatenate([np.linspace(-kmax, kmax, 9), GENTLE_KAPPAS])
+        n = len(kappas)
+        speed = self.REVERSE_SPEED_MPS
+        speeds = np.repeat([-speed, speed], n)
+        ks = np.tile(kappas, 2)
+        dt = 0.1
+        trajs = np.stack([rollout(cyc.pose, float(v), float(v * k), MAKE_ROOM_M / speed, dt)
+                          for v, k in zip(speeds, ks, strict=True)])
         costs = self.trajectory_costs(trajs)
-        ok = ~(costs[:, 1:] >= LETHAL).any(axis=1)
-        if not ok.any():
+        lethal = costs[:, 1:] >= LETHAL
+        # Steps before the first lethal one (the whole arc when none).
+        clear_steps = np.where(lethal.any(axis=1), lethal.argmax(axis=1), lethal.shape[1])
+        if self.motion_allowed is not None:  # what the safety stage's stop zone would refuse
+            refused = [not self.motion_allowed(float(v), float(v * k))
+                       for v, k in zip(speeds, ks, strict=True)]
+            clear_steps[np.array(refused, dtype=bool)] = 0
+        if not clear_steps.any():
             return None
-        ends = trajs[:, -1, :]
-        bearing = np.arctan2(target[1] - ends[:, 1], target[0] - ends[:, 0])
-        err = np.abs((bearing - ends[:, 2] + np.pi) % (2 * np.pi) - np.pi)
-        # Prefer backing straight out (the way it came in) unless an arc is clearly better.
-        err = err + 0.5 * np.abs(kappas) / kmax
-        err[~ok] = np.inf
-        j = int(np.argmin(err))
-        self._reverse_kappa = float(kappas[j])
-        self._reverse_until = cyc.now_s + self.REVERSE_TIME_S
+        # Every few centimetres along each arc: could the rover turn in place there?
+        every = 5
+        on_arc = np.zeros(trajs.shape[:2], dtype=bool)
+        on_arc[:, ::every] = True
+        m_idx, k_idx = np.nonzero(on_arc)
+        keep = (k_idx >= every) & (k_idx <= clear_steps[m_idx])
+        m_idx, k_idx = m_idx[keep], k_idx[keep]
+        samples = trajs[m_idx, k_idx]
+        bearing = np.arctan2(target[1] - samples[:, 1], target[0] - samples[:, 0])
+        turn = np.sign((bearing - samples[:, 2] + np.pi) % (2 * np.pi) - np.pi) * 0.8
+        spin_t = np.arange(0.0, 0.5 + 1e-9, 0.1)
+        spins = np.repeat(samples[:, None, :], len(spin_t), axis=1)
+        spins[:, :, 2] = samples[:, None, 2] + turn[:, None] * spin_t[None, :]
+        free = ~(self.trajectory_costs(spins)[:, 1:] >= LETHAL).any(axis=1)
+        dist = np.full(len(ks), np.inf)
+        for m, k in zip(m_idx[free].tolist(), k_idx[free].tolist(), strict=True):
+            dist[m] = min(dist[m], k * dt * speed)
+        # Backing out (the way it came in) and straight are preferred a little.
+        score = dist + 0.1 * (speeds > 0) + 0.05 * np.abs(ks) / kmax
+        if np.isfinite(score).any():
+            j = int(np.argmin(score))
+            drive_s = float(dist[j]) / speed + 0.3
+        else:  # no room within reach: back out the way it came, as far as it fits
+            j = int(np.argmax(clear_steps[:n]))
+            if clear_steps[j] == 0:
+                return None
+            drive_s = self.REVERSE_TIME_S
+        self._reverse_v = float(speeds[j])
+        self._reverse_kappa = float(ks[j])
+        self._reverse_until = cyc.now_s + drive_s
         self._reverses += 1
         self._rotating = False
         return self._continue_reverse(cyc)
 
     def _continue_reverse(self, cyc: _Cycle) -> ControlOutput | None:
-        """Go on backing out along the chosen arc; None (and stop reversing) when it
-        collides."""
-        v_target = -self.REVERSE_SPEED_MPS
+        """Go on along the chosen arc (backing out, or forward out of a wedge); None (and
+        stop) when it collides."""
+        v_target = self._reverse_v
         traj = rollout(cyc.pose, v_target, v_target * self._reverse_kappa, 0.6, 0.1)
         hit, _ = self._collides(traj)
         if hit:
@@ -704,7 +750,9 @@ class LocalController:
         v = approach(self._v, v_target, self.cfg.max_accel_mps2 * self.dt_s)
         w = v * self._kappa
         self._blocked_since = None
-        return self._finish(cyc, v, w, ControlStatus.AVOIDING, "backing out to make room to turn")
+        return self._finish(cyc, v, w, ControlStatus.AVOIDING,
+                            "backing out to make room to turn" if v_target < 0 else
+                            "driving on to make room to turn")
 
     def _turn(self, err: float) -> tuple[float, float]:
         """In place towards ``err`` (radians): first stop driving, then turn."""

@@ -213,6 +213,12 @@ class SafetyStage:
         limited = abs(v) < abs(v0) - 1e-9 or abs(w) < abs(w0) - 1e-9
         return v, w, stop_zone, limited
 
+    def would_allow(self, linear_mps: float, angular_radps: float) -> bool:
+        """Whether the stop zone, on the latest scan, would let the command ``(v m/s, ω
+        rad/s)`` move the rover now (not only stop it): for a planner choosing among
+        manoeuvres. It decides nothing: every command still passes :meth:`step`."""
+        return self.zone.evaluate(linear_mps, angular_radps).factor > 0.0
+
     def step(self) -> Twist:
         """Compute, publish and return the next ``/cmd_vel`` (call at ``rate_hz``)."""
         s = self.scfg

@@ -100,3 +100,15 @@ async def test_goto_around_obstacles_that_are_not_on_the_map(tmp_path: Path) -> 
     # pass through a box: reaching the goal with no contact means it went round an obstacle
     # that is not on the map (seen by the lidar only).
     assert report["goals_reached"] == 1
+
+
+async def test_goto_from_a_wedge_against_a_wall(tmp_path: Path) -> None:
+    """Where a 24-hour soak's rover backed in and stayed for 1.6 simulated hours: in the
+    default building, its right side within a centimetre of a wall, the goal behind it. Its
+    corners cannot swing round; the stop zone refuses every arc that brings a corner nearer
+    the wall; the controller drives out on one the stop zone allows, turns and gets there."""
+    cfg = make_cfg(tmp_path, REPO_ROOT / "maps" / "curio_building.yaml")
+    report = await run_scenario(get_scenario("goto"), cfg, ScenarioArgs(
+        seed=3, start=(7.65, -0.32, 1.6), goal=(2.0, -2.5, None)))
+    assert report["success"], report["checks"]
+    assert report["collisions"] == 0

@@ -241,3 +241,58 @@ def test_enters_a_narrow_door_aligned(cfg: Config) -> None:
     at_door = [p for _, p, _ in log if 0.7 <= p.x <= 1.3]
     assert at_door and max(abs(wrap_angle(p.yaw)) for p in at_door) < 0.3
     assert max(abs(p.y) for p in at_door) < 0.1
+
+
+def wall_grid(size_m: float = 8.0, res: float = 0.05) -> OccupancyGrid:
+    """An open room with a long wall along y = -0.40 m (its face at -0.35 m), x from -3 to 3."""
+    grid = open_grid(size_m, res)
+    data = grid.data.copy()
+    row = int((-0.40 + size_m / 2) / res)
+    data[row - 1:row + 1, int(1.0 / res):int(7.0 / res)] = 100
+    return OccupancyGrid(data, res, grid.origin)
+
+
+def wedged(cfg: Config) -> tuple[Costmap, LocalController, Pose2D]:
+    """The rover beside the wall, its right side a few centimetres from it, heading 0.03 rad
+    away from it (where a soak's rover backed in and stayed for 1.6 simulated hours), with
+    the goal behind it: it cannot turn in place (its corners would sweep into the wall)."""
+    cm = Costmap(wall_grid(), RobotModel.from_config(cfg.robot), cfg.nav.costmap)
+    ctrl = LocalController(cfg.nav.controller, RobotModel.from_config(cfg.robot), cm)
+    start = Pose2D(0.0, 0.0, 0.03)
+    goal = Pose2D(-2.5, 1.0, math.nan)
+    n = 60
+    plan = np.stack([np.linspace(start.x, goal.x, n), np.linspace(start.y, goal.y, n),
+                     np.full(n, math.atan2(goal.y - start.y, goal.x - start.x))], axis=1)
+    ctrl.set_plan(plan, goal)
+    assert ctrl._rotation_blocked(start, 2.0)  # the premise: no room to turn where it stands
+    return cm, ctrl, start
+
+
+def test_drives_out_of_a_wedge_beside_a_wall(cfg: Config) -> None:
+    """Wedged along a wall with the goal behind, the rover finds the gentle arc along which it
+    gets room to turn, drives it, turns and reaches the goal, never touching the wall (it
+    used to stop: no admissible motion)."""
+    cm, ctrl, start = wedged(cfg)
+    _pose, log = drive(ctrl, start, 90.0)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    poses = np.array([[p.x, p.y, p.yaw] for _, p, _ in log])
+    assert (cm.footprint_costs(poses) < 254).all()
+    assert any(o.detail == "driving on to make room to turn" for _, _, o in log)
+
+
+def test_the_way_out_of_a_wedge_is_one_the_safety_stage_allows(cfg: Config) -> None:
+    """The manoeuvre drives only arcs the safety stage's stop zone would let through (asked
+    through ``motion_allowed``): where it refuses every curved arc (a wall a few millimetres
+    away, which the costmap's 5 cm cells do not resolve), the rover drives out straight."""
+    _cm, ctrl, start = wedged(cfg)
+    asked: list[tuple[float, float]] = []
+
+    def allowed(v: float, w: float) -> bool:
+        asked.append((v, w))
+        return abs(w) < 1e-9
+
+    ctrl.motion_allowed = allowed
+    _pose, log = drive(ctrl, start, 90.0)
+    assert asked
+    making_room = [o for _, _, o in log if o.detail.endswith("to make room to turn")]
+    assert making_room and all(o.angular_radps == 0.0 for o in making_room)
