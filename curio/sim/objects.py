@@ -115,7 +115,8 @@ class Person:
 
     ``loop``: after the last point walk back to the first; otherwise stop there. ``wait_s``:
     pause at each route point. A person never walks into the rover: they wait while their
-    next position would touch the footprint.
+    next position would touch the footprint, and after a while (the world's patience) turn
+    back along their route (:meth:`turn_back`), as people do when a way stays blocked.
     """
 
     route: list[Point]
@@ -129,6 +130,8 @@ class Person:
     _leg: int = 0
     _pause_s: float = 0.0
     _done: bool = False
+    _backwards: bool = False
+    waited_s: float = 0.0  # how long they have been waiting for the rover, s (the world's)
 
     def __post_init__(self) -> None:
         if not self.route:
@@ -138,16 +141,20 @@ class Person:
         self.x_m, self.y_m = self.route[0]
         self._pause_s = self.start_delay_s
 
-    def next_position(self, dt_s: float) -> tuple[float, float, int, float, bool]:
-        """Where the person would be after ``dt_s`` (x, y, leg, pause, done), not applied."""
+    def next_position(self, dt_s: float) -> tuple[float, float, int, float, bool, bool]:
+        """Where the person would be after ``dt_s`` (x, y, leg, pause, done, walking back),
+        not applied."""
         x, y, leg, pause, done = self.x_m, self.y_m, self._leg, self._pause_s, self._done
-        if done or len(self.route) < 2:
-            return x, y, leg, pause, True
+        back = self._backwards
+        n = len(self.route)
+        if done or n < 2:
+            return x, y, leg, pause, True, back
         if pause > 0.0:
-            return x, y, leg, max(0.0, pause - dt_s), done
+            return x, y, leg, max(0.0, pause - dt_s), done, back
         travel = self.speed_mps * dt_s
         while travel > 1e-12:
-            target = self.route[(leg + 1) % len(self.route)]
+            # Walking leg ``leg`` (route[leg] -> route[leg + 1]), or back along it.
+            target = self.route[leg] if back else self.route[(leg + 1) % n]
             dist = math.hypot(target[0] - x, target[1] - y)
             if dist > travel:
                 x += (target[0] - x) * travel / dist
@@ -155,16 +162,30 @@ class Person:
                 break
             x, y = target
             travel -= dist
-            leg = (leg + 1) % len(self.route)
-            if not self.loop and leg == len(self.route) - 1:
-                return x, y, leg, 0.0, True
+            if back:
+                if not self.loop and leg == 0:
+                    back = False  # back where they started: they try the way again
+                else:
+                    leg = (leg - 1) % n
+            else:
+                leg = (leg + 1) % n
+                if not self.loop and leg == n - 1:
+                    return x, y, leg, 0.0, True, back
             if self.wait_s > 0.0:
-                return x, y, leg, self.wait_s, done
-        return x, y, leg, pause, done
+                return x, y, leg, self.wait_s, done, back
+        return x, y, leg, pause, done, back
 
-    def commit(self, state: tuple[float, float, int, float, bool]) -> None:
+    def turn_back(self) -> None:
+        """Walk the other way along the route from here (the way ahead stayed blocked)."""
+        if len(self.route) >= 2 and not self._done:
+            if not self.loop and not self._backwards and self._leg >= len(self.route) - 1:
+                return
+            self._backwards = not self._backwards
+        self.waited_s = 0.0
+
+    def commit(self, state: tuple[float, float, int, float, bool, bool]) -> None:
         """Apply a state returned by :meth:`next_position`."""
-        self.x_m, self.y_m, self._leg, self._pause_s, self._done = state
+        self.x_m, self.y_m, self._leg, self._pause_s, self._done, self._backwards = state
 
 
 @dataclass

@@ -100,6 +100,10 @@ TURNING_RADPS = 0.05  # a rover turning faster than this: scripted people keep o
 # a rover driving off along them brushed them with a millimetre of drift — two contacts
 # charged to the rover in the 24-hour soaks of 2026-12-01).
 WALKER_GAP_M = 0.10
+# How long scripted people wait for the rover before they turn back along their route, s:
+# people do not wait for ever (a walker and a rover waiting for each other stood still for
+# 15 simulated minutes in a 24-hour soak of 2026-12-02).
+WALKER_PATIENCE_S = 15.0
 LIDAR_NOISE_BLOCK = 50  # lidar noise is drawn for this many scans at a time
 IMU_NOISE_BLOCK = 1000  # IMU noise is drawn in blocks (fast, and still deterministic)
 IMU_YAW_SIGMA_RAD = 0.002  # BNO055 fusion heading jitter
@@ -530,7 +534,11 @@ class World:
                 # sweep while it turns in place (before, the workshop's walker walked up to a
                 # lost rover turning to search, stopped 1 cm from its side, and the corner hit
                 # it: no stop zone can see a person step into the sweep that late).
+                person.waited_s += dt_s
+                if person.waited_s >= WALKER_PATIENCE_S:
+                    person.turn_back()
                 continue
+            person.waited_s = 0.0
             person.commit(state)
         self._shapes_dirty = True
 

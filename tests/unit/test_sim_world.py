@@ -18,7 +18,14 @@ from curio.estimation.maps import load_map
 from curio.robot import RobotModel
 from curio.sim import worldgen
 from curio.sim.objects import Door, circle_hits_polygon
-from curio.sim.world import WALKER_GAP_M, World, WorldError, WorldSpec, load_world_spec
+from curio.sim.world import (
+    WALKER_GAP_M,
+    WALKER_PATIENCE_S,
+    World,
+    WorldError,
+    WorldSpec,
+    load_world_spec,
+)
 from tests.unit.test_sim_raycast import quiet_config, room
 
 DT = 0.02
@@ -317,3 +324,22 @@ def test_a_walker_keeps_out_of_the_circle_a_turning_rover_sweeps() -> None:
     w.teleport(Pose2D(3.0, 2.0, 0.0))
     drive(w, 0.0, 0.0, 6.0)
     assert p.x_m == pytest.approx(3.0) and w.collisions == 0
+
+
+def test_a_walker_waiting_for_a_rover_that_does_not_move_turns_back() -> None:
+    """A scripted walker whose loop runs through a rover standing still waits for it, then,
+    after WALKER_PATIENCE_S, walks back the way they came instead of waiting for ever (a
+    walker and a rover that waited for each other stood still for 15 simulated minutes in a
+    24-hour soak: the rover would not turn with the walker in its corners' circle, the walker
+    would not walk into the rover)."""
+    w = World(room(), no_noise(), Pose2D(3.0, 2.0, 0.0))
+    pid = w.add_person([(1.0, 2.0), (5.0, 2.0)], speed_mps=0.8, radius_m=0.25, loop=True)
+    p = w.people[pid]
+    drive(w, 0.0, 0.0, 5.0)  # walked up to the rover and waits
+    waiting_at = p.x_m
+    assert waiting_at < 3.0 - 0.33 and p.waited_s > 0.0
+    drive(w, 0.0, 0.0, WALKER_PATIENCE_S - 5.0 - 1.0)
+    assert p.x_m == pytest.approx(waiting_at)  # still waiting, within their patience
+    drive(w, 0.0, 0.0, 4.0)
+    assert p.x_m < waiting_at - 1.0  # turned back: walking towards (1, 2) again
+    assert w.collisions == 0
