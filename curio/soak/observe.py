@@ -17,7 +17,12 @@ from curio.soak.ledger import Ledger
 from curio.soak.plan import KIDNAP_KINDS
 from curio.soak.probes import Histogram
 
-__all__ = ["MOTION_PERMITS", "Observations", "RestartWatch"]
+__all__ = ["DRIVING_STATES", "MOTION_PERMITS", "Observations", "RestartWatch", "Stillness"]
+
+# The rover's states in which it has somewhere to drive (a tour, a path, a goal, home).
+DRIVING_STATES = frozenset({"tour", "moving", "going_home"})
+# Moving this far (true position, m) from where it stood ends a stretch of standing still.
+STILL_RADIUS_M = 0.5
 
 # Events after which the rover may move: an operator's or the schedule's say-so.
 MOTION_PERMITS = ("bt.command_accepted", "tour.started", "tour.scheduled_start",
@@ -56,6 +61,40 @@ class RestartWatch:
         return {k: v for k, v in self.__dict__.items()}
 
 
+@dataclass
+class Stillness:
+    """How long the rover stood still while it had somewhere to drive: simulated seconds in
+    :data:`DRIVING_STATES` during which its true position stayed within
+    :data:`STILL_RADIUS_M` of where it stood; a new process or a kidnap starts afresh. A
+    rover that stands for minutes with a tour to give is out of service, whatever else works
+    (a wedge along a wall, a rover and a walker waiting for each other, in the soaks of
+    2026-12-02)."""
+
+    longest_s: float = 0.0
+    longest_at: dict[str, Any] | None = None
+    _anchor: tuple[int, float, float] | None = None
+    _still_s: float = 0.0
+    _last_s: float | None = None
+
+    def restart(self) -> None:
+        """Forget where it stood (a new process, or it was carried)."""
+        self._anchor, self._still_s, self._last_s = None, 0.0, None
+
+    def beat(self, boot: int, sim_s: float, truth: list[float], state: str | None) -> None:
+        """One heartbeat: the process, its clock (s), the true pose (map) and its state."""
+        a = self._anchor
+        if a is None or a[0] != boot or math.hypot(truth[0] - a[1],
+                                                   truth[1] - a[2]) >= STILL_RADIUS_M:
+            self._anchor, self._still_s = (boot, truth[0], truth[1]), 0.0
+        elif self._last_s is not None and state in DRIVING_STATES:
+            self._still_s += max(0.0, sim_s - self._last_s)
+            if self._still_s > self.longest_s:
+                self.longest_s = self._still_s
+                self.longest_at = {"boot": boot, "sim_s": sim_s,
+                                   "x": round(truth[0], 2), "y": round(truth[1], 2)}
+        self._last_s = sim_s
+
+
 class Observations:
     """Everything the rover reported (see the module docstring)."""
 
@@ -76,6 +115,7 @@ class Observations:
         self.watch: RestartWatch | None = None
         self.ends: list[dict[str, Any]] = []
         self.notable: list[dict[str, Any]] = []
+        self.still = Stillness()
         self.lines = 0
 
     def take(self, msg: dict[str, Any]) -> None:
@@ -89,6 +129,8 @@ class Observations:
         elif t == "fault":
             if msg.get("phase") == "injected":
                 self.injected[int(msg["id"])] = msg
+                if msg.get("kind") in KIDNAP_KINDS:
+                    self.still.restart()  # carried off: it stands somewhere else now
                 self._carried(msg)
             else:
                 self.faults[int(msg["id"])] = msg
@@ -111,6 +153,9 @@ class Observations:
         self.beat = msg
         if self.first_beat is None:
             self.first_beat = msg
+        if msg.get("truth") is not None and msg.get("sim_s") is not None:
+            self.still.beat(int(msg.get("boot", 0)), float(msg["sim_s"]), msg["truth"],
+                            msg.get("status"))
         w = self.watch
         if w is None or w.boot != msg.get("boot"):
             return

@@ -211,6 +211,8 @@ def build_report(o: Orchestrator) -> dict[str, Any]:
         "nav_cpu_p99_ms": timing["nav_cpu_p99_ms"],
         "safety_rate_min_hz": timing["safety_rate_min_hz"],
         "rtf_building": times["rtf_building"],
+        "longest_still_driving_s": round(o.obs.still.longest_s, 1),
+        "longest_still_driving_at": o.obs.still.longest_at,
     }
     report: dict[str, Any] = {
         "command": "soak", "seed": o.opts.seed, "hours": o.opts.hours,

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # pragma: no cover
     from curio.soak.orchestrator import Orchestrator
 
-__all__ = ["checks_of", "collision_check", "whole_time_check"]
+__all__ = ["checks_of", "collision_check", "in_service_check", "whole_time_check"]
 
 # The budgets the checks hold the soak to (the report prints them beside the figures).
 NAV_P99_BUDGET_S = 0.025
@@ -21,6 +21,10 @@ THREAD_SLACK = 4
 QUEUE_LIMIT = 1000
 # The memory slope is judged only over at least this many simulated hours after warm-up.
 RSS_MIN_SPAN_H = 1.0
+# The longest the rover may stand still (within 0.5 m) with somewhere to drive, simulated s:
+# longer is out of service (the day's soaks before the fixes stood 15-64 minutes; a working
+# rover's longest, yielding, asking for help and recovering, was 28 s).
+STILL_BUDGET_S = 300.0
 
 
 def _check(name: str, ok: bool | None, detail: str) -> dict[str, Any]:
@@ -168,9 +172,21 @@ def collision_check(rep: dict[str, Any]) -> dict[str, Any]:
                   f"; {theirs} by visitors walking into it (it was not moving towards them)")
 
 
+def in_service_check(rep: dict[str, Any]) -> dict[str, Any]:
+    """The rover never stood still for longer than :data:`STILL_BUDGET_S` while it had a tour,
+    a path, a goal or home to drive to (it is out of service, even when every fault recovered
+    and every command was answered)."""
+    m = rep["metrics"]
+    longest = float(m.get("longest_still_driving_s", 0.0))
+    where = m.get("longest_still_driving_at")
+    return _check(f"never stuck: not still over {STILL_BUDGET_S:g} s with somewhere to drive",
+                  longest <= STILL_BUDGET_S,
+                  f"longest {longest:g} s" + (f" (at {where})" if where else ""))
+
+
 def checks_of(o: Orchestrator, rep: dict[str, Any]) -> list[dict[str, Any]]:
     """Every check of the report (see the module docstring)."""
-    out = [whole_time_check(o), collision_check(rep)]
+    out = [whole_time_check(o), collision_check(rep), in_service_check(rep)]
     out += _fault_checks(o, rep)
     out += _command_checks(rep)
     out += _restart_checks(o, rep)

@@ -84,3 +84,42 @@ def test_a_rover_that_drives_off_after_a_restart_is_still_caught() -> None:
     _fault(obs, 9, "kidnap", 14241.0)
     obs.take(_beat(12, 14241.5, 3.0, 3.0))
     assert 1.0 < watch.moved_m < 1.3  # what it drove before the carry still counts
+
+
+def _beats(obs: Observations, t0: float, t1: float, xy: tuple[float, float], status: str,
+           boot: int = 0) -> None:
+    t = t0
+    while t <= t1:
+        obs.take({"t": "beat", "boot": boot, "sim_s": t, "truth": [xy[0], xy[1], 0.0],
+                  "status": status})
+        t += 0.5
+
+
+def test_a_rover_standing_with_a_tour_to_give_is_out_of_service() -> None:
+    """Standing still (within 0.5 m) while it has a tour, a path or home to drive to counts,
+    paused or idle time does not, and moving, a new process or a kidnap start afresh; the
+    check fails over STILL_BUDGET_S (the soaks of 2026-12-02: a rover wedged along a wall for
+    1.6 simulated hours, another and a walker waiting for each other, every other check
+    passing)."""
+    from curio.soak.verdict import STILL_BUDGET_S, in_service_check
+
+    obs = Observations(Ledger())
+    _beats(obs, 0.0, 100.0, (1.0, 1.0), "tour")  # yielding, recovering: 100 s
+    _beats(obs, 100.5, 1000.0, (1.2, 1.0), "paused")  # paused: not counted
+    assert obs.still.longest_s == 100.0
+    _beats(obs, 1000.5, 1100.0, (1.3, 1.0), "going_home")  # the same spot: 100 s more
+    assert obs.still.longest_s == 200.0
+    _beats(obs, 1100.5, 1200.0, (3.0, 1.0), "moving")  # it drove off: afresh
+    obs.take({"t": "fault", "phase": "injected", "id": 1, "kind": "kidnap"})
+    _beats(obs, 1200.5, 1300.0, (3.1, 1.0), "tour")
+    _beats(obs, 1300.5, 1400.0, (3.1, 1.0), "tour", boot=1)  # a restart: afresh
+    assert obs.still.longest_s == 200.0
+
+    def check(longest: float) -> dict[str, Any]:
+        return in_service_check({"metrics": {"longest_still_driving_s": longest}})
+
+    assert check(200.0)["ok"]
+    _beats(obs, 1400.5, 1400.5 + STILL_BUDGET_S + 10.0, (3.1, 1.0), "tour", boot=1)
+    assert obs.still.longest_s > STILL_BUDGET_S
+    assert obs.still.longest_at is not None and obs.still.longest_at["boot"] == 1
+    assert not check(obs.still.longest_s)["ok"]
