@@ -456,9 +456,10 @@ class LocalController:
 
     _perimeter_pts: F64 | None = None
 
-    def trajectory_costs(self, trajs: F64, outline: bool = False) -> npt.NDArray[np.uint8]:
+    def trajectory_costs(self, trajs: F64, coarse: bool = False) -> npt.NDArray[np.uint8]:
         """Max cost under the footprint's outline for each pose of ``(M, K, 3)`` trajectories
-        (``outline``: the cost at each outline sample instead, ``(M, K, P)``).
+        (``coarse``: every other outline sample, a cell apart, for a search over many long
+        arcs whose chosen arc is checked in full as it is driven).
 
         Only the outline is sampled: between poses a few centimetres apart, nothing can get
         inside the footprint without crossing it. Off-grid poses count as lethal.
@@ -469,6 +470,8 @@ class LocalController:
         res = float(cm.resolution_m)
         origin = cm.origin
         per = self._perimeter(cm)
+        if coarse:
+            per = per[::2]
         x = trajs[..., 0:1]
         y = trajs[..., 1:2]
         c, s = np.cos(trajs[..., 2:3]), np.sin(trajs[..., 2:3])
@@ -486,8 +489,6 @@ class LocalController:
         inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
         vals = np.full(rows.shape, LETHAL, dtype=np.uint8)
         vals[inside] = grid[rows[inside], cols[inside]]
-        if outline:
-            return vals
         return np.asarray(vals.max(axis=2), dtype=np.uint8)
 
     def _collides(self, traj: F64) -> tuple[bool, int]:
@@ -690,10 +691,10 @@ class LocalController:
         speed = self.REVERSE_SPEED_MPS
         speeds = np.repeat([-speed, speed], n)
         ks = np.tile(kappas, 2)
-        dt = 0.1
+        dt = 0.25  # s: 3.75 cm between poses, finer than a cell
         trajs = np.stack([rollout(cyc.pose, float(v), float(v * k), MAKE_ROOM_M / speed, dt)
                           for v, k in zip(speeds, ks, strict=True)])
-        costs = self.trajectory_costs(trajs)
+        costs = self.trajectory_costs(trajs, coarse=True)
         lethal = costs[:, 1:] >= LETHAL
         # Steps before the first lethal one (the whole arc when none).
         clear_steps = np.where(lethal.any(axis=1), lethal.argmax(axis=1), lethal.shape[1])
@@ -704,7 +705,7 @@ class LocalController:
         if not clear_steps.any():
             return None
         # Every few centimetres along each arc: could the rover turn in place there?
-        every = 5
+        every = 4  # poses (15 cm)
         on_arc = np.zeros(trajs.shape[:2], dtype=bool)
         on_arc[:, ::every] = True
         m_idx, k_idx = np.nonzero(on_arc)
@@ -716,7 +717,7 @@ class LocalController:
         spin_t = np.arange(0.0, 0.5 + 1e-9, 0.1)
         spins = np.repeat(samples[:, None, :], len(spin_t), axis=1)
         spins[:, :, 2] = samples[:, None, 2] + turn[:, None] * spin_t[None, :]
-        free = ~(self.trajectory_costs(spins)[:, 1:] >= LETHAL).any(axis=1)
+        free = ~(self.trajectory_costs(spins, coarse=True)[:, 1:] >= LETHAL).any(axis=1)
         dist = np.full(len(ks), np.inf)
         for m, k in zip(m_idx[free].tolist(), k_idx[free].tolist(), strict=True):
             dist[m] = min(dist[m], k * dt * speed)
