@@ -323,9 +323,9 @@ class LocalController:
         self._xy_reached = False
         self._index = 0
         self._blocked_since: float | None = None
-        self._reverse_until = -math.inf
-        self._reverse_kappa = 0.0
-        self._reverse_v = -self.REVERSE_SPEED_MPS
+        self._room_until = -math.inf
+        self._room_kappa = 0.0
+        self._room_v = -self.REVERSE_SPEED_MPS
         self._reverses = 0
         self._best_remaining = math.inf
         self.progress.reset()
@@ -532,8 +532,8 @@ class LocalController:
         if self._rotating and not rotating:
             self._settle_until = now_s + self.cfg.steer_settle_s
         self._rotating = rotating
-        if now_s < self._reverse_until:
-            out = self._continue_reverse(cyc)
+        if now_s < self._room_until:
+            out = self._continue_making_room(cyc)
             if out is not None:
                 return out
         if self._rotating:
@@ -581,7 +581,7 @@ class LocalController:
         """Stage 3: turn towards the lookahead point; where the corners cannot swing round,
         back out to make room (or report blocked)."""
         if abs(self._v) < 1e-3 and self._rotation_blocked(cyc.pose, aim.heading_err):
-            return self._start_reverse(cyc, aim.point) or self._blocked(cyc)
+            return self._make_room(cyc, aim.point) or self._blocked(cyc)
         held = self._people_hold_turn(cyc)
         if held is not None:
             return held
@@ -622,7 +622,7 @@ class LocalController:
             alt = self._sample(cyc.pose, aim.x_r, aim.y_r, kmax)
             if alt is None:
                 if abs(self._v) < 0.05 and abs(aim.heading_err) > cfg.rotate_exit_rad:
-                    out = self._start_reverse(cyc, aim.point)
+                    out = self._make_room(cyc, aim.point)
                     if out is not None:
                         return out
                 return self._blocked(cyc)
@@ -678,7 +678,7 @@ class LocalController:
     REVERSE_TIME_S = 1.5
     MAX_REVERSES = 4  # per 0.3 m of progress along the plan
 
-    def _start_reverse(self, cyc: _Cycle, target: tuple[float, float]) -> ControlOutput | None:
+    def _make_room(self, cyc: _Cycle, target: tuple[float, float]) -> ControlOutput | None:
         """Make room to turn where the rover cannot turn in place: drive the admissible arc
         (backwards or forwards, sharp or gentle) that reaches, in the shortest distance, a
         pose where it can turn towards ``target`` (a three-point turn; out of a wedge along a
@@ -731,23 +731,23 @@ class LocalController:
             if clear_steps[j] == 0:
                 return None
             drive_s = self.REVERSE_TIME_S
-        self._reverse_v = float(speeds[j])
-        self._reverse_kappa = float(ks[j])
-        self._reverse_until = cyc.now_s + drive_s
+        self._room_v = float(speeds[j])
+        self._room_kappa = float(ks[j])
+        self._room_until = cyc.now_s + drive_s
         self._reverses += 1
         self._rotating = False
-        return self._continue_reverse(cyc)
+        return self._continue_making_room(cyc)
 
-    def _continue_reverse(self, cyc: _Cycle) -> ControlOutput | None:
+    def _continue_making_room(self, cyc: _Cycle) -> ControlOutput | None:
         """Go on along the chosen arc (backing out, or forward out of a wedge); None (and
         stop) when it collides."""
-        v_target = self._reverse_v
-        traj = rollout(cyc.pose, v_target, v_target * self._reverse_kappa, 0.6, 0.1)
+        v_target = self._room_v
+        traj = rollout(cyc.pose, v_target, v_target * self._room_kappa, 0.6, 0.1)
         hit, _ = self._collides(traj)
         if hit:
-            self._reverse_until = -math.inf
+            self._room_until = -math.inf
             return None
-        self._kappa = self._reverse_kappa
+        self._kappa = self._room_kappa
         v = approach(self._v, v_target, self.cfg.max_accel_mps2 * self.dt_s)
         w = v * self._kappa
         self._blocked_since = None
