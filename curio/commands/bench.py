@@ -85,8 +85,8 @@ def format_table(rows: list[dict[str, Any]]) -> str:
 def prepare_kernels() -> None:
     """Before a benchmark times the whole application: load every compiled kernel from the
     cache, compiling the missing ones first with ``curio warmup`` (what ``curio run`` does at
-    its start). Without it a fresh checkout's first timed run pays numba's compilation (on
-    the 20-visitor crowd stack: 18 % of its CPU time)."""
+    its start). Without it a kernel that an untimed warm-up happens not to reach compiles
+    inside the timed run on a fresh checkout."""
     from curio.commands.warmup import prepare
     from curio.core.config import load_config
 

@@ -718,9 +718,8 @@ class LocalController:
         spins = np.repeat(samples[:, None, :], len(spin_t), axis=1)
         spins[:, :, 2] = samples[:, None, 2] + turn[:, None] * spin_t[None, :]
         free = ~(self.trajectory_costs(spins, coarse=True)[:, 1:] >= LETHAL).any(axis=1)
-        dist = np.full(len(ks), np.inf)
-        for m, k in zip(m_idx[free].tolist(), k_idx[free].tolist(), strict=True):
-            dist[m] = min(dist[m], k * dt * speed)
+        dist = np.full(len(ks), np.inf)  # along each arc to its first such pose, m
+        np.minimum.at(dist, m_idx[free], k_idx[free] * dt * speed)
         # Backing out (the way it came in) and straight are preferred a little.
         score = dist + 0.1 * (speeds > 0) + 0.05 * np.abs(ks) / kmax
         if np.isfinite(score).any():

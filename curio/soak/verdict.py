@@ -22,8 +22,8 @@ QUEUE_LIMIT = 1000
 # The memory slope is judged only over at least this many simulated hours after warm-up.
 RSS_MIN_SPAN_H = 1.0
 # The longest the rover may stand still (within 0.5 m) with somewhere to drive, simulated s:
-# longer is out of service (the day's soaks before the fixes stood 15-64 minutes; a working
-# rover's longest, yielding, asking for help and recovering, was 28 s).
+# longer is out of service (the soaks of 2026-12-02 before the fixes stood 17 and 64 minutes;
+# a working rover's longest, yielding, asking for help and recovering, was 23-44 s).
 STILL_BUDGET_S = 300.0
 
 
