@@ -13,7 +13,10 @@ model, the lidar ray caster; no bus tasks) so that a 15-minute tour takes about 
 * **kidnap** — for each of ``--pairs`` seeds (default 50): drive the tour for 20–40 s, teleport
   the rover to a random free pose at least 3 m away, then let it turn on the spot; success when
   the published pose is within 0.2 m and 0.1 rad of the truth and the state is ``ok`` within
-  15 s of simulated time.
+  15 s of simulated time. ``confidently_wrong`` counts the kidnaps in which the state was
+  ``ok`` for at least a second while the pose was more than ``WRONG_M`` (0.5 m) from the truth
+  (the dangerous outcome: a rover that drives on a wrong pose it trusts), with the longest such
+  time (``confidently_wrong_max_s``).
 
 Run: ``curio bench localization [--pairs N] [--seed N] [--map YAML] [--json PATH]``.
 """
@@ -193,8 +196,14 @@ def _random_free_pose(world: World, rng: np.random.Generator, away_from: Pose2D)
     raise RuntimeError("no free pose found for the kidnap")
 
 
-def kidnap_once(opts: BenchOptions, seed: int, limit_s: float = 15.0) -> float | None:
-    """Seconds from the teleport to a correct, confident pose; None if not within ``limit_s``."""
+WRONG_M = 0.5  # an ``ok`` pose this far from the truth is confidently wrong (m)
+
+
+def kidnap_once(opts: BenchOptions, seed: int, limit_s: float = 15.0
+                ) -> tuple[float | None, float]:
+    """Seconds from the teleport to a correct, confident pose (None if not within
+    ``limit_s``), and the longest time (s) the state was ``ok`` on a pose more than
+    ``WRONG_M`` from the truth."""
     cfg = _config(opts, seed)
     rng = np.random.default_rng(seed + 1000)
     rig = Rig.create(cfg, Pose2D(0.0, 0.0, 0.0))
@@ -206,19 +215,29 @@ def kidnap_once(opts: BenchOptions, seed: int, limit_s: float = 15.0) -> float |
     rig.world.teleport(target)
     t_kidnap = rig.t
     good_since: float | None = None
+    wrong_since: float | None = None
+    wrong_s = 0.0
     while rig.t < t_kidnap + limit_s:
         rig.step(dt, lambda: (0.0, 0.4))
         est = rig.pose()
         truth = rig.world.truth_pose
-        ok = (est is not None and est.distance_to(truth) < 0.2
-              and abs(wrap_angle(est.yaw - truth.yaw)) < 0.1 and rig.state() == "ok")
+        confident = est is not None and rig.state() == "ok"
+        ok = (confident and est is not None and est.distance_to(truth) < 0.2
+              and abs(wrap_angle(est.yaw - truth.yaw)) < 0.1)
         if ok and good_since is None:
             good_since = rig.t
         elif not ok:
             good_since = None
+        wrong = confident and est is not None and est.distance_to(truth) > WRONG_M
+        if wrong and wrong_since is None:
+            wrong_since = rig.t
+        elif not wrong:
+            wrong_since = None
+        if wrong_since is not None:
+            wrong_s = max(wrong_s, rig.t - wrong_since)
         if good_since is not None and rig.t - good_since >= 1.0:
-            return good_since - t_kidnap
-    return None
+            return good_since - t_kidnap, wrong_s
+    return None, wrong_s
 
 
 def run(opts: BenchOptions) -> list[dict[str, Any]]:
@@ -226,11 +245,14 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
     rows = [tracking(opts)]
     n = opts.pairs or 50
     times: list[float] = []
+    wrong: list[float] = []  # seconds confidently wrong, of the kidnaps that were
     t0 = wall_perf_counter()
     for k in range(n):
-        got = kidnap_once(opts, opts.seed + k)
+        got, wrong_s = kidnap_once(opts, opts.seed + k)
         if got is not None:
             times.append(got)
+        if wrong_s >= 1.0:
+            wrong.append(wrong_s)
     rows.append({
         "subject": "curio",
         "test": "kidnap",
@@ -238,6 +260,8 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
         "success_rate": round(len(times) / n, 3),
         "median_s": round(float(np.median(times)), 2) if times else None,
         "max_s": round(float(np.max(times)), 2) if times else None,
+        "confidently_wrong": len(wrong),
+        "confidently_wrong_max_s": round(max(wrong), 2) if wrong else None,
         "wall_s": round(wall_perf_counter() - t0, 1),
     })
     return rows
