@@ -511,6 +511,11 @@ class Localizer:
         overconfident), so a rover lifted and put down elsewhere while parked kept its old pose
         and ``ok``. A poor fit now updates the filter, scan after scan, which counts the poor
         scans as driving does (``lost`` after ``lost_after_scans``); a good one ends the count.
+        A middling fit (below ``ok_inlier_fraction``), or a filter its last update left unsure
+        (``uncertain``), is counted check by check as the updates count a middling fit while
+        driving, and ``recheck_after_scans`` of them in a row start the whole-map re-check: a
+        rover carried to a place whose scan fits its old pose well enough stayed ``uncertain``
+        there for good (never ``lost``, no search, no help).
         """
         if scan.stamp < self._stationary_due_s:
             return False
@@ -519,8 +524,19 @@ class Localizer:
                           range_max_m=scan.range_max_m - 0.05)
         if len(pts) < 8:
             return False
-        if self._fit(pts, self.pose) >= self.cfg.lost_inlier_fraction:
+        fit = self._fit(pts, self.pose)
+        if fit >= self.cfg.lost_inlier_fraction:
             self.poor_scans = 0
+            if fit >= self.cfg.ok_inlier_fraction and self.state == "ok":
+                self.mediocre_scans = 0
+                return False
+            # Standing still the filter does not settle by itself: count, then check the map.
+            self.mediocre_scans += 1
+            if (self.cfg.auto_relocalize and self.search is None
+                    and self.mediocre_scans >= self.cfg.recheck_after_scans
+                    and self.since_set_m >= self.cfg.recheck_after_set_m):
+                self._start_search(recheck=True)
+                return True  # the search runs in the updates, scan after scan
             return False
         self._stationary_due_s = -math.inf  # poor: update with every scan until it fits
         return True

@@ -236,3 +236,39 @@ def test_long_middling_fit_rechecks_the_map_and_keeps_a_right_pose() -> None:
     assert max(fits) < 0.99
     assert loc.searches >= 1
     assert max(errs[5:]) < 0.05
+
+
+def test_a_parked_rover_carried_to_a_place_that_fits_middling_is_found() -> None:
+    """Soak finding (2026-12-02, `curio soak --hours 3 --start 09:00 --clients 3 --faults 30
+    --kinds kidnap,kidnap_parked --seed 11`, fault 18): in the default building a parked rover
+    carried from (9.73, -1.07) to (18.98, -1.48) fits its old pose middling (~0.58 of the
+    beams: above lost_inlier_fraction, below ok_inlier_fraction). The filter does not update
+    standing still and the stationary check only acted on a poor fit, so the localiser stayed
+    ``uncertain`` 9 m off for good: never lost, no search, no help. Now the stationary checks
+    count a middling fit and start the whole-map re-check."""
+    from curio.core.config import REPO_ROOT
+    from curio.estimation.maps import load_map
+
+    grid = load_map(REPO_ROOT / "maps" / "curio_building.yaml")
+    # recheck_after_set_m=0: the rover in the soak had driven far since its pose was set.
+    loc = Localizer(grid, LocalizationConfig(recheck_after_set_m=0.0), LASER, seed=1)
+    rng = np.random.default_rng(1)
+    parked = Pose2D(9.73, -1.07, -0.39)
+    loc.initialize(parked)
+    odom, t = Pose2D(), 0.0
+    for _ in range(30):  # turn on the spot: the filter settles on the parked pose
+        t += 0.1
+        parked = parked @ Pose2D(0.0, 0.0, 0.1)
+        odom = odom @ Pose2D(0.0, 0.0, 0.1)
+        loc.update(cast_scan(grid, parked, LASER, sigma_m=0.02, rng=rng, stamp=t), odom)
+    assert loc.state == "ok" and loc.pose.distance_to(parked) < 0.05
+    truth = Pose2D(18.98, -1.48, 2.63)
+    states = []
+    for _ in range(450):  # 45 s standing at the truth, the odometry still
+        t += 0.1
+        loc.update(cast_scan(grid, truth, LASER, sigma_m=0.02, rng=rng, stamp=t), odom)
+        states.append(loc.state)
+    assert "ok" not in states[:20]  # the middling fit is not trusted meanwhile
+    assert loc.searches == 1
+    assert loc.state == "ok"
+    assert loc.pose.distance_to(truth) < 0.05
