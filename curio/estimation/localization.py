@@ -407,6 +407,7 @@ class Localizer:
         self.search: _GlobalSearch | None = None
         self.searches = 0  # global searches started (diagnostics)
         self.since_set_m = math.inf  # distance driven since a pose was set from outside
+        self.ok_since_set = True  # the filter was ``ok`` since a pose was set from outside
         self.initialized = False
         # Tracking prior: the last estimate moved by odometry, with its covariance (map frame).
         self._delta = Pose2D()
@@ -434,6 +435,7 @@ class Localizer:
         self.poor_scans = 0
         self.mediocre_scans = 0
         self.since_set_m = 0.0  # a pose set from outside: no re-check until driven a while
+        self.ok_since_set = False
         self.w_slow = self.w_fast = 0.0
         self.state = "uncertain"
         self._force_update = True
@@ -531,10 +533,14 @@ class Localizer:
                 self.mediocre_scans = 0
                 return False
             # Standing still the filter does not settle by itself: count, then check the map.
+            # The guard after a set pose (recheck_after_set_m) does not hold a parked rover
+            # that was ``ok`` since: the map fitted where it was set, and a middling fit now,
+            # without a wheel turned, means it was carried (the soak's parked kidnaps).
             self.mediocre_scans += 1
             if (self.cfg.auto_relocalize and self.search is None
                     and self.mediocre_scans >= self.cfg.recheck_after_scans
-                    and self.since_set_m >= self.cfg.recheck_after_set_m):
+                    and (self.since_set_m >= self.cfg.recheck_after_set_m
+                         or self.ok_since_set)):
                 self._start_search(recheck=True)
                 return True  # the search runs in the updates, scan after scan
             return False
@@ -776,6 +782,7 @@ class Localizer:
                 self._start_search(recheck=True)
         else:
             self.state = "ok"
+            self.ok_since_set = True
 
     def _resample(self) -> None:
         w = self.weights

@@ -245,13 +245,16 @@ def test_a_parked_rover_carried_to_a_place_that_fits_middling_is_found() -> None
     beams: above lost_inlier_fraction, below ok_inlier_fraction). The filter does not update
     standing still and the stationary check only acted on a poor fit, so the localiser stayed
     ``uncertain`` 9 m off for good: never lost, no search, no help. Now the stationary checks
-    count a middling fit and start the whole-map re-check."""
+    count a middling fit and start the whole-map re-check, also within the guard after a set
+    pose (the soak's rover had been relocalised 1.5 s before)."""
     from curio.core.config import REPO_ROOT
     from curio.estimation.maps import load_map
 
     grid = load_map(REPO_ROOT / "maps" / "curio_building.yaml")
-    # recheck_after_set_m=0: the rover in the soak had driven far since its pose was set.
-    loc = Localizer(grid, LocalizationConfig(recheck_after_set_m=0.0), LASER, seed=1)
+    # The defaults: the pose was just set (as the tree sets it after an earlier kidnap) and
+    # the rover has not driven since, so the re-check's guard after a set pose
+    # (recheck_after_set_m) must not hold it once the filter was ok there.
+    loc = Localizer(grid, LocalizationConfig(), LASER, seed=1)
     rng = np.random.default_rng(1)
     parked = Pose2D(9.73, -1.07, -0.39)
     loc.initialize(parked)
