@@ -221,14 +221,16 @@ def kidnap_once(opts: BenchOptions, seed: int, limit_s: float = 15.0
         rig.step(dt, lambda: (0.0, 0.4))
         est = rig.pose()
         truth = rig.world.truth_pose
-        confident = est is not None and rig.state() == "ok"
-        ok = (confident and est is not None and est.distance_to(truth) < 0.2
-              and abs(wrap_angle(est.yaw - truth.yaw)) < 0.1)
+        if est is not None and rig.state() == "ok":  # how far off a pose it trusts
+            off_m, off_rad = est.distance_to(truth), abs(wrap_angle(est.yaw - truth.yaw))
+        else:
+            off_m = off_rad = math.inf
+        ok = off_m < 0.2 and off_rad < 0.1
         if ok and good_since is None:
             good_since = rig.t
         elif not ok:
             good_since = None
-        wrong = confident and est is not None and est.distance_to(truth) > WRONG_M
+        wrong = WRONG_M < off_m < math.inf
         if wrong and wrong_since is None:
             wrong_since = rig.t
         elif not wrong:

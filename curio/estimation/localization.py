@@ -537,10 +537,7 @@ class Localizer:
             # that was ``ok`` since: the map fitted where it was set, and a middling fit now,
             # without a wheel turned, means it was carried (the soak's parked kidnaps).
             self.mediocre_scans += 1
-            if (self.cfg.auto_relocalize and self.search is None
-                    and self.mediocre_scans >= self.cfg.recheck_after_scans
-                    and (self.since_set_m >= self.cfg.recheck_after_set_m
-                         or self.ok_since_set)):
+            if self._recheck_due(parked=True):
                 self._start_search(recheck=True)
                 return True  # the search runs in the updates, scan after scan
             return False
@@ -776,13 +773,22 @@ class Localizer:
             self.state = "uncertain"
             # A middling fit for a long time: maybe a look-alike place. Check the whole map;
             # the current pose stays a candidate, so a right pose amid clutter is kept.
-            if (self.cfg.auto_relocalize and self.search is None
-                    and self.mediocre_scans >= self.cfg.recheck_after_scans
-                    and self.since_set_m >= self.cfg.recheck_after_set_m):
+            if self._recheck_due(parked=False):
                 self._start_search(recheck=True)
         else:
             self.state = "ok"
             self.ok_since_set = True
+
+    def _recheck_due(self, parked: bool) -> bool:
+        """Whether a middling fit has lasted ``recheck_after_scans`` updates (or, ``parked``,
+        stationary checks) and the whole-map re-check may run: not within
+        ``recheck_after_set_m`` of driving after a pose was set, unless the rover is parked and
+        was ``ok`` since (then the map fitted where the pose was set)."""
+        cfg = self.cfg
+        return (cfg.auto_relocalize and self.search is None
+                and self.mediocre_scans >= cfg.recheck_after_scans
+                and (self.since_set_m >= cfg.recheck_after_set_m
+                     or (parked and self.ok_since_set)))
 
     def _resample(self) -> None:
         w = self.weights
