@@ -84,6 +84,18 @@ class OccupancyGrid:
         """Cells of unknown occupancy."""
         return self.data < 0
 
+    def edge_mask(self) -> npt.NDArray[np.bool_]:
+        """The outermost ring of cells: where the map ends.
+
+        Nothing is known beyond the grid, and a footprint that leaves it cannot be checked, so
+        whoever plans or walks on the map treats its edge as a wall (a map drawn without
+        border walls, e.g. an open field of shapes, would otherwise offer goals at its rim).
+        """
+        edge = np.zeros(self.data.shape, dtype=bool)
+        edge[[0, -1], :] = True
+        edge[:, [0, -1]] = True
+        return edge
+
     def world_to_cell(self, x_m: float, y_m: float) -> tuple[int, int]:
         """Return ``(row, col)`` of the cell containing map point (x, y) (may be outside)."""
         lx, ly = self.origin.inverse().transform_point(x_m, y_m)

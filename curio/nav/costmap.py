@@ -6,7 +6,9 @@ bottom, as :class:`~curio.estimation.maps.OccupancyGrid`), with the values and t
 formula of :mod:`curio.nav.costs`. The inscribed radius is the robot model's footprint
 (``robot.footprint``) grown by ``footprint_padding_m``. Unknown static cells stay
 ``NO_INFORMATION`` until a laser ray sees them (then they are free) or inflation raises them to
-``INSCRIBED`` or more (Nav2's rule with ``inflate_unknown`` false).
+``INSCRIBED`` or more (Nav2's rule with ``inflate_unknown`` false). The map's edge (its
+outermost ring of cells) is a wall of the static layer: a footprint cannot leave the grid, so
+plans and goals keep off the rim of a map drawn without border walls.
 
 Scans mark their returns within ``obstacle_range_m`` and clear every cell a ray passes
 through up to ``raytrace_range_m`` (``inf`` returns clear the full ray range). A return that
@@ -111,7 +113,7 @@ class Costmap:
         self.origin = static_map.origin
         self._origin_inv = static_map.origin.inverse()
         h, w = static_map.height, static_map.width
-        self._static_lethal: BoolArray = static_map.occupied_mask()
+        self._static_lethal: BoolArray = static_map.occupied_mask() | static_map.edge_mask()
         self._near_static = self._near_static_mask(self._static_lethal)
         self._unknown: BoolArray = static_map.unknown_mask() & ~self._static_lethal
         self._obstacles: BoolArray = np.zeros((h, w), dtype=bool)
@@ -140,7 +142,7 @@ class Costmap:
                 or static_map.origin != old.origin):
             self._set_static(static_map)
             return
-        lethal = static_map.occupied_mask()
+        lethal = static_map.occupied_mask() | static_map.edge_mask()
         unknown = static_map.unknown_mask() & ~lethal
         changed = (lethal != self._static_lethal) | (unknown != self._unknown)
         self.static_map = static_map

@@ -3,8 +3,8 @@
 A :class:`WalkMap` is built once per world from its occupancy grid (``map`` metres):
 
 * **clearance** — the distance (m) from each fine cell to the nearest occupied or unknown cell
-  (visitors keep to known free space), with the nearest such cell for the wall force of the
-  social-force model;
+  or the map's edge (visitors keep to known free space), with the nearest such cell for the
+  wall force of the social-force model;
 * **a walking graph** — a coarse grid (``res_m``, 0.2 m) of the cells with at least
   ``walk_clearance_m`` of clearance, 8-connected (no corner cutting), each step weighted a
   little more where the way is narrow, so routes keep to the middle of corridors;
@@ -69,7 +69,7 @@ class WalkMap:
         self.grid = grid
         self.res_fine = float(grid.resolution_m)
         self.ox, self.oy = grid.origin.x, grid.origin.y
-        blocked = ~grid.free_mask()
+        blocked = ~grid.free_mask() | grid.edge_mask()
         dist, idx = ndimage.distance_transform_edt(~blocked, return_indices=True)
         # Distance from a cell centre to the nearest blocked cell's edge (half a cell nearer
         # than its centre).

@@ -27,6 +27,11 @@ def free_grid(n: int = 200, origin: Pose2D | None = None) -> OccupancyGrid:
     return OccupancyGrid(np.zeros((n, n), dtype=np.int8), RES, origin or Pose2D())
 
 
+def empty_costs() -> np.ndarray:
+    """The costs of :func:`free_grid` with no obstacle: only its rim (the map's edge)."""
+    return Costmap(free_grid(), RobotModel.from_config(RobotConfig()), CostmapConfig()).costs()
+
+
 def make_scan(ranges: np.ndarray, stamp: float = 0.0) -> LaserScan:
     n = len(ranges)
     return LaserScan(stamp=stamp, angle_min_rad=-math.pi, angle_increment_rad=2 * math.pi / n,
@@ -80,30 +85,30 @@ def expected_cost(d_m: float, inscribed: float = 0.32, radius: float = 0.55,
 
 
 def test_inflation_matches_hand_computed_distances() -> None:
-    grid = free_grid(60)
-    grid.data[30, 30] = 100
+    grid = free_grid(100)
+    grid.data[50, 50] = 100
     cm = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig())
     assert cm.inscribed_radius_m == pytest.approx(0.32)
     costs = cm.costs()
     for dr, dc in [(0, 0), (0, 1), (0, 6), (3, 4), (0, 7), (5, 5), (0, 8), (6, 6), (0, 11),
                    (0, 12), (8, 8), (20, 0)]:
         d = math.hypot(dr, dc) * RES
-        assert costs[30 + dr, 30 + dc] == expected_cost(d), (dr, dc, d)
+        assert costs[50 + dr, 50 + dc] == expected_cost(d), (dr, dc, d)
     # spot values worked out by hand: 7 cells = 0.35 m -> floor(253 e^-0.3) = 187
-    assert costs[30, 37] == 187
+    assert costs[50, 57] == 187
     # 11 cells = 0.55 m (the radius itself) -> floor(253 e^-2.3) = 25; 12 cells -> 0
-    assert costs[30, 41] == 25
-    assert costs[30, 42] == 0
+    assert costs[50, 61] == 25
+    assert costs[50, 62] == 0
 
 
 def test_inflation_honours_radius_and_scaling_settings() -> None:
-    grid = free_grid(60)
-    grid.data[30, 30] = 100
+    grid = free_grid(100)
+    grid.data[50, 50] = 100
     cfg = CostmapConfig(inflation_radius_m=1.0, cost_scaling_factor=2.0, footprint_padding_m=0.0)
     costs = Costmap(grid, RobotModel.from_config(RobotConfig()), cfg).costs()
     for dc in (5, 6, 7, 10, 19, 20, 21):
         d = dc * RES
-        assert costs[30, 30 + dc] == expected_cost(d, 0.31, 1.0, 2.0), dc
+        assert costs[50, 50 + dc] == expected_cost(d, 0.31, 1.0, 2.0), dc
 
 
 def test_unknown_static_cells_stay_unknown_unless_inflated_to_inscribed() -> None:
@@ -113,7 +118,19 @@ def test_unknown_static_cells_stay_unknown_unless_inflated_to_inscribed() -> Non
     costs = Costmap(grid, RobotModel.from_config(RobotConfig()), CostmapConfig()).costs()
     assert costs[10, 50] == NO_INFORMATION
     assert costs[30, 40] == INSCRIBED  # unknown but within the inscribed radius of a wall
-    assert costs[10, 10] == 0
+    assert costs[20, 20] == 0
+
+
+def test_the_edge_of_the_map_is_a_wall() -> None:
+    """A map without border walls (an open field): the rover's footprint cannot leave the
+    grid, so its rim is lethal and inflated like a wall and no goal lies there."""
+    cm = Costmap(free_grid(100), RobotModel.from_config(RobotConfig()), CostmapConfig())
+    costs = cm.costs()
+    assert (costs[0, :] == LETHAL).all() and (costs[:, -1] == LETHAL).all()
+    assert costs[2, 50] >= INSCRIBED  # 0.1 m from the rim: the footprint would leave the map
+    assert costs[50, 50] == 0 and costs[20, 50] == 0
+    edge_m = 0.05 * np.arange(1, 12)
+    assert list(costs[1:12, 50]) == [expected_cost(d) for d in edge_m]
 
 
 def test_costs_snapshot_is_read_only_and_replaced_on_change() -> None:
@@ -127,7 +144,7 @@ def test_costs_snapshot_is_read_only_and_replaced_on_change() -> None:
     cm.update_from_scan(make_scan(ranges), pose)
     after = cm.costs()
     assert after is not before
-    assert int(before.max()) == 0  # the old snapshot is untouched
+    assert np.array_equal(before, empty_costs())  # the old snapshot is untouched
 
 
 # ---------------------------------------------------------------- marking and clearing
@@ -151,7 +168,7 @@ def test_obstacle_marked_within_one_scan_then_cleared_when_seen_free() -> None:
     cm.update_from_scan(make_scan(np.full(360, np.inf), stamp=0.1), pose)
     assert cm.costs()[r, c] == 0
     assert not cm.obstacle_mask().any()
-    assert int(cm.costs().max()) == 0
+    assert np.array_equal(cm.costs(), empty_costs())
 
 
 def test_longer_return_clears_the_old_mark_and_marks_the_new_end() -> None:
@@ -240,7 +257,7 @@ def test_clear_around_removes_marks_only_within_radius() -> None:
     assert cm.obstacle_mask().sum() == 1
     cm.reset_obstacles()
     assert not cm.obstacle_mask().any()
-    assert int(cm.costs().max()) == 0
+    assert np.array_equal(cm.costs(), empty_costs())
 
 
 def test_scan_update_is_vectorised_and_only_touches_its_window() -> None:

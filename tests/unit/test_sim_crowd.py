@@ -185,3 +185,16 @@ def test_followers_follow_the_rover_during_a_tour(cfg: Config) -> None:
     run(world, 40.0)
     d = math.hypot(crowd.pos[0, 0] - world.truth_pose.x, crowd.pos[0, 1] - world.truth_pose.y)
     assert 1.0 < d < 2.2
+
+
+def test_visitors_keep_off_the_rim_of_a_map_without_border_walls() -> None:
+    """An open field (no walls at all): the map's edge is a wall for the walking map, so
+    points of interest (and the tour stops picked from them) keep their clearance from it."""
+    from curio.estimation.maps import OccupancyGrid
+
+    field = OccupancyGrid(np.zeros((200, 200), dtype=np.int8), 0.05, Pose2D(-5.0, -5.0, 0.0))
+    walk = WalkMap(field, anchor=(0.0, 0.0))
+    assert walk.clearance_at(np.array([[-4.9, 0.0], [0.0, 4.9]])).max() < 0.1
+    pois = walk.points_of_interest(np.random.default_rng(1), [], count=12, min_clearance_m=0.8)
+    assert len(pois) == 12
+    assert min(min(5.0 - abs(x), 5.0 - abs(y)) for x, y in pois) >= 0.8
