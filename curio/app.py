@@ -189,7 +189,7 @@ class App:
                                  self.safety)
             reg.add(Part("docking", run=self.docker.run))
         self.people: People | None = build_people(cfg, self.bus, clock, reg, self.robot, nav,
-                                                  est.map_server.grid)
+                                                  est.map_server.grid, est.localizer)
         self.tours: Tours = build_tours(cfg, self.bus, clock, reg, self.robot,
                                         lambda: est.map_server.grid, paths)
         probe = ClearanceProbe(nav.planner, nav.costmap, self.bus, clock,

@@ -31,8 +31,8 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, replace
+from typing import Literal, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -61,6 +61,7 @@ from curio.estimation.localization_kernels import (
 from curio.estimation.maps import OccupancyGrid
 
 __all__ = [
+    "BeamFilter",
     "DistanceField",
     "Localizer",
     "LocalizerNode",
@@ -919,9 +920,12 @@ class Localizer:
         all_pts = scan.points(self.laser_pose, range_max_m=scan.range_max_m - 0.05)
         half = 0.5 * self.grid.resolution_m
         ranked: list[tuple[float, Pose2D]] = []
+        free = self.grid.free_mask()
         for coarse, pose in results:
-            if coarse < self.cfg.lost_inlier_fraction:
-                continue
+            row, col = self.grid.world_to_cell(pose.x, pose.y)
+            if coarse < self.cfg.lost_inlier_fraction or not (
+                    self.grid.in_bounds(row, col) and free[row, col]):
+                continue  # a poor fit, or a match that slid off the map or into a wall
             d = self.field.lookup(*self._world(all_pts, pose)) - half
             ranked.append((float(np.mean(np.abs(d) <= 0.05)), pose))
         ranked.sort(key=lambda item: -item[0])
@@ -985,12 +989,25 @@ def localization_health(stamp: float, state: str, std_xy_m: float) -> DriverHeal
     return DriverHealth(stamp, "localization", "ok", "", {"std_xy_m": round(std_xy_m, 3)})
 
 
+class BeamFilter(Protocol):
+    """Names the returns that are not evidence about the pose: the people tracker
+    (``curio/people/node.py``) knows which beams ended on a person."""
+
+    def beams_to_ignore(self, scan: LaserScan,
+                        laser_in_map: Pose2D) -> npt.NDArray[np.bool_] | None:
+        """Beams of ``scan`` (its laser at ``laser_in_map``, the pose before this scan's
+        update) the filter is not to use (None: use every return)."""
+
+
 class LocalizerNode(MapOdomPublisher):
     """Bus adapter: ``SCAN`` + ``ODOM`` (+ ``INITIAL_POSE``) → ``POSE``, ``MAP_TO_ODOM``,
     ``LOCALIZATION``.
 
     ``POSE`` is published for every ``ODOM`` message as ``map→odom ∘ odom`` with the odometry
-    stamp; the correction changes only after a filter update.
+    stamp; the correction changes only after a filter update. With a ``beam_filter`` (the
+    people tracker), returns on people are dropped from each scan before the update: a crowd
+    hides the map, it does not contradict the pose (among visitors in an open hall most
+    returns can be legs, and a fit counted over them reads as "lost" at the right pose).
     """
 
     def __init__(self, bus: Bus, clock: Clock, localizer: Localizer, start: Pose2D) -> None:
@@ -1009,6 +1026,19 @@ class LocalizerNode(MapOdomPublisher):
         self._health_due_s = -math.inf
         self._cov_array: F64 | None = None  # the covariance last converted, and its tuple
         self._cov_tuple: tuple[float, ...] = ()
+        self.beam_filter: BeamFilter | None = None
+
+    def _without_ignored(self, scan: LaserScan, odom_pose: Pose2D) -> LaserScan:
+        """``scan`` with the beams the ``beam_filter`` names made invalid (``nan``)."""
+        if self.beam_filter is None or self.map_to_odom is None:
+            return scan
+        laser_in_map = self.map_to_odom @ odom_pose @ self.localizer.laser_pose
+        skip = self.beam_filter.beams_to_ignore(scan, laser_in_map)
+        if skip is None or not skip.any():
+            return scan
+        ranges = scan.ranges_m.copy()
+        ranges[skip] = np.nan
+        return replace(scan, ranges_m=ranges)
 
     def global_localization(self) -> None:
         """Forget the pose and search the whole map (API for the dashboard and CLI)."""
@@ -1057,6 +1087,7 @@ class LocalizerNode(MapOdomPublisher):
         odom_pose = self._odom_at(scan.stamp)
         if odom_pose is None:
             return
+        scan = self._without_ignored(scan, odom_pose)
         self._after_update(scan, odom_pose, self._timed_update(scan, odom_pose))
 
     def _timed_update(self, scan: LaserScan, odom_pose: Pose2D) -> float | None:
@@ -1125,6 +1156,7 @@ class LocalizerNode(MapOdomPublisher):
                 odom_pose = self._odom_at(s.stamp)
                 if odom_pose is None:
                     continue
+                s = self._without_ignored(s, odom_pose)
                 self._working = True
                 try:
                     took = await self.clock.offload(self._timed_update, s, odom_pose)

@@ -129,6 +129,36 @@ class PeopleNode:
         mask[np.concatenate(beams)] = True
         return mask
 
+    # -- what the localiser asks -------------------------------------------------------------
+    def beams_to_ignore(self, scan: LaserScan, laser_in_map: Pose2D) -> B | None:
+        """Beams of ``scan`` (its laser at ``laser_in_map``) that end where a person is, not
+        evidence about the rover's pose (None: nothing to ignore).
+
+        People are the confirmed tracks that have travelled (moved 0.8 m from where they were
+        born), standing or not: furniture the map lacks never travels, even when its velocity
+        estimate jitters, so it still counts for or against the pose. Predicted at constant
+        velocity to the scan's stamp from the scans tracked before: the localiser asks before
+        this scan is tracked, as the rover's pose at its stamp comes from the localiser. A
+        beam counts when its end lies within ``person_radius_m`` + 0.15 m of a prediction.
+        """
+        people = [t for t in self.tracker.tracks if t.confirmed and t.travelled]
+        if not people:
+            return None
+        at = np.array([(t.xy[0] + t.velocity[0] * (scan.stamp - t.stamp_s),
+                        t.xy[1] + t.velocity[1] * (scan.stamp - t.stamp_s)) for t in people])
+        ranges = np.asarray(scan.ranges_m, dtype=np.float64)
+        valid = scan.valid_mask()
+        ang = laser_in_map.yaw + scan.angles_rad
+        with np.errstate(invalid="ignore"):
+            ex = laser_in_map.x + ranges * np.cos(ang)
+            ey = laser_in_map.y + ranges * np.sin(ang)
+        reach = self.cfg.person_radius_m + 0.15
+        near = np.zeros(len(ranges), dtype=bool)
+        for px, py in at:
+            near |= (ex - px) ** 2 + (ey - py) ** 2 <= reach * reach
+        mask = valid & near
+        return mask if mask.any() else None
+
     def cleared_spots(self) -> list[tuple[float, float]]:
         """Where walking people have been since the last call (map, m): clear marks there."""
         out: list[tuple[float, float]] = []

@@ -23,7 +23,8 @@ A track has *walked* once it has moved 0.8 m from where it was born or been fast
 controller can tell people from furniture the map does not show. (A box seen from a moving
 rover can pass for walking: its velocity estimate jitters. Requiring 0.3 m of travel too was
 tried at the merge; it cost two rover-rover doorway runs in 50 and was undone — the people
-stage's assertive phase handles the boxes instead.)
+stage's assertive phase handles the boxes instead.) A track has *travelled* once it moved
+0.8 m from its birth place: what the localiser leaves out of its fit (a box never travels).
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ class Track:
     hits: int = 1
     confirmed: bool = False
     walked: bool = False
+    travelled: bool = False  # moved WALKED_M from its birth place (velocity jitter never does)
     fast_updates: int = 0
     std_m: float = 0.0  # pos_std_m at the last update
     still_since_s: float | None = None
@@ -188,8 +190,9 @@ class Tracker:
         speed = t.speed_mps
         t.fast_updates = t.fast_updates + 1 if speed > self.cfg.moving_speed_mps else 0
         x, y = t.xy
-        if not t.walked and (t.fast_updates >= 3 or math.hypot(
-                x - t.birth_xy[0], y - t.birth_xy[1]) > WALKED_M):
+        if not t.travelled and math.hypot(x - t.birth_xy[0], y - t.birth_xy[1]) > WALKED_M:
+            t.travelled = True
+        if not t.walked and (t.fast_updates >= 3 or t.travelled):
             t.walked = True
         if speed > self.cfg.moving_speed_mps:
             t.still_since_s = None

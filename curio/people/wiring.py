@@ -4,7 +4,9 @@ people stage and the guide's manners.
 ``build_people`` runs after ``build_navigation`` (it hooks into the costmap node and the local
 controller; both work unchanged without it) and returns None when ``people.tracking`` is off.
 With ``people.aware`` false — the baseline — the tracker still runs and publishes ``/people``
-but nothing in navigation uses it. ``attach_guide`` gives the behaviour tree's path follower
+but nothing in navigation uses it. Either way the localiser (``localizer``, when it is the
+map localiser) drops the returns on tracked people from its scans: localisation is not the
+controller the baseline stands for. ``attach_guide`` gives the behaviour tree's path follower
 the guide's manners once the tree is built, and lets it speak "Excuse me".
 
 "Excuse me" is a ``people.excuse_me`` event (``text``, the rover's ``x``, ``y``, ``yaw`` in
@@ -24,6 +26,7 @@ from curio.core.geometry import Pose2D
 from curio.core.messages import Event, PeopleTracks
 from curio.core.parts import Part, Parts
 from curio.core.topics import EVENTS, PEOPLE, POSE
+from curio.estimation.localization import LocalizerNode
 from curio.estimation.maps import OccupancyGrid
 from curio.nav.wiring import Navigation
 from curio.people.guide import GuideManners
@@ -44,8 +47,10 @@ class People:
 
 
 def build_people(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: RobotModel,
-                 nav: Navigation, grid: OccupancyGrid) -> People | None:
-    """Construct the tracker (and, with ``people.aware``, hook it into navigation)."""
+                 nav: Navigation, grid: OccupancyGrid,
+                 localizer: object | None = None) -> People | None:
+    """Construct the tracker, hook it into the localiser (a :class:`LocalizerNode`), and with
+    ``people.aware`` into navigation."""
     pcfg = cfg.people
     if not pcfg.tracking:
         return None
@@ -58,6 +63,8 @@ def build_people(cfg: Config, bus: Bus, clock: Clock, parts: Parts, robot: Robot
     pose_at = cm_node.pose_at if cm_node is not None else rover_pose
     node = PeopleNode(pcfg, robot, bus, clock, grid, pose_at)
     parts.add(Part("people", run=node.run))
+    if isinstance(localizer, LocalizerNode):
+        localizer.beam_filter = node
     if not pcfg.aware:
         return People(node, None, None)
     if cm_node is not None:

@@ -275,3 +275,27 @@ def test_a_parked_rover_carried_to_a_place_that_fits_middling_is_found() -> None
     assert loc.searches == 1
     assert loc.state == "ok"
     assert loc.pose.distance_to(truth) < 0.05
+
+
+def test_a_global_search_never_puts_the_rover_off_the_map() -> None:
+    """A map without border walls: a wall segment at its west rim. Seen from 1.7 m east of
+    it (the truth) or from 1.7 m west (outside the map, facing the other way), the scan fits
+    the same; the search's hypotheses are only poses on free cells of the map."""
+    from curio.estimation.localization import _GlobalSearch
+    from curio.estimation.maps import OccupancyGrid
+
+    data = np.zeros((200, 200), dtype=np.int8)
+    data[80:120, 5:7] = 100  # x 0.25..0.35 m, y 4..6 m
+    grid = OccupancyGrid(data, 0.05, Pose2D(0.0, 0.0, 0.0))
+    truth = Pose2D(2.0, 5.0, math.pi)
+    mirror = Pose2D(0.25 - 1.65, 5.0 - 2 * 0.078, 0.0)  # as far west of its west face
+    scan = cast_scan(grid, truth, LASER)
+    loc = Localizer(grid, LocalizationConfig(), LASER, seed=3)
+    loc.initialize(Pose2D(6.0, 5.0, 0.0))
+    assert loc._fit(scan.points(LASER), mirror) > 0.9  # the look-alike outside fits as well
+    top = np.array([[*mirror.as_tuple(), 1.0], [*truth.as_tuple(), 1.0]])
+    loc.search = _GlobalSearch(top[:, :2].copy(), np.zeros(1), np.zeros(2, dtype=np.int32),
+                               next_index=2, top=top)
+    loc._finish_search(scan)
+    assert loc.pose.distance_to(truth) < 0.1
+    assert (loc.particles[:, 0] > 0.0).all()
