@@ -87,7 +87,10 @@ class Localization2BB(CurioBehaviour):
     started again there, says ``lost`` (its poor-fit count ran out there): the scan does not
     fit where the rover was, so it was carried away (lifted, pushed), and the localiser's
     whole-map answer is the evidence left (before, a carried rover stayed lost and out of
-    service for good, asking for help, while the localiser knew where it was).
+    service for good, asking for help, while the localiser knew where it was) — or says
+    ``ok`` there but not at the hint itself (see :meth:`_near_anchor`): a look-alike beside
+    the old place, so the tree asks for the whole map (``localization.search``) and that
+    search's answer counts.
     Found again when, with the turn in place over
     (``relocalising`` false), the localiser has not been ``lost``, has not jumped and has been
     confident (``ok``, or a spread within half of ``lost_std_xy_m``) for ``found_confirm_s``;
@@ -99,6 +102,8 @@ class Localization2BB(CurioBehaviour):
 
     JUMP_M = 0.5
     JUMP_RAD = 0.5
+    HINT_XY_M = 0.15
+    HINT_YAW_RAD = 0.1
     SETTLE_S = 3.0  # a pose set on /initialpose is applied (the correction jumps) within this
 
     def __init__(self, ctx: TreeContext, name: str = "Localization2BB") -> None:
@@ -114,6 +119,7 @@ class Localization2BB(CurioBehaviour):
         self._expect_jump = False
         self._searching = False  # a whole-map search was asked for and has not settled yet
         self._search_asked = False  # ... and the tree has not taken note of it yet
+        self._whole_map_s = -math.inf  # when the tree last asked for the whole map itself
 
     def _held(self, key: str, on: bool, now: float) -> float:
         """How long condition ``key`` has held (0 when it does not hold now)."""
@@ -152,7 +158,8 @@ class Localization2BB(CurioBehaviour):
         if now - self._initial_stamp > self.SETTLE_S:
             self._expect_jump = False
         status = bus.latest(LOCALIZATION)
-        if self._searching and status is not None and status.state == "ok":
+        if self._searching and status is not None and status.state == "ok" \
+                and status.stamp > self._initial_stamp:
             self._searching = False
         odom = bus.latest(ODOM)
         if prev is None or corr is None or odom is None or self._searching:
@@ -179,7 +186,13 @@ class Localization2BB(CurioBehaviour):
 
     def _near_anchor(self) -> bool:
         """After a jump, the estimate must come back near where the rover was (or where the
-        operator put it), moved on by odometry: a far-away answer is not trusted alone."""
+        operator put it), moved on by odometry: within ``2 JUMP_M`` of an operator's pose
+        (a click gives a rough pose); within ``HINT_XY_M`` and ``HINT_YAW_RAD`` of the
+        tree's own hint — a slip of the estimate while the rover stood or drove on leaves it
+        exactly there (the odometry is good to centimetres and a degree over the turn),
+        while the look-alike the particles settle on near the old place after a carry (a
+        corridor seen the other way round) is 0.2–0.4 m and 0.2–0.4 rad off. A far-away
+        answer is not trusted alone."""
         if self._anchor is None:
             return True
         pose, odom = self.ctx.bus.latest(POSE), self.ctx.bus.latest(ODOM)
@@ -187,7 +200,11 @@ class Localization2BB(CurioBehaviour):
             return False
         anchor, odom_then = self._anchor
         expected = anchor @ (odom_then.inverse() @ odom.pose)
-        return pose.pose.distance_to(expected) <= 2 * self.JUMP_M
+        hint = self.get("lost_hint")
+        if hint is None or anchor.distance_to(Pose2D(*hint)) > 1e-6:
+            return pose.pose.distance_to(expected) <= 2 * self.JUMP_M
+        return (pose.pose.distance_to(expected) <= self.HINT_XY_M
+                and abs(wrap_angle(pose.pose.yaw - expected.yaw)) <= self.HINT_YAW_RAD)
 
     def _remember(self) -> None:
         pose, odom = self.ctx.bus.latest(POSE), self.ctx.bus.latest(ODOM)
@@ -205,7 +222,9 @@ class Localization2BB(CurioBehaviour):
         lost_for = self._held("lost", msg.state == "lost", now)
         bad_for = self._held("bad", msg.state == "uncertain"
                              and msg.std_xy_m > cfg.lost_std_xy_m, now)
-        good_for = self._held("good", jump is None and msg.state != "lost" and (
+        # After the tree asked for the whole map, a status from before the request is stale.
+        good_for = self._held("good", jump is None and msg.stamp > self._whole_map_s
+                              and msg.state != "lost" and (
             msg.state == "ok" or (not self._need_ok
                                   and msg.std_xy_m <= 0.5 * cfg.lost_std_xy_m)), now)
         asked, self._search_asked = self._search_asked, False
@@ -246,6 +265,18 @@ class Localization2BB(CurioBehaviour):
             self._anchor = None
             self._need_ok = False
             self._remember()
+        elif self._anchor is not None and good_for >= cfg.found_confirm_s and \
+                msg.stamp > self._initial_stamp and not self._near_anchor():
+            # Started again at the anchor, the localiser is sure of a pose that is not the
+            # anchor: a look-alike near the old place, or the rover was moved. Neither is
+            # trusted: the whole map decides (its ranking by the fine fit finds the truth).
+            self._anchor = None
+            self._whole_map_s = now
+            self.ctx.sink.event("localization.search", message="What I see fits near where I "
+                                "was, but not as I was: I must have been moved. Searching the "
+                                "whole map.")
+            self.ctx.bus.publish(INITIAL_POSE, PoseWithCovariance.from_std(
+                now, Pose2D(), GLOBAL_STD_XY_M, math.pi))
         return Status.SUCCESS
 
     def _clear_lost(self) -> None:
