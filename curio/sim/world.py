@@ -780,6 +780,12 @@ class World:
                                                        self._battery_base_v) + rate * dt_s)
         self._battery_t0 = self.time_s
 
+    def lapse(self, dt_s: float) -> None:
+        """The building's clock jumped ``dt_s`` seconds while nothing moved (the world was not
+        stepped): a rover on the dock's charging contact charges as it would have."""
+        if dt_s > 0.0 and self.dock is not None and self.docked:
+            self._charge(dt_s)
+
     def set_battery_voltage(self, volts: float) -> None:
         """Set the resting pack voltage now (it keeps discharging from there)."""
         if not (0.0 <= volts <= 20.0):

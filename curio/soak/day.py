@@ -15,10 +15,10 @@ scheduled tour (the scheduler must see it come), ``SOON_LEAD_S`` before the next
 campaign or the soak's end. Nothing that moves is skipped; the report says how much was
 jumped. The control stack never reads the building's clock (schedules and logs do).
 
-**Hooks** (:class:`SoakHooks`) for the features being built beside this one: docking and the
-battery (``unattended``: :meth:`SoakHooks.on_lapse` stands in for a charger while the rover is
-parked at home) and visitors walking (``people``: :meth:`SoakHooks.on_start` may add them to the
-world).
+**Hooks** (:class:`SoakHooks`): the battery over a time-lapse (:meth:`SoakHooks.on_lapse`: the
+dock's charger charges a docked rover; the soak runs with ``dock.enabled``, so after every
+tour the rover docks at home and backs out for the next) and visitors walking
+(:meth:`SoakHooks.on_start` may add them to the world).
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ class SoakHooks:
 
     * :meth:`on_start` — once the rover runs (``people``: add visitors walking in the world);
     * :meth:`on_lapse` — the building's clock jumped ``jumped_s`` while the rover was parked
-      (``unattended``: the dock charges the battery; the default charges it at
+      (the dock's charger charges a docked rover; without a dock, the battery charges at
       ``CHARGE_V_PER_H`` when the rover is within ``HOME_M`` of home, as a charger would).
     """
 
@@ -95,9 +95,16 @@ class SoakHooks:
         """The rover runs (nothing by default)."""
 
     def on_lapse(self, app: Any, jumped_s: float) -> None:
-        """Charge the simulated battery while parked at home (a stand-in for the dock)."""
+        """With a dock (``dock.enabled``, the soak's default): the simulated charger charges a
+        docked rover over the lapse. Without one, charge the battery while parked within
+        ``HOME_M`` of home, as a charger there would."""
         world = app.world
-        if world is None or world.truth_pose.distance_to(app.robot.home) > HOME_M:
+        if world is None:
+            return
+        if world.dock is not None:
+            world.lapse(jumped_s)
+            return
+        if world.truth_pose.distance_to(app.robot.home) > HOME_M:
             return
         volts = world.battery_voltage()
         full = 8.1

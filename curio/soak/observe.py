@@ -55,10 +55,23 @@ class RestartWatch:
     start_pose_error_m: float | None = None
     carried: int = 0
     rebased: int = 0
+    # Until permitted: the commands sent (request id → simulated s) and how far the rover
+    # was from where it started at each beat (simulated s, m).
+    commands: dict[str, float] = field(default_factory=dict)
+    path: list[tuple[float, float]] = field(default_factory=list)
+
+    def permit(self, kind: str, request_id: str | None, sim_s: float) -> None:
+        """Motion permitted by ``kind``; an accepted command permits from when it was sent
+        (a docked rover backs out of its dock first and answers "Tour started" after)."""
+        self.permitted = kind
+        since = self.commands.get(request_id or "", sim_s)
+        self.moved_m = max((d for t, d in self.path if t <= since), default=0.0)
+        self.commands.clear()
+        self.path.clear()
 
     def to_json(self) -> dict[str, Any]:
         """Plain JSON for the report."""
-        return {k: v for k, v in self.__dict__.items()}
+        return {k: v for k, v in self.__dict__.items() if k not in ("commands", "path")}
 
 
 @dataclass
@@ -170,8 +183,9 @@ class Observations:
                 w.start_pose_error_m = round(math.hypot(pose[0] - truth[0],
                                                         pose[1] - truth[1]), 3)
         if w.permitted is None:
-            w.moved_m = max(w.moved_m, math.hypot(truth[0] - w.start_truth[0],
-                                                  truth[1] - w.start_truth[1]))
+            moved = math.hypot(truth[0] - w.start_truth[0], truth[1] - w.start_truth[1])
+            w.moved_m = max(w.moved_m, moved)
+            w.path.append((float(msg.get("sim_s") or 0.0), moved))
 
     def _event(self, msg: dict[str, Any]) -> None:
         kind = str(msg.get("kind", ""))
@@ -191,8 +205,10 @@ class Observations:
             w.interrupted_reported = True
         if kind == "system.unclean_restart":
             w.unclean_reported = True
+        if w.permitted is None and kind == "operator" and detail.get("request_id"):
+            w.commands.setdefault(str(detail["request_id"]), float(msg.get("sim_s", 0.0)))
         if w.permitted is None and kind in MOTION_PERMITS:
-            w.permitted = kind
+            w.permit(kind, detail.get("request_id"), float(msg.get("sim_s", 0.0)))
 
     def _res(self, msg: dict[str, Any]) -> None:
         for name, cpu, wall in (("nav", self.nav_cpu, self.nav_wall),

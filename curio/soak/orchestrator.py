@@ -140,6 +140,9 @@ class Orchestrator:
             f'tours.timezone="{TIMEZONE}"', "record.enabled=true", "record.max_total_mb=96",
             "record.max_file_mb=16", "foxglove.enabled=false",
             f"sim.crowd.visitors={self.opts.visitors}",
+            # The dock at home, its contacts read on the Arduino's A0 (emulated): the rover
+            # docks after every tour and charges there (--set dock.enabled=false: no dock).
+            "dock.enabled=true", "drivers.arduino.adc_is_charger=true",
         ]
         # the data directory is the soak's own (checked between runs): it comes last
         return cfg_overrides + list(self.opts.overrides) + [f'data_dir="{self.data_dir}"']

@@ -52,7 +52,7 @@ RES_S = 60.0
 DIRECTOR_S = 1.0
 FORWARDED = ("bt.command_", "tour.", "collision", "help.", "system.", "data.", "loop.",
              "safety.estop", "driver.", "localization.", "eventlog.", "battery.",
-             "nav.goal_rejected", "operator.")
+             "nav.goal_rejected", "operator.", "dock.")
 
 
 class Rover:

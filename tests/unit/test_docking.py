@@ -56,6 +56,19 @@ def _world_with_dock(tmp_path: Path) -> tuple[World, RobotModel]:
     return World.from_config(cfg, robot), robot
 
 
+def test_a_time_lapse_charges_a_docked_rover_only(tmp_path: Path) -> None:
+    """The soak jumps the building's clock while the rover is parked (the world is not
+    stepped): on the dock's contact the charger charges over the lapse, at its rate; off it
+    nothing changes (SoakHooks.on_lapse)."""
+    world, _ = _world_with_dock(tmp_path)
+    world.set_battery_voltage(7.0)
+    world.lapse(3600.0)  # docked, an hour at dock.charge_rate_v_per_h (0.5 V/h)
+    assert world.battery_voltage() == pytest.approx(7.5, abs=1e-6)
+    world.teleport(Pose2D(-0.5, 0.0, 0.0))
+    world.lapse(3600.0)
+    assert world.battery_voltage() == pytest.approx(7.5, abs=1e-6)
+
+
 def test_the_simulated_dock_blocks_charges_and_is_drawn_into_the_map(tmp_path: Path) -> None:
     world, robot = _world_with_dock(tmp_path)
     dock = world.dock

@@ -123,3 +123,30 @@ def test_a_rover_standing_with_a_tour_to_give_is_out_of_service() -> None:
     assert obs.still.longest_s > STILL_BUDGET_S
     assert obs.still.longest_at is not None and obs.still.longest_at["boot"] == 1
     assert not check(obs.still.longest_s)["ok"]
+
+
+def _ev(boot: int, sim_s: float, kind: str, **detail: Any) -> dict[str, Any]:
+    return {"t": "ev", "boot": boot, "sim_s": sim_s, "kind": kind, "detail": detail}
+
+
+def test_a_docked_rover_that_backs_out_for_a_scheduled_tour_was_told_to() -> None:
+    """With a dock, a restarted rover on it answers the schedule's start_tour only once it has
+    backed out (0.7 m, 6 s): the command permits from when it was sent (the 3-hour soak
+    with dock.enabled of 2026-12-02 called that 0.74 m "moved by itself")."""
+    obs, watch = _restarted_then("lidar_unplug")
+    obs.take(_ev(12, 14240.0, "operator", action="start_tour", request_id="schedule-1-9",
+                 source="scheduler"))
+    obs.take(_beat(12, 14243.0, 11.8, 0.22))  # backing out of the dock
+    obs.take(_beat(12, 14246.0, 11.47, 0.22))
+    obs.take(_ev(12, 14246.0, "bt.command_accepted", action="start_tour",
+                 request_id="schedule-1-9", message="Tour started: 2 stops."))
+    assert watch.permitted == "bt.command_accepted" and watch.moved_m < 0.05
+
+
+def test_a_command_refused_or_accepted_later_does_not_excuse_moving_before_it() -> None:
+    obs, watch = _restarted_then("lidar_unplug")
+    obs.take(_beat(12, 14239.0, 11.5, 0.22))  # 0.67 m before any command
+    obs.take(_ev(12, 14240.0, "operator", action="start_tour", request_id="c1-4",
+                 source="web:op1"))
+    obs.take(_ev(12, 14240.5, "bt.command_accepted", action="start_tour", request_id="c1-4"))
+    assert watch.moved_m > 0.6
