@@ -600,7 +600,8 @@ class RequestDock(CurioBehaviour):
 
 class DockAction(CurioBehaviour):
     """Dock: RUNNING while the docker works; SUCCESS docked; FAILURE failed (help asked) or
-    replaced by a route command (Go Home's docking only)."""
+    replaced by a route command or a goal sent from the dashboard (Go Home's docking only:
+    the person's newer say-so wins, no help is asked)."""
 
     def __init__(self, ctx: TreeContext, name: str = "Dock") -> None:
         super().__init__(name, ctx, read=("command", "battery_v"),
@@ -641,6 +642,12 @@ class DockAction(CurioBehaviour):
             ctx.sink.event("help.requested", reason="dock_failed", trigger="dock",
                            message=f"I could not dock: {d.detail}.")
             ctx.sink.status("Needs help: could not dock", "needs_help")
+            return Status.FAILURE
+        nav = ctx.navigator
+        active = nav.active if nav is not None else None
+        if self.reason == "home" and not d.busy and active is not None and not active.done:
+            # The dashboard's goal replaced the way to the dock: it wins, as a route does.
+            self.set("dock_request", None)
             return Status.FAILURE
         if not d.busy:  # cancelled from outside (e-stop handled above): try again
             d.dock(self.reason)

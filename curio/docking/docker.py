@@ -202,6 +202,12 @@ class Docker:
         if goal is None or not goal.done:
             return
         self._goal = None
+        if goal.state.value == "preempted":
+            # Another goal (the dashboard's) replaced the way to the dock, or it was
+            # cancelled: stopped, not failed (the tree decides whether to dock again).
+            self._stop()
+            self._set("idle", "docking stopped: the way to the dock was replaced or cancelled")
+            return
         if goal.state.value != "succeeded":
             why = str(goal.error) if goal.error is not None else goal.state.value
             self._fail(f"could not reach the staging pose: {why}")

@@ -509,3 +509,20 @@ def test_after_a_jump_a_confident_fit_beside_the_old_pose_asks_the_whole_map() -
     localization(h, "ok")
     h.tick(40)
     assert not h.bb("lost") and h.of("localization.found")
+
+
+def test_a_goal_from_the_dashboard_replaces_go_homes_docking_without_asking_for_help() -> None:
+    """On its way to the dock an operator sends the rover elsewhere: the docker's staging goal
+    is pre-empted and it stops (not failed), and the tree lets the operator's goal drive —
+    it neither asks for help ("I cannot reach my charger", 2 of them in the first building
+    hour of the 24-hour soak with the dock) nor takes the way back to the dock."""
+    docker = FakeDocker()
+    h = harness(docker=docker)
+    h.press("go_home")
+    h.tick(2)
+    assert docker.state == "staging"
+    goal = h.nav.send_goal(Pose2D(3.0, 3.0, 0.0), tag="web goto")
+    docker.state = "idle"  # what the docker does when its goal is pre-empted
+    h.tick(3)
+    assert not h.of("help.requested") and docker.calls == ["dock:home"]
+    assert h.nav.active is goal and not goal.done
