@@ -19,7 +19,8 @@ judges it:
   a carried rover that is in its bounded relocalisation turn in place at the deadline (an
   operator's Resume starts one again) is judged when the turn is over (``waited_for_turn_s``);
 * otherwise, **stopped safely and asked for help** — at the deadline the rover stands still
-  and a help request is open (``help.requested``, or the tree's ``needs_help``);
+  and a help request is open (``help.requested``, or the tree's ``needs_help``); one that
+  asked and is being driven by hand by an operator (teleop) counts as standing: the help came;
   anything else is **failed**.
 
 Faults that restart the process (``kill9``, ``corrupt_file``) are announced to the orchestrator
@@ -41,7 +42,9 @@ from curio.core.clock import wall_perf_counter
 from curio.core.geometry import wrap_angle
 from curio.core.messages import DriverHealth, Event, OperatorCommand, PoseWithCovariance
 from curio.core.topics import (
+    CMD_VEL,
     CMD_VEL_NAV,
+    CMD_VEL_TELEOP,
     ESTOP,
     EVENTS,
     HEALTH,
@@ -70,6 +73,7 @@ NUDGE_S = 120.0  # simulated seconds a due fault waits for the rover to drive be
 KILL_WAIT_S = 30.0
 LOCALISED_M = 0.3
 LOCALISED_RAD = 0.15
+HAND_FRESH_S = 0.5  # a teleop command this recent (s) is an operator driving by hand
 DRIVER_PARTS = ("lidar", "arduino", "imu")
 
 
@@ -351,7 +355,7 @@ class FaultRunner:
         if settled or (run.cleared_s is not None and now >= deadline and not wall_wait):
             if run.recovered_s is not None:
                 run.outcome = "recovered"
-            elif self._stopped_safely(run):
+            elif self._stopped_safely(run, now):
                 run.outcome = "stopped_safely"
                 if run.fault.kind in KIDNAP_KINDS:
                     self._answer_lost_help(run, now)
@@ -416,10 +420,23 @@ class FaultRunner:
                 and est.pose.distance_to(truth) < LOCALISED_M
                 and abs(wrap_angle(est.pose.yaw - truth.yaw)) < LOCALISED_RAD)
 
-    def _stopped_safely(self, run: FaultRun) -> bool:
+    def _driven_by_hand(self, now: float) -> bool:
+        """An operator drives the rover by hand (teleop) now: what the base executes comes
+        from a teleop command of the last ``HAND_FRESH_S``, so the motion is theirs."""
+        bus = self.app.bus
+        cmd, hand = bus.latest(CMD_VEL), bus.latest(CMD_VEL_TELEOP)
+        return (cmd is not None and hand is not None and now - hand.stamp <= HAND_FRESH_S
+                and cmd.source == f"safety:{hand.source}")
+
+    def _stopped_safely(self, run: FaultRun, now: float) -> bool:
         v, w = self.app.world.truth_twist
         still = abs(v) < 0.01 and abs(w) < 0.01
         asked = run.help_s is not None or self.help_open_s is not None
+        if not still and asked and self._driven_by_hand(now):
+            # The help came: a person drives the rover by hand. The rover had stopped and
+            # asked; the motion at the deadline is theirs (it was "failed" for moving).
+            run.notes.append("driven by hand by an operator at the deadline")
+            still = True
         if not still:
             run.notes.append("still moving at the deadline")
         if not asked:

@@ -194,6 +194,40 @@ def test_a_driving_rover_at_the_deadline_is_not_waited_for() -> None:
     assert sent and sent[0]["outcome"] == "failed"
 
 
+def _hand_run(runner: FaultRunner, teleop_source: str, executed_source: str) -> FaultRun:
+    """The lost rover asked for help; at the deadline the base executes ``executed_source``'s
+    command while the last teleop command (0.1 s old) came from ``teleop_source``."""
+    from curio.core.messages import Twist
+    from curio.core.topics import CMD_VEL, CMD_VEL_TELEOP
+
+    run = _lost_run(runner, {})
+    latest = {CMD_VEL: Twist(60.0, -0.1, 0.0, source=executed_source),
+              CMD_VEL_TELEOP: Twist(59.9, -0.1, 0.0, source=teleop_source)}
+    runner.app.bus = SimpleNamespace(latest=latest.get, publish=lambda topic, msg: None)
+    runner.app.world.truth_twist = (-0.1, 0.0)
+    return run
+
+
+def test_a_lost_rover_driven_by_hand_after_asking_for_help_stopped_safely() -> None:
+    """Seed 2, fault 97 (2026-12-03): a carried rover stopped and asked for help ("I am
+    lost"); an operator then drove it by hand, and at the deadline it was moving: judged
+    "failed" for the operator's driving."""
+    runner, sent = _runner()
+    runner.localised = lambda: False  # type: ignore[method-assign]
+    run = _hand_run(runner, "web:op7", "safety:web:op7")
+    runner._judge(run, 60.0)
+    assert sent and sent[0]["outcome"] == "stopped_safely", sent
+    assert "driven by hand by an operator at the deadline" in sent[0]["notes"]
+
+
+def test_a_rover_driving_itself_beside_a_stale_teleop_is_still_failed() -> None:
+    runner, sent = _runner()
+    runner.localised = lambda: False  # type: ignore[method-assign]
+    run = _hand_run(runner, "web:op7", "safety:nav")
+    runner._judge(run, 60.0)
+    assert sent and sent[0]["outcome"] == "failed"
+
+
 def test_the_soak_compiles_missing_kernels_once_before_the_first_rover(
         monkeypatch: Any, tmp_path: Any) -> None:
     """Each rover starts as ``curio run`` does (the kernels loaded first); with a cold cache
