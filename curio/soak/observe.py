@@ -55,6 +55,9 @@ class RestartWatch:
     start_pose_error_m: float | None = None
     carried: int = 0
     rebased: int = 0
+    # Commands the rover acted on and then refused (request ids): their motion was theirs.
+    excused: list[str] = field(default_factory=list)
+    rebase_next: bool = False
     # Until permitted: the commands sent (request id → simulated s) and how far the rover
     # was from where it started at each beat (simulated s, m).
     commands: dict[str, float] = field(default_factory=dict)
@@ -69,9 +72,26 @@ class RestartWatch:
         self.commands.clear()
         self.path.clear()
 
+    def excuse(self, request_id: str | None, sim_s: float) -> bool:
+        """A command the rover began to carry out and then refused (a docked rover backing out
+        for a tour when a pause or a kidnap came first, and the tour is refused): its motion,
+        from when it was sent to the refusal, was the command's. Watching goes on from where
+        the rover stands at the next beat. False (nothing excused) when the rover had not
+        moved since it was sent: a command refused at once permits nothing."""
+        since = self.commands.get(request_id or "")
+        if since is None or not any(t > since and d > STILL_M for t, d in self.path
+                                    if t <= sim_s):
+            return False
+        self.moved_m = max((d for t, d in self.path if t <= since), default=0.0)
+        self.path.clear()
+        self.excused.append(str(request_id))
+        self.rebase_next = True
+        return True
+
     def to_json(self) -> dict[str, Any]:
         """Plain JSON for the report."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("commands", "path")}
+        return {k: v for k, v in self.__dict__.items()
+                if k not in ("commands", "path", "rebase_next")}
 
 
 @dataclass
@@ -173,8 +193,8 @@ class Observations:
         if w is None or w.boot != msg.get("boot"):
             return
         truth = msg.get("truth") or [0.0, 0.0, 0.0]
-        if w.start_truth is not None and w.carried > w.rebased:
-            w.start_truth, w.rebased = truth, w.carried
+        if w.start_truth is not None and (w.carried > w.rebased or w.rebase_next):
+            w.start_truth, w.rebased, w.rebase_next = truth, w.carried, False
         if w.start_truth is None:
             w.start_truth = truth
             w.estop_after = msg.get("estop")
@@ -207,6 +227,8 @@ class Observations:
             w.unclean_reported = True
         if w.permitted is None and kind == "operator" and detail.get("request_id"):
             w.commands.setdefault(str(detail["request_id"]), float(msg.get("sim_s", 0.0)))
+        if w.permitted is None and kind == "bt.command_rejected":
+            w.excuse(detail.get("request_id"), float(msg.get("sim_s", 0.0)))
         if w.permitted is None and kind in MOTION_PERMITS:
             w.permit(kind, detail.get("request_id"), float(msg.get("sim_s", 0.0)))
 

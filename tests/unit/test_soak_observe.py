@@ -150,3 +150,32 @@ def test_a_command_refused_or_accepted_later_does_not_excuse_moving_before_it() 
                  source="web:op1"))
     obs.take(_ev(12, 14240.5, "bt.command_accepted", action="start_tour", request_id="c1-4"))
     assert watch.moved_m > 0.6
+
+
+def test_a_tour_refused_while_backing_out_of_the_dock_excused_the_backing_out() -> None:
+    """Seed 3, run 8 (2026-12-03): the schedule's start_tour backed the rover out of its
+    dock (0.29 m), an operator paused it, and the tour was refused ("paused before it
+    started"): the restart check called the backing out "moved by itself"."""
+    obs, watch = _restarted_then("lidar_unplug")
+    obs.take(_ev(12, 14240.0, "operator", action="start_tour", request_id="schedule-2-9",
+                 source="scheduler"))
+    obs.take(_beat(12, 14241.0, 12.04, 0.22))
+    obs.take(_beat(12, 14242.0, 11.88, 0.22))
+    obs.take(_ev(12, 14242.3, "bt.command_rejected", action="start_tour",
+                 request_id="schedule-2-9", message="The rover was paused before it started"))
+    assert watch.moved_m < 0.05 and watch.excused == ["schedule-2-9"]
+    assert watch.permitted is None  # refused: it permits nothing after it
+    obs.take(_beat(12, 14242.5, 11.87, 0.22))  # braking: the new place to stand
+    obs.take(_beat(12, 14250.0, 11.87, 0.22))
+    assert watch.moved_m < 0.05
+    obs.take(_beat(12, 14251.0, 11.2, 0.22))  # then driving off on its own is caught
+    assert watch.moved_m > 0.6
+
+
+def test_a_command_refused_at_once_excuses_nothing() -> None:
+    obs, watch = _restarted_then("lidar_unplug")
+    obs.take(_ev(12, 14240.0, "operator", action="start_tour", request_id="c1-5",
+                 source="web:op1"))
+    obs.take(_ev(12, 14240.5, "bt.command_rejected", action="start_tour", request_id="c1-5"))
+    obs.take(_beat(12, 14241.0, 11.5, 0.22))  # moving after the refusal: its own doing
+    assert watch.moved_m > 0.6 and watch.excused == []
