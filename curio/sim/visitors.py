@@ -233,9 +233,12 @@ class Planner:
 
     # -- per update ----------------------------------------------------------------------------
     def rover_tree(self, rover_xy: Point, now_s: float) -> _Tree:
-        """A route tree towards the rover (followers), refreshed every 2 s, 25 m deep."""
+        """A route tree towards the rover (followers), refreshed every 2 s, 25 m deep (the same
+        tree while the rover stands on the same node: it is not searched again)."""
         if self._rover_tree is None or now_s >= self._rover_tree_due_s:
-            self._rover_tree = self.walk.tree_to(self.walk.node_at(*rover_xy), limit_m=25.0)
+            node = self.walk.node_at(*rover_xy)
+            if self._rover_tree is None or self._rover_tree.dest != node:
+                self._rover_tree = self.walk.tree_to(node, limit_m=25.0)
             self._rover_tree_due_s = now_s + 2.0
         return self._rover_tree
 
