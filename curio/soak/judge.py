@@ -42,7 +42,6 @@ from curio.core.clock import wall_perf_counter
 from curio.core.geometry import wrap_angle
 from curio.core.messages import DriverHealth, Event, OperatorCommand, PoseWithCovariance
 from curio.core.topics import (
-    CMD_VEL,
     CMD_VEL_NAV,
     CMD_VEL_TELEOP,
     ESTOP,
@@ -73,7 +72,7 @@ NUDGE_S = 120.0  # simulated seconds a due fault waits for the rover to drive be
 KILL_WAIT_S = 30.0
 LOCALISED_M = 0.3
 LOCALISED_RAD = 0.15
-HAND_FRESH_S = 0.5  # a teleop command this recent (s) is an operator driving by hand
+HAND_FRESH_S = 1.0  # a teleop command this recent (s): an operator driving by hand
 DRIVER_PARTS = ("lidar", "arduino", "imu")
 
 
@@ -421,12 +420,15 @@ class FaultRunner:
                 and abs(wrap_angle(est.pose.yaw - truth.yaw)) < LOCALISED_RAD)
 
     def _driven_by_hand(self, now: float) -> bool:
-        """An operator drives the rover by hand (teleop) now: what the base executes comes
-        from a teleop command of the last ``HAND_FRESH_S``, so the motion is theirs."""
+        """An operator drives the rover by hand: a teleop command in the last
+        ``HAND_FRESH_S`` (the safety stage follows one for ``teleop_timeout_s``, then ramps
+        down), and the rover's own controller asks for no motion, so the motion is theirs."""
         bus = self.app.bus
-        cmd, hand = bus.latest(CMD_VEL), bus.latest(CMD_VEL_TELEOP)
-        return (cmd is not None and hand is not None and now - hand.stamp <= HAND_FRESH_S
-                and cmd.source == f"safety:{hand.source}")
+        hand, own = bus.latest(CMD_VEL_TELEOP), bus.latest(CMD_VEL_NAV)
+        if hand is None or now - hand.stamp > HAND_FRESH_S:
+            return False
+        return own is None or now - own.stamp > HAND_FRESH_S or (
+            abs(own.linear_mps) < 1e-3 and abs(own.angular_radps) < 1e-3)
 
     def _stopped_safely(self, run: FaultRun, now: float) -> bool:
         v, w = self.app.world.truth_twist

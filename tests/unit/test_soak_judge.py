@@ -194,38 +194,44 @@ def test_a_driving_rover_at_the_deadline_is_not_waited_for() -> None:
     assert sent and sent[0]["outcome"] == "failed"
 
 
-def _hand_run(runner: FaultRunner, teleop_source: str, executed_source: str) -> FaultRun:
-    """The lost rover asked for help; at the deadline the base executes ``executed_source``'s
-    command while the last teleop command (0.1 s old) came from ``teleop_source``."""
+def _hand_run(runner: FaultRunner, teleop_age_s: float, own_mps: float) -> FaultRun:
+    """The lost rover asked for help; at the deadline (60 s) it moves, the last teleop
+    command ``teleop_age_s`` old, the rover's own controller asking for ``own_mps``."""
     from curio.core.messages import Twist
-    from curio.core.topics import CMD_VEL, CMD_VEL_TELEOP
+    from curio.core.topics import CMD_VEL_NAV, CMD_VEL_TELEOP
 
     run = _lost_run(runner, {})
-    latest = {CMD_VEL: Twist(60.0, -0.1, 0.0, source=executed_source),
-              CMD_VEL_TELEOP: Twist(59.9, -0.1, 0.0, source=teleop_source)}
+    # the tree's zero at the end of its turn, long ago; or a controller driving now
+    own = Twist(45.0, 0.0, 0.0, source="relocalise") if own_mps == 0.0 else \
+        Twist(59.95, own_mps, 0.0, source="nav")
+    latest = {CMD_VEL_NAV: own,
+              CMD_VEL_TELEOP: Twist(60.0 - teleop_age_s, 0.1, -0.15, source="web:op8")}
     runner.app.bus = SimpleNamespace(latest=latest.get, publish=lambda topic, msg: None)
-    runner.app.world.truth_twist = (-0.1, 0.0)
+    runner.app.world.truth_twist = (0.09, -0.13)
     return run
 
 
 def test_a_lost_rover_driven_by_hand_after_asking_for_help_stopped_safely() -> None:
-    """Seed 2, fault 97 (2026-12-03): a carried rover stopped and asked for help ("I am
-    lost"); an operator then drove it by hand, and at the deadline it was moving: judged
-    "failed" for the operator's driving."""
-    runner, sent = _runner()
-    runner.localised = lambda: False  # type: ignore[method-assign]
-    run = _hand_run(runner, "web:op7", "safety:web:op7")
-    runner._judge(run, 60.0)
-    assert sent and sent[0]["outcome"] == "stopped_safely", sent
-    assert "driven by hand by an operator at the deadline" in sent[0]["notes"]
+    """Seed 2 fault 97 and seed 3 fault 84 (2026-12-03): a carried rover stopped and asked
+    for help ("I am lost"); an operator then drove it by hand in short bursts, and at the
+    deadline it was moving (the base then executes ``safety:teleop``, or ramps down after a
+    burst): judged "failed" for the operator's driving."""
+    for age_s in (0.1, 0.7):  # in a burst; ramping down after one
+        runner, sent = _runner()
+        runner.localised = lambda: False  # type: ignore[method-assign]
+        run = _hand_run(runner, teleop_age_s=age_s, own_mps=0.0)
+        runner._judge(run, 60.0)
+        assert sent and sent[0]["outcome"] == "stopped_safely", (age_s, sent)
+        assert "driven by hand by an operator at the deadline" in sent[0]["notes"]
 
 
-def test_a_rover_driving_itself_beside_a_stale_teleop_is_still_failed() -> None:
-    runner, sent = _runner()
-    runner.localised = lambda: False  # type: ignore[method-assign]
-    run = _hand_run(runner, "web:op7", "safety:nav")
-    runner._judge(run, 60.0)
-    assert sent and sent[0]["outcome"] == "failed"
+def test_a_rover_that_drives_itself_is_still_failed_after_a_teleop() -> None:
+    for age_s, own_mps in ((0.1, 0.2), (3.0, 0.0)):  # its controller drives; teleop long ago
+        runner, sent = _runner()
+        runner.localised = lambda: False  # type: ignore[method-assign]
+        run = _hand_run(runner, teleop_age_s=age_s, own_mps=own_mps)
+        runner._judge(run, 60.0)
+        assert sent and sent[0]["outcome"] == "failed", (age_s, own_mps)
 
 
 def test_the_soak_compiles_missing_kernels_once_before_the_first_rover(
