@@ -17,7 +17,10 @@ client got two different ones, or the rover gave two; **lost** when the rover pu
 its client never got an answer (nor did the rover give one); **not delivered** when it never
 reached the rover (the socket went down first) and the rover says it does not know it —
 the client knows, which is not a loss; **replayed** when the rover published it more than once
-(in one run or in two); **pending** when the soak ended while it was still being carried out.
+(in one run or in two); **pending** when the soak ended while it was still being carried out;
+**answered at the end** when the rover answered it in the last ``END_WINDOW_S`` before the
+soak's end, as the clients stopped listening, and the client got no answer: the end cut the
+delivery, not the rover (a command the rover never answered is lost, whenever it was sent).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from typing import Any
 __all__ = ["CommandRecord", "Ledger"]
 
 ANSWER_KINDS = ("bt.command_accepted", "bt.command_rejected")
+END_WINDOW_S = 1.0  # simulated s before the rover's end: an answer then may meet no client
 
 
 @dataclass
@@ -121,8 +125,16 @@ class Ledger:
         answers = self.rover_answers.get(rid, [])
         return len({(k, m, round(s, 3)) for _, k, m, s in answers}) > 1
 
-    def summary(self) -> dict[str, Any]:
-        """Counts, the verdicts and a few examples of each problem."""
+    def _answered_at_end(self, rid: str, end: tuple[int, float] | None) -> bool:
+        if end is None:
+            return False
+        boot, end_s = end
+        return any(b == boot and stamp >= end_s - END_WINDOW_S
+                   for b, _, _, stamp in self.rover_answers.get(rid, []))
+
+    def summary(self, end: tuple[int, float] | None = None) -> dict[str, Any]:
+        """Counts, the verdicts and a few examples of each problem; ``end``: the last run's
+        boot and the simulated time it ended at (None: it did not reach its end)."""
         counts: Counter[str] = Counter()
         examples: dict[str, list[dict[str, Any]]] = {}
 
@@ -150,7 +162,9 @@ class Ledger:
             if len(published) > 1:
                 note("replayed", rec)
             if not rec.answered:
-                if published or self.rover_answers.get(rec.rid):
+                if self._answered_at_end(rec.rid, end):
+                    note("answered_at_end", rec)
+                elif published or self.rover_answers.get(rec.rid):
                     note("lost", rec)
                 elif "unknown" in rec.lookups or not rec.acked:
                     note("not_delivered", rec)

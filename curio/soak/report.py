@@ -182,7 +182,10 @@ def _time(o: Orchestrator) -> dict[str, Any]:
 
 def build_report(o: Orchestrator) -> dict[str, Any]:
     """The report of one soak (see the module docstring)."""
-    ledger = o.ledger.summary()
+    last = o.obs.ends[-1] if o.obs.ends else None
+    end = (int(last.get("boot", 0)), float(last.get("sim_s", 0.0))) \
+        if last is not None and last.get("t") == "done" else None
+    ledger = o.ledger.summary(end)
     faults = _fault_table(o)
     resources = _resources(o)
     timing = _timing(o)

@@ -79,7 +79,9 @@ def _command_checks(rep: dict[str, Any]) -> list[dict[str, Any]]:
     return [
         _check("every operator command answered (none lost)", counts.get("lost", 0) == 0,
                f"{counts.get('answered', 0)} of {sent} answered, {counts.get('lost', 0)} lost, "
-               f"{counts.get('not_delivered', 0)} not delivered (the client knew)"),
+               f"{counts.get('not_delivered', 0)} not delivered (the client knew)"
+               + (f", {counts['answered_at_end']} answered as the soak ended"
+                  if counts.get("answered_at_end") else "")),
         _check("no command answered twice", counts.get("double_answered", 0) == 0,
                f"{counts.get('double_answered', 0)} answered twice"),
         _check("no command replayed", counts.get("replayed", 0) == 0,

@@ -45,6 +45,33 @@ def test_two_different_answers_are_still_a_double_answer() -> None:
     assert ledger.summary()["counts"]["double_answered"] == 1
 
 
+def _answered_by_the_rover_at(stamp_s: float) -> Ledger:
+    """A start_tour the rover published in run 14 and accepted at ``stamp_s`` (simulated s),
+    its client never told; the final lookup found it still pending."""
+    ledger = _ledger_with("c8-231")
+    ledger.rover_event(14, "operator", {"request_id": "c8-231"}, 17355.17)
+    ledger.rover_event(14, "bt.command_accepted", {"request_id": "c8-231",
+                                                    "message": "Tour started: 2 stops."},
+                       stamp_s)
+    ledger.commands["c8-231"].lookups.append("pending")
+    return ledger
+
+
+def test_an_answer_in_the_rovers_last_moment_is_not_a_lost_command() -> None:
+    """Seed 2 (2026-12-03): a docked rover answered "Tour started" after backing out, 6 s
+    after the command and in the same step as it reached the soak's end; the clients had
+    stopped listening: judged lost."""
+    counts = _answered_by_the_rover_at(17361.5).summary(end=(14, 17361.5))["counts"]
+    assert counts.get("lost", 0) == 0 and counts["answered_at_end"] == 1
+
+
+def test_an_answer_the_client_never_got_earlier_is_still_lost() -> None:
+    ledger = _answered_by_the_rover_at(17300.0)
+    assert ledger.summary(end=(14, 17361.5))["counts"]["lost"] == 1
+    assert ledger.summary(end=(13, 17301.0))["counts"]["lost"] == 1  # another run's end
+    assert _answered_by_the_rover_at(17361.5).summary()["counts"]["lost"] == 1  # no end
+
+
 def _watched(obs: Observations, boot: int) -> RestartWatch:
     watch = RestartWatch(boot, 7, "corrupt_file", 100.0, WALL, [12.0, 0.2, 0.0], None, False)
     obs.restart_begins(watch)
