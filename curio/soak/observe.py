@@ -72,21 +72,19 @@ class RestartWatch:
         self.commands.clear()
         self.path.clear()
 
-    def excuse(self, request_id: str | None, sim_s: float) -> bool:
+    def excuse(self, request_id: str | None) -> None:
         """A command the rover began to carry out and then refused (a docked rover backing out
         for a tour when a pause or a kidnap came first, and the tour is refused): its motion,
         from when it was sent to the refusal, was the command's. Watching goes on from where
-        the rover stands at the next beat. False (nothing excused) when the rover had not
-        moved since it was sent: a command refused at once permits nothing."""
+        the rover stands at the next beat. Nothing is excused when the rover had not moved
+        since it was sent: a command refused at once permits nothing."""
         since = self.commands.get(request_id or "")
-        if since is None or not any(t > since and d > STILL_M for t, d in self.path
-                                    if t <= sim_s):
-            return False
+        if since is None or not any(t > since and d > STILL_M for t, d in self.path):
+            return
         self.moved_m = max((d for t, d in self.path if t <= since), default=0.0)
         self.path.clear()
         self.excused.append(str(request_id))
         self.rebase_next = True
-        return True
 
     def to_json(self) -> dict[str, Any]:
         """Plain JSON for the report."""
@@ -228,7 +226,7 @@ class Observations:
         if w.permitted is None and kind == "operator" and detail.get("request_id"):
             w.commands.setdefault(str(detail["request_id"]), float(msg.get("sim_s", 0.0)))
         if w.permitted is None and kind == "bt.command_rejected":
-            w.excuse(detail.get("request_id"), float(msg.get("sim_s", 0.0)))
+            w.excuse(detail.get("request_id"))
         if w.permitted is None and kind in MOTION_PERMITS:
             w.permit(kind, detail.get("request_id"), float(msg.get("sim_s", 0.0)))
 
