@@ -17,6 +17,12 @@ polls (behaviours never await). Docking:
    tolerance, and it **backs off** (``backing_off``) and tries again, up to
    ``dock.max_attempts``; then ``failed``. Without a contact measurement
    (``charger_v`` None) the lidar's fix alone decides;
+   a fix, or the tracked estimate, that puts the dock farther from where the map and the
+   localisation put it than ``dock.detect_range_m`` (or three standard deviations of ``/pose``)
+   or :data:`MAP_GATE_RAD` is something else, or odometry that drifted: it is dropped, the
+   next scans look around the map's dock again, and without a fix for ``LOST_SIGHT_S`` the
+   attempt is retried (a seed-3 soak day of 2026-12-03 followed an estimate that turned 60°
+   away from the dock, ended a metre off and could not back out);
 4. ``docked``: stays there; charging shows on ``/power``.
 
 Undocking (``undocking``) backs straight out ``dock.undock_distance_m``; the rover must undock
@@ -61,6 +67,7 @@ BACK_OFF_X_M = ENTRY_X_M - 0.15
 ON_DOCK_M = 0.05
 ON_DOCK_RAD = 0.1
 FIX_GAIN = 0.3  # each new fix moves the tracked dock estimate this share of the way
+MAP_GATE_RAD = math.radians(20.0)  # a dock estimate this far from the map's heading is not it
 
 
 class Docker:
@@ -101,6 +108,7 @@ class Docker:
         self._fix: DockFix | None = None
         self._fix_odom: Pose2D | None = None
         self._fix_at = -math.inf
+        self._off_map = ""  # why the last estimate was dropped (off the map's dock)
         self._odom = PoseHistory(400, interpolation="se2")
         self._phase_start = 0.0
         self._from: Pose2D | None = None
@@ -221,6 +229,7 @@ class Docker:
         self.approach.reset()
         self._fix = None
         self._fix_at = self.clock.now()
+        self._off_map = ""
         self._event("dock.attempt", attempt=self.attempt)
         self._set("approaching", f"approaching the dock (attempt {self.attempt})")
 
@@ -228,7 +237,7 @@ class Docker:
         rover = self.rover_in_dock()
         if rover is None:
             if now - self._fix_at > LOST_SIGHT_S:
-                self._retry("the dock is not in sight")
+                self._retry(self._off_map or "the dock is not in sight")
             else:
                 self._drive(0.0, 0.0, now)
             return
@@ -314,7 +323,7 @@ class Docker:
         if guess is None:
             return None
         fix = self.detector.detect(scan.points(self.laser_in_base), guess)
-        if fix is None or fix.rms_m > 0.03:
+        if fix is None or fix.rms_m > 0.03 or not self._agrees_with_map(fix.dock_in_base):
             return None
         if self._fix is not None and fix.shift_m < 0.05:
             # Smooth: move the tracked estimate part of the way to the new fix (single fixes
@@ -342,7 +351,30 @@ class Docker:
         now = self._odom_now()
         if now is None:
             return self._fix.rover_in_dock()
-        return self._fix.rover_in_dock() @ (self._fix_odom.inverse() @ now)
+        rover = self._fix.rover_in_dock() @ (self._fix_odom.inverse() @ now)
+        if not self._agrees_with_map(rover.inverse()):
+            self._fix = None  # the next scans search around the map's dock again
+            return None
+        return rover
+
+    def _agrees_with_map(self, dock_in_base: Pose2D) -> bool:
+        """Whether a dock estimate (``base_link``, now) lies where the map and the localisation
+        put the dock: within ``dock.detect_range_m`` (or 3 σ of ``/pose``) and
+        :data:`MAP_GATE_RAD` (or 3 σ); without a pose, any estimate does. Notes why not."""
+        pose = self.bus.latest(POSE)
+        if pose is None:
+            return True
+        off = dock_in_base.relative_to(pose.pose.inverse() @ self.home.pose())
+        cov = pose.covariance
+        gate_m = max(self.dcfg.detect_range_m, 3.0 * math.sqrt(max(cov[0], cov[4], 0.0)))
+        gate_rad = max(MAP_GATE_RAD, 3.0 * math.sqrt(max(cov[8], 0.0)))
+        off_m, off_rad = math.hypot(off.x, off.y), abs(wrap_angle(off.yaw))
+        if off_m <= gate_m and off_rad <= gate_rad:
+            return True
+        self._off_map = (f"the dock's shape was not where the map puts it ({off_m * 100:.0f} cm, "
+                         f"{math.degrees(off_rad):.0f}° off)")
+        log.debug("docking: dropped a dock estimate: %s", self._off_map)
+        return False
 
     # --- helpers ------------------------------------------------------------------------------
     def _check_start_on_dock(self) -> None:

@@ -1,9 +1,11 @@
 """Docking on the whole simulated app: a missed contact is retried (back off, approach again),
-and a dock that never gives its voltage ends in ``dock.failed`` and a help request."""
+a dock that never gives its voltage ends in ``dock.failed`` and a help request, and a tracked
+dock estimate that wanders away from the map's dock is dropped."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +14,7 @@ import pytest
 from curio.app import App
 from curio.core.clock import SimClock
 from curio.core.config import load_config
+from curio.core.geometry import Pose2D
 from curio.core.topics import EVENTS
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
@@ -80,6 +83,32 @@ async def test_a_dock_without_voltage_fails_after_its_attempts_and_asks_for_help
     asks = [d for k, d in kinds if k == "help.requested"]
     assert asks and asks[-1]["reason"] == "dock_failed"
     assert not [k for k, _ in kinds if k == "collision"]
+    await app.stop()
+
+
+async def test_a_dock_estimate_that_wanders_off_the_map_is_dropped_and_the_rover_docks(
+        tmp_path: Path) -> None:
+    # Seed 3's soak day of 2026-12-03: the tracked estimate turned 60° away from the dock, the
+    # rover followed it a metre off the axis and could not back out. Here the estimate is
+    # turned by hand once the approach tracks the dock; the map's dock must win.
+    app, clock, events = await _app(tmp_path)
+    docker, world = app.docker, app.world
+    assert docker is not None and world is not None and world.dock is not None
+    docker.dock("test", from_here=True)
+    t0 = clock.now()
+    while docker._fix is None and clock.now() - t0 < 20.0:
+        await clock.run(until_s=clock.now() + 0.1)
+    fix = docker._fix
+    assert fix is not None and docker.state == "approaching"
+    docker._fix = replace(fix, dock_in_base=fix.dock_in_base @ Pose2D(0.1, 0.25, math.radians(60)))
+    worst_off_axis = 0.0
+    while docker.state not in ("docked", "failed") and clock.now() - t0 < 120.0:
+        await clock.run(until_s=clock.now() + 0.25)
+        worst_off_axis = max(worst_off_axis, abs(world.dock.error(world.truth_pose)[1]))
+    kinds = [(e.kind, e.detail) for e in events.drain()]
+    assert docker.state == "docked" and world.docked
+    assert not [d for k, d in kinds if k == "dock.retry"]
+    assert worst_off_axis < 0.15  # the staging pose's own offset, nothing more
     await app.stop()
 
 
