@@ -340,9 +340,11 @@ class Docker:
             delta = self._fix_odom.inverse() @ odom_at_scan
             return delta.inverse() @ self._fix.dock_in_base
         pose = self.bus.latest(POSE)
-        if pose is None:
-            return None
-        return pose.pose.inverse() @ self.home.pose()
+        return None if pose is None else self._map_dock_in_base(pose.pose)
+
+    def _map_dock_in_base(self, pose_in_map: Pose2D) -> Pose2D:
+        """The dock in ``base_link`` where the map puts it, the rover at ``pose_in_map``."""
+        return pose_in_map.inverse() @ self.home.pose()
 
     def rover_in_dock(self) -> Pose2D | None:
         """The rover in the dock frame now (the last fix moved by odometry), or None."""
@@ -364,7 +366,7 @@ class Docker:
         pose = self.bus.latest(POSE)
         if pose is None:
             return True
-        off = dock_in_base.relative_to(pose.pose.inverse() @ self.home.pose())
+        off = dock_in_base.relative_to(self._map_dock_in_base(pose.pose))
         cov = pose.covariance
         gate_m = max(self.dcfg.detect_range_m, 3.0 * math.sqrt(max(cov[0], cov[4], 0.0)))
         gate_rad = max(MAP_GATE_RAD, 3.0 * math.sqrt(max(cov[8], 0.0)))
