@@ -53,6 +53,7 @@ from curio.core.pose_history import PoseHistory
 from curio.core.topics import HEALTH, INITIAL_POSE, LOCALIZATION, ODOM, SCAN
 from curio.estimation.correction import MapOdomPublisher
 from curio.estimation.localization_kernels import (
+    beam_evidence,
     lookup_grad_points,
     lookup_points,
     lookup_poses,
@@ -76,6 +77,27 @@ State = Literal["ok", "uncertain", "lost", "off"]
 
 # Pose-beam pairs the likelihood is computed for at once (a 512 KiB buffer; see ``_loglik``).
 LOGLIK_BLOCK_VALUES = 1 << 16
+# A beam that stops in front of the map counts this much of one on a wall in the fit
+# (``Localizer._fit``).
+IN_FRONT_WEIGHT = 0.5
+# Beams in front of the map are left out of the particles' weights only if at least this
+# share of a scan's beams, and this many, remain (``Localizer._without_unmapped``).
+MIN_EVIDENCE_SHARE = 0.2
+MIN_EVIDENCE_BEAMS = 8
+# What a beam end says about a pose (``beam_evidence``'s codes).
+AGAINST, ON_WALL, IN_FRONT = 0, 1, 2
+# Ends in front of the map on one straight surface (within the tolerance) wider than this are
+# a wall seen from a wrong pose, not people (``Localizer._wide_in_front_against``), when they
+# are at least MIN_WALL_BEAMS; neighbours within the gap (or four beam spacings at their range,
+# at most MAX_JOIN_GAP_M) are on one surface, metres.
+MAX_UNMAPPED_WIDTH_M = 0.8
+JOIN_GAP_M = 0.3
+MAX_JOIN_GAP_M = 0.6
+STRAIGHT_TOLERANCE_M = 0.05
+MIN_WALL_BEAMS = 4
+# Beams whose ends lie this far in front of the map (or twice the position spread) do not
+# weigh the particles (``Localizer._without_unmapped``), metres.
+UNMAPPED_MARGIN_M = 0.3
 
 
 def _flat(a: F64) -> F64:
@@ -393,6 +415,7 @@ class Localizer:
         if len(rows) == 0:
             rows, cols = np.nonzero(grid.free_mask())
         self._free_rc = np.stack([rows, cols], axis=1)
+        self._free_cells = np.ascontiguousarray(grid.free_mask())
         self.particles: F64 = np.zeros((0, 3))
         self.weights: F64 = np.zeros(0)
         self.w_slow = 0.0
@@ -410,6 +433,10 @@ class Localizer:
         self.since_set_m = math.inf  # distance driven since a pose was set from outside
         self.ok_since_set = True  # the filter was ``ok`` since a pose was set from outside
         self.initialized = False
+        # The particles agree on one place (the last estimate's cluster holds 0.8 of the
+        # weight; a set pose): only then is a beam in front of the map at the estimate
+        # dropped (``_without_unmapped``) — among hypotheses it would favour the first.
+        self.unimodal = False
         # Tracking prior: the last estimate moved by odometry, with its covariance (map frame).
         self._delta = Pose2D()
         self.track_cov: F64 | None = None
@@ -442,6 +469,7 @@ class Localizer:
         self._force_update = True
         self._last_odom = None  # the motion before this call is already in ``pose``
         self.track_cov = None
+        self.unimodal = True
         self.initialized = True
 
     def global_localization(self) -> None:
@@ -453,6 +481,7 @@ class Localizer:
         self.poor_scans = self.cfg.lost_after_scans
         self.covariance = np.diag([100.0, 100.0, math.pi**2])
         self.track_cov = None
+        self.unimodal = False
         self._start_search()
         self._force_update = True
         self.initialized = True
@@ -491,6 +520,8 @@ class Localizer:
             self._propagate_top(delta)
         pts_pf = scan.points(self.laser_pose, max_beams=self.cfg.laser_beams,
                              range_max_m=scan.range_max_m - 0.05)
+        if self.search is None and self.state != "lost" and self.unimodal and len(pts_pf) >= 8:
+            pts_pf = self._without_unmapped(pts_pf, self.pose @ delta)
         if len(pts_pf) < 8:
             # Nothing to weigh the particles with: the estimate follows the odometry.
             track = self._predict_track()
@@ -655,23 +686,22 @@ class Localizer:
         # The prior only while the particles agree on one place (not while hypotheses compete
         # after a global search: the particle filter decides between them).
         unimodal = float(w[sel].sum()) >= 0.8 * float(w.sum())
+        self.unimodal = unimodal
         guess, prior_cov = self._tracking_prior(mean, pts) if unimodal else (mean, None)
         if self.cfg.scan_match and len(pts) >= (3 if prior_cov is not None else 10):
             m = scan_match(self.field, pts, guess,
                            max_residual_m=self.cfg.scan_match_max_residual_m,
                            inlier_m=self.cfg.inlier_distance_m, prior_cov=prior_cov)
-            self.inlier_fraction = m.inlier_fraction
+            self.inlier_fraction = self._fit(pts, m.pose)
             self.track_cov = None
             jump = m.pose.distance_to(mean)
-            if m.inlier_fraction >= self.cfg.lost_inlier_fraction and jump < 0.3:
+            if self.inlier_fraction >= self.cfg.lost_inlier_fraction and jump < 0.3:
                 # Floor: 1 cm, 0.3° (map resolution, unmodelled errors), never overconfident.
                 self.track_cov = m.covariance + np.diag([1e-4, 1e-4, 3e-5])
                 self._shift(sel, mean, m.pose)
                 mean = m.pose
         else:
-            d = self.field.lookup(*self._world(pts, mean)) - 0.5 * self.grid.resolution_m
-            self.inlier_fraction = float(np.mean(np.abs(d) <= self.cfg.inlier_distance_m)) \
-                if len(pts) else 0.0
+            self.inlier_fraction = self._fit(pts, mean)
             self.track_cov = None
             if self.cfg.scan_match and prior_cov is not None:
                 # Too few beams hit anything to match: trust the odometry (dead reckoning).
@@ -720,12 +750,118 @@ class Localizer:
         cov = jac @ cov0 @ jac.T + np.diag([var_t, var_t, var_r])
         return pred, np.asarray(cov, dtype=np.float64)
 
+    def _beam_classes(self, pts: F64, pose: Pose2D) -> npt.NDArray[np.int8]:
+        """What each beam end of ``pts`` (``base_link``) says about ``pose``: ``AGAINST``,
+        ``ON_WALL`` or ``IN_FRONT`` of the map
+        (:func:`~curio.estimation.localization_kernels.beam_evidence`)."""
+        wx, wy = self._world(pts, pose)
+        ex, ey = self.field.to_local(wx, wy)
+        laser = pose @ self.laser_pose
+        lx, ly = self.field.to_local(np.array([laser.x]), np.array([laser.y]))
+        out = np.empty(len(pts), dtype=np.int8)
+        beam_evidence(self.field.dist_m, self._free_cells, self.grid.resolution_m,
+                      self.field.max_dist_m, float(lx[0]), float(ly[0]),
+                      np.ascontiguousarray(ex, dtype=np.float64),
+                      np.ascontiguousarray(ey, dtype=np.float64), self.cfg.inlier_distance_m, out)
+        if np.count_nonzero(out == IN_FRONT) > 1:
+            self._wide_in_front_against(pts, out)
+        return out
+
+    def _wide_in_front_against(self, pts: F64, cls: npt.NDArray[np.int8]) -> None:
+        """Mark ``AGAINST`` the ends in front of the map (``pts`` in ``base_link``, in scan
+        order) that lie on a straight surface wider than ``MAX_UNMAPPED_WIDTH_M``.
+
+        A person, a bag or a bin is narrow, and a group of people is a row of curved
+        surfaces; a wall seen from a wrong pose (the rover carried into the next room, where
+        half the beams end in the free space of the old one) is a long straight run of ends
+        in front of the map. Neighbouring ends are on one surface when they are within
+        ``JOIN_GAP_M``, or four beam spacings at their range (at most ``MAX_JOIN_GAP_M``: in
+        an open field the valid returns can be far apart); a surface is cut where it bends by
+        more than ``STRAIGHT_TOLERANCE_M`` from the line between its ends (corners, and the
+        people of a group), and the straight pieces of ``MIN_WALL_BEAMS`` ends or more that
+        are wider than the limit are walls."""
+        front = cls == IN_FRONT
+        rel = pts - np.array([self.laser_pose.x, self.laser_pose.y])
+        rng = np.hypot(rel[:, 0], rel[:, 1])
+        step = np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1]))
+        spacing = np.abs(wrap_angles(np.diff(np.arctan2(rel[:, 1], rel[:, 0]))))
+        reach = np.clip(4.0 * np.minimum(rng[:-1], rng[1:]) * spacing, JOIN_GAP_M,
+                        MAX_JOIN_GAP_M)
+        joined = (step <= reach) & front[:-1] & front[1:]
+        starts = np.flatnonzero(front & ~np.concatenate(([False], joined)))
+        ends = np.flatnonzero(front & ~np.concatenate((joined, [False])))
+        width = np.hypot(pts[ends, 0] - pts[starts, 0], pts[ends, 1] - pts[starts, 1])
+        pieces = [(int(i), int(j)) for i, j, w in zip(starts, ends, width, strict=True)
+                  if w > MAX_UNMAPPED_WIDTH_M]
+        while pieces:
+            i, j = pieces.pop()
+            ax, ay = pts[i]
+            dx, dy = pts[j, 0] - ax, pts[j, 1] - ay
+            length = math.hypot(dx, dy)
+            if length <= MAX_UNMAPPED_WIDTH_M or j - i + 1 < MIN_WALL_BEAMS:
+                continue
+            off = np.abs((pts[i:j + 1, 0] - ax) * dy - (pts[i:j + 1, 1] - ay) * dx) / length
+            k = int(np.argmax(off))
+            if off[k] > STRAIGHT_TOLERANCE_M and 0 < k < j - i:
+                pieces += [(i, i + k), (i + k, j)]
+            else:
+                cls[i:j + 1] = AGAINST
+
+    @staticmethod
+    def _enough_evidence(evidence: int, n: int) -> bool:
+        return evidence >= max(MIN_EVIDENCE_BEAMS, MIN_EVIDENCE_SHARE * n)
+
     def _fit(self, pts: F64, pose: Pose2D) -> float:
-        """Share of ``pts`` (``base_link``) within the inlier distance of a face at ``pose``."""
+        """How well the scan's ends ``pts`` (``base_link``) fit the map at ``pose``, 0–1: the
+        share of the beams that end within the inlier distance of a wall face, a beam that
+        stops in front of the map counting ``IN_FRONT_WEIGHT`` of one.
+
+        A beam that stops in known-free space without passing a wall (``IN_FRONT``: a
+        visitor's legs, a bag the map lacks) is explained, less well than one on a wall (the
+        short readings of a beam model): at the right pose among a crowd two thirds of the
+        beams can end on people, and a share counted without them read "lost" where the rest
+        fit the walls exactly (the crowd benchmark's 20-visitor starts, which the search then
+        moved 14 m away). Counted in full, a wrong pose in an open place, where most ends
+        fall in free space, would fit as well as the right one; and ends in front of the map
+        that lie on one wide surface (a wall seen from a wrong pose, not a person) count
+        against it (:meth:`_wide_in_front_against`), as does a beam through a wall or into
+        unknown space. The fit is never below the share of the ends on a wall.
+        """
         if len(pts) == 0:
             return 0.0
+        return self._fit_of(self._beam_classes(pts, pose))
+
+    @staticmethod
+    def _fit_of(cls: npt.NDArray[np.int8]) -> float:
+        """:meth:`_fit` of beams already classified (``cls`` not empty)."""
+        on_wall = int(np.count_nonzero(cls == ON_WALL))
+        in_front = int(np.count_nonzero(cls == IN_FRONT))
+        return (on_wall + IN_FRONT_WEIGHT * in_front) / len(cls)
+
+    def _without_unmapped(self, pts: F64, pose: Pose2D) -> F64:
+        """``pts`` (``base_link``) without the beams that end deep in front of the map at the
+        predicted ``pose``, for weighing the particles (a distance filter: Fox, Burgard and
+        Thrun, "Markov localization for mobile robots in dynamic environments", 1999).
+
+        Such an end (``IN_FRONT`` and at least ``UNMAPPED_MARGIN_M``, or twice the position
+        spread, from any wall) is a person or a thing the map lacks: near the prediction it
+        fits no particle, and far from it, where it may fall on a wall by chance, it pulls the
+        particles to a wrong place (a crowd around a rover whose pose was just set). Every beam
+        is kept when the scan fits the prediction poorly (:meth:`_fit` below
+        ``lost_inlier_fraction``: a rover carried away must be judged on all it sees), or when
+        too few beams would remain (``MIN_EVIDENCE_SHARE``, ``MIN_EVIDENCE_BEAMS``)."""
+        n = len(pts)
+        cls = self._beam_classes(pts, pose)
+        if self._fit_of(cls) < self.cfg.lost_inlier_fraction:
+            return pts  # the prediction itself fits poorly (carried away?): judge on every beam
         d = self.field.lookup(*self._world(pts, pose)) - 0.5 * self.grid.resolution_m
-        return float(np.mean(np.abs(d) <= self.cfg.inlier_distance_m))
+        deep = (cls == IN_FRONT) & (d >= max(UNMAPPED_MARGIN_M, 2.0 * self.std_xy_m))
+        keep = ~deep
+        kept = int(np.count_nonzero(keep))
+        if kept == n or not self._enough_evidence(kept, n):
+            return pts
+        out: F64 = pts[keep]
+        return out
 
     def _tracking_prior(self, mean: Pose2D, pts: F64) -> tuple[Pose2D, F64 | None]:
         """Where to start the scan match, and the prior covariance (None: no prior).
@@ -955,6 +1091,7 @@ class Localizer:
         self.w_slow = self.w_fast = 0.0
         self.pose = hyps[0][1]
         self.track_cov = None
+        self.unimodal = len(hyps) == 1
         self.state = "uncertain"
         self._force_update = True
         log.info("global localisation: %d hypotheses, best at %s (fit %.2f)", len(hyps),

@@ -16,6 +16,7 @@ from curio.estimation.localization import (
     _kld_bound,
     scan_match,
 )
+from curio.estimation.maps import OccupancyGrid
 from tests.unit.test_localization_helpers import cast_scan, room_grid
 
 LASER = Pose2D(0.152, 0.078, 0.0)
@@ -212,12 +213,11 @@ def test_global_localization_finds_the_pose() -> None:
 
 
 def test_long_middling_fit_rechecks_the_map_and_keeps_a_right_pose() -> None:
-    """Unmapped clutter keeps the fit below ok_inlier_fraction; after recheck_after_scans
-    updates a global search runs, and the right current pose survives it."""
+    """A noisy lidar (8 cm) puts some ends past the walls, which keeps the fit below
+    ok_inlier_fraction; after recheck_after_scans updates a global search runs, and the right
+    current pose survives it. (Clutter the map lacks would not: a beam that stops in front of
+    the map is no evidence about the pose, see the crowd test below.)"""
     grid = room_grid()
-    cluttered = grid.copy()
-    for r0, c0 in ((60, 60), (100, 150), (40, 180), (120, 90)):  # crates nobody mapped
-        cluttered.data[r0:r0 + 12, c0:c0 + 12] = 100
     cfg = LocalizationConfig(ok_inlier_fraction=0.99, recheck_after_scans=3,
                              global_poses_per_scan=50000)
     loc = Localizer(grid, cfg, LASER, seed=5)
@@ -230,12 +230,79 @@ def test_long_middling_fit_rechecks_the_map_and_keeps_a_right_pose() -> None:
         odom = path[0].inverse() @ path[k]
         # (The test path grazes the partition wall: a scan from inside it has no valid beam
         # and no update; only updated poses are scored.)
-        if loc.update(cast_scan(cluttered, path[k], LASER, sigma_m=0.02, rng=rng), odom):
+        if loc.update(cast_scan(grid, path[k], LASER, sigma_m=0.08, rng=rng), odom):
             fits.append(loc.inlier_fraction)
             errs.append(loc.pose.distance_to(path[k]))
     assert max(fits) < 0.99
     assert loc.searches >= 1
     assert max(errs[5:]) < 0.05
+
+
+def _crowd_around(grid: OccupancyGrid, centre: Pose2D, count: int, seed: int,
+                  within_m: tuple[float, float] = (0.6, 1.6)) -> OccupancyGrid:
+    """``grid`` with ``count`` people (discs of 0.2 m radius) standing ``within_m`` around
+    ``centre``: the world's grid; the map stays without them."""
+    rng = np.random.default_rng(seed)
+    world = grid.copy()
+    res = grid.resolution_m
+    rows, cols = np.mgrid[0:grid.height, 0:grid.width]
+    xs = grid.origin.x + (cols + 0.5) * res
+    ys = grid.origin.y + (rows + 0.5) * res
+    for k in range(count):
+        ang = 2 * math.pi * k / count + rng.uniform(-0.2, 0.2)
+        dist = rng.uniform(*within_m)
+        px, py = centre.x + dist * math.cos(ang), centre.y + dist * math.sin(ang)
+        world.data[(xs - px) ** 2 + (ys - py) ** 2 <= 0.2**2] = 100
+    return world
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_crowd_hiding_most_of_the_walls_at_the_right_pose_is_not_lost(seed: int) -> None:
+    """Crowd benchmark finding (`curio bench crowd`, curio_shapes, 20 visitors, jobs 100111,
+    100115, 100125): visitors around the start hid two thirds of the beams; the share on a wall
+    (0.31–0.38) read ``lost`` after five scans at the right pose, and the search moved the
+    estimate 14–17 m to a place that fitted better by chance. A beam that stops on something
+    narrow in known-free space in front of the map is explained (half a beam on a wall), and
+    such beams do not weigh the particles: the rover stays where it is. Here 14 people stand
+    around it and hide three quarters of the beams; before, every seed went ``lost`` and ended
+    2.6–3.6 m off."""
+    grid = room_grid()
+    truth = Pose2D(4.0, 3.5, 0.3)
+    world = _crowd_around(grid, truth, 14, seed)
+    assert np.mean(cast_scan(world, truth, LASER).ranges_m
+                   < cast_scan(grid, truth, LASER).ranges_m - 0.3) > 0.7
+    loc = Localizer(grid, LocalizationConfig(), LASER, seed=seed)
+    rng = np.random.default_rng(seed + 10)
+    loc.initialize(truth)
+    states = []
+    for k in range(30):
+        odom = Pose2D(0.02 * k, 0.0, 0.0)  # creeping forward among them
+        loc.update(cast_scan(world, truth @ odom, LASER, sigma_m=0.02, rng=rng), odom)
+        states.append(loc.state)
+    assert "lost" not in states
+    assert loc.searches == 0
+    assert loc.pose.distance_to(truth @ Pose2D(0.58, 0.0, 0.0)) < 0.3
+
+
+@pytest.mark.parametrize("people", [0, 8])
+def test_a_rover_carried_to_the_other_room_is_lost_with_or_without_people(people: int) -> None:
+    """Ends in front of the map do not vouch for a pose when they lie on a wide surface: carried
+    into the other room, half the beams end in the free space of the old one, on its walls
+    (not narrow like a person), and the old pose still fits poorly — also with people around
+    the rover, whose ends do count as explained."""
+    grid = room_grid()
+    before, after = Pose2D(3.0, 4.5, 0.0), Pose2D(9.0, 3.5, 2.0)
+    world = _crowd_around(grid, after, people, seed=5, within_m=(0.8, 2.0))
+    loc = Localizer(grid, LocalizationConfig(), LASER, seed=6)
+    rng = np.random.default_rng(7)
+    loc.initialize(before)
+    states = []
+    for k in range(12):
+        odom = Pose2D(0.02 * k, 0.0, 0.0)
+        loc.update(cast_scan(world, after @ odom, LASER, sigma_m=0.02, rng=rng), odom)
+        states.append(loc.state)
+    assert "lost" in states
+    assert loc.searches >= 1
 
 
 def test_a_parked_rover_carried_to_a_place_that_fits_middling_is_found() -> None:
