@@ -2,7 +2,8 @@
 asks for help, then finishes its tour.
 
 The simulated building is the default one with the lab rearranged (``moved_grid``): its
-south bench and its island stand elsewhere, while the rover still localises in
+south bench and its island stand elsewhere and a 2.5 m screen stands by the lab's stop,
+while the rover still localises in
 the original map (``localization.map_yaml`` = ``maps/curio_building.yaml``). On the tour the fit
 degrades slowly as the rover enters the lab (``/localization`` goes ``uncertain``), until the
 localiser gives up or re-checks the whole map and puts the rover somewhere else. The tree
@@ -37,9 +38,9 @@ from curio.scenarios.base import Scenario, ScenarioArgs, ScenarioContext, Scenar
 __all__ = ["LostScenario", "moved_grid"]
 
 OPERATOR_S = 10.0
-# The lab rearranged (x0, y0, x1, y1 in map metres): the long bench, the bench along the south
-# wall and the island moved.
-NEW_FURNITURE = [(18.5, -5.3, 21.5, -4.6), (19.0, 2.0, 20.2, 4.0)]
+# The lab rearranged (x0, y0, x1, y1 in map metres): the bench along the south wall and the
+# island moved, and a 2.5 m screen put up north of the lab's tour stop.
+NEW_FURNITURE = [(18.5, -5.3, 21.5, -4.6), (19.0, 2.0, 20.2, 4.0), (18.2, 1.0, 20.7, 1.1)]
 
 
 def moved_grid() -> OccupancyGrid:
