@@ -10,11 +10,16 @@ crash, a power cut, or a stop of Curio during the tour): :class:`TourJournal` pu
 file. The rover does not pick the tour up again: it stays where it is until a schedule or an
 operator says otherwise.
 
-File writes go through ``clock.offload`` (a worker thread on the real clock).
+File writes go through ``clock.offload`` (a worker thread on the real clock). A write that fails
+(a full disk) is tried again every ``RETRY_S`` until it succeeds: once, the soak's disk was
+full at ``tour.started`` and the journal gave up, so the ``kill -9`` that came later in the
+tour left nothing to report (seed 2, 2026-12-03).
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import logging
 from pathlib import Path
 from typing import Any
@@ -30,6 +35,7 @@ __all__ = ["TourJournal"]
 log = logging.getLogger("curio.tours.journal")
 
 FIELDS = ("tour_id", "tour", "source", "request_id", "stops")
+RETRY_S = 2.0  # a failed write is tried again this often (clock seconds)
 
 
 class TourJournal:
@@ -47,6 +53,8 @@ class TourJournal:
         self.interrupted: dict[str, Any] | None = self._read()
         self.current: dict[str, Any] | None = None
         self._events = bus.subscribe(EVENTS)
+        self.unsaved = False  # the file does not say what ``current`` says (a write failed)
+        self._writing = asyncio.Lock()  # one write at a time, each of the state at its call
 
     def _read(self) -> dict[str, Any] | None:
         try:
@@ -76,13 +84,26 @@ class TourJournal:
         self.interrupted = None
 
     async def _write(self) -> None:
-        try:
-            if self.current is None:
-                await self.clock.offload(self.path.unlink, True)  # missing_ok
-            else:
-                await self.clock.offload(atomic_write_json, self.path, dict(self.current))
-        except OSError as exc:  # a full disk: the journal is best effort, the tour goes on
-            log.warning("cannot write the tour journal %s: %s", self.path, exc)
+        async with self._writing:
+            try:
+                if self.current is None:
+                    await self.clock.offload(self.path.unlink, True)  # missing_ok
+                else:
+                    await self.clock.offload(atomic_write_json, self.path, dict(self.current))
+            except OSError as exc:  # a full disk: the tour goes on, the write is tried again
+                if not self.unsaved:
+                    log.warning("cannot write the tour journal %s (trying again every %g s): "
+                                "%s", self.path, RETRY_S, exc)
+                self.unsaved = True
+                return
+            if self.unsaved:
+                log.info("the tour journal %s is written again", self.path)
+            self.unsaved = False
+
+    async def _retry(self) -> None:
+        async for _ in self.clock.every(RETRY_S):
+            if self.unsaved:
+                await self._write()
 
     async def on_event(self, ev: Event) -> None:
         """Follow one event."""
@@ -99,12 +120,18 @@ class TourJournal:
 
     async def run(self) -> None:
         """Report an interrupted tour, then follow the tours until cancelled."""
-        if self.interrupted is not None:
-            self.report()
-            self.current = None
-            await self._write()
-        async for ev in self._events:
-            await self.on_event(ev)
+        retry = asyncio.create_task(self._retry(), name="tour-journal-retry")
+        try:
+            if self.interrupted is not None:
+                self.report()
+                self.current = None
+                await self._write()
+            async for ev in self._events:
+                await self.on_event(ev)
+        finally:
+            retry.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await retry
 
     async def close(self) -> None:
         """Stop following (the file stays while a tour runs: it was interrupted)."""

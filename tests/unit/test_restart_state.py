@@ -11,6 +11,8 @@ import json
 from pathlib import Path
 from zoneinfo import ZoneInfo
 
+import pytest
+
 from curio.core.clock import SimClock
 from curio.core.config import Config
 from curio.core.geometry import Pose2D
@@ -59,6 +61,42 @@ async def test_a_tour_cut_short_is_reported_once_at_the_next_start(tmp_path: Pat
     events3 = bus3.subscribe(EVENTS)
     await _run_for(clock, TourJournal(path, bus3, clock).run(), 1.0)
     assert events3.drain() == []
+
+
+async def test_a_tour_started_on_a_full_disk_is_written_once_there_is_room(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Soak finding (seed 2, 2026-12-03): the disk was full at ``tour.started``, the journal
+    gave up, and the ``kill -9`` later in the tour left nothing to report. The write is now
+    tried again until it succeeds."""
+    from curio.tours import journal as journal_module
+
+    room = {"free": False}
+    real_write = journal_module.atomic_write_json
+
+    def write(path: Path, data: object) -> None:
+        if not room["free"]:
+            raise OSError(28, "No space left on device")
+        real_write(path, data)
+
+    monkeypatch.setattr(journal_module, "atomic_write_json", write)
+    path = tmp_path / "tours.running.json"
+    clock, bus = SimClock(), make_bus()
+    journal = TourJournal(path, bus, clock)
+    task = asyncio.create_task(journal.run())
+    bus.publish(EVENTS, Event(0.0, "tour.started", {"tour_id": 1, "tour": "Highlights",
+                                                    "stops": 2}))
+    await clock.advance(5.0)
+    assert not path.exists() and journal.unsaved
+    room["free"] = True
+    await clock.advance(journal_module.RETRY_S + 0.5)
+    task.cancel()  # kill -9
+    await asyncio.gather(task, return_exceptions=True)
+    assert json.loads(path.read_text())["tour"] == "Highlights"
+    bus2 = make_bus()
+    events = bus2.subscribe(EVENTS)
+    await _run_for(clock, TourJournal(path, bus2, clock).run(), 1.0)
+    assert [e.detail["tour"] for e in events.drain() if e.kind == "tour.interrupted"] == [
+        "Highlights"]
 
 
 async def test_a_finished_tour_leaves_nothing_to_report(tmp_path: Path) -> None:
