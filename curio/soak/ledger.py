@@ -17,10 +17,13 @@ client got two different ones, or the rover gave two; **lost** when the rover pu
 its client never got an answer (nor did the rover give one); **not delivered** when it never
 reached the rover (the socket went down first) and the rover says it does not know it —
 the client knows, which is not a loss; **replayed** when the rover published it more than once
-(in one run or in two); **pending** when the soak ended while it was still being carried out;
-**answered at the end** when the rover answered it in the last ``END_WINDOW_S`` before the
-soak's end, as the clients stopped listening, and the client got no answer: the end cut the
-delivery, not the rover (a command the rover never answered is lost, whenever it was sent).
+(in one run or in two); **pending at the end** when the rover published it in its last run no
+more than ``PENDING_WINDOW_S`` before the soak's end, had not answered it yet, and said it
+was still carrying it out (``pending``) when last asked: the end cut the command short (a
+docked rover backs out for some 6 s before it answers "Tour started"); **answered at the
+end** when the rover answered it in the last ``END_WINDOW_S`` before the soak's end, as the
+clients stopped listening, and the client got no answer: the end cut the delivery, not the
+rover. Any other command the rover never answered is lost, whenever it was sent.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ __all__ = ["CommandRecord", "Ledger"]
 
 ANSWER_KINDS = ("bt.command_accepted", "bt.command_rejected")
 END_WINDOW_S = 1.0  # simulated s before the rover's end: an answer then may meet no client
+PENDING_WINDOW_S = 15.0  # simulated s before the end: a command still carried out is not lost
 
 
 @dataclass
@@ -74,6 +78,7 @@ class Ledger:
     def __init__(self) -> None:
         self.commands: dict[str, CommandRecord] = {}
         self.published: dict[str, list[int]] = {}
+        self.published_at: dict[str, tuple[int, float]] = {}  # the last publication: boot, s
         self.rover_answers: dict[str, list[tuple[int, str, str, float]]] = {}
         self.malformed_sent = 0
         self.malformed_refused = 0
@@ -115,6 +120,7 @@ class Ledger:
             return
         if kind == "operator":
             self.published.setdefault(rid, []).append(boot)
+            self.published_at[rid] = (boot, stamp)
         elif kind in ANSWER_KINDS:
             self.rover_answers.setdefault(rid, []).append(
                 (boot, kind, str(detail.get("message", "")), stamp))
@@ -131,6 +137,14 @@ class Ledger:
         boot, end_s = end
         return any(b == boot and stamp >= end_s - END_WINDOW_S
                    for b, _, _, stamp in self.rover_answers.get(rid, []))
+
+    def _pending_at_end(self, rec: CommandRecord, end: tuple[int, float] | None) -> bool:
+        if end is None or self.rover_answers.get(rec.rid) or not rec.lookups \
+                or rec.lookups[-1] != "pending":
+            return False
+        boot, end_s = end
+        at = self.published_at.get(rec.rid)
+        return at is not None and at[0] == boot and at[1] >= end_s - PENDING_WINDOW_S
 
     def summary(self, end: tuple[int, float] | None = None) -> dict[str, Any]:
         """Counts, the verdicts and a few examples of each problem; ``end``: the last run's
@@ -164,6 +178,8 @@ class Ledger:
             if not rec.answered:
                 if self._answered_at_end(rec.rid, end):
                     note("answered_at_end", rec)
+                elif self._pending_at_end(rec, end):
+                    note("pending_at_end", rec)
                 elif published or self.rover_answers.get(rec.rid):
                     note("lost", rec)
                 elif "unknown" in rec.lookups or not rec.acked:

@@ -81,7 +81,9 @@ def _command_checks(rep: dict[str, Any]) -> list[dict[str, Any]]:
                f"{counts.get('answered', 0)} of {sent} answered, {counts.get('lost', 0)} lost, "
                f"{counts.get('not_delivered', 0)} not delivered (the client knew)"
                + (f", {counts['answered_at_end']} answered as the soak ended"
-                  if counts.get("answered_at_end") else "")),
+                  if counts.get("answered_at_end") else "")
+               + (f", {counts['pending_at_end']} still being carried out at the end"
+                  if counts.get("pending_at_end") else "")),
         _check("no command answered twice", counts.get("double_answered", 0) == 0,
                f"{counts.get('double_answered', 0)} answered twice"),
         _check("no command replayed", counts.get("replayed", 0) == 0,

@@ -72,6 +72,31 @@ def test_an_answer_the_client_never_got_earlier_is_still_lost() -> None:
     assert _answered_by_the_rover_at(17361.5).summary()["counts"]["lost"] == 1  # no end
 
 
+def _pending_since(published_s: float, lookup: str = "pending") -> Ledger:
+    """A start_tour the rover published in run 14 at ``published_s`` and never answered; the
+    final lookup said ``lookup``."""
+    ledger = _ledger_with("c5-168")
+    ledger.rover_event(14, "operator", {"request_id": "c5-168"}, published_s)
+    ledger.commands["c5-168"].lookups.append(lookup)
+    return ledger
+
+
+def test_a_command_still_carried_out_at_the_end_is_not_a_lost_command() -> None:
+    """Seed 2 (2026-12-03, again): a docked rover got "start tour" 4.6 s before the soak's end
+    and was still backing out of the dock (it answers once out, some 6 s later): judged
+    lost."""
+    counts = _pending_since(16601.93).summary(end=(14, 16606.5))["counts"]
+    assert counts.get("lost", 0) == 0 and counts["pending_at_end"] == 1
+
+
+def test_a_command_pending_long_before_the_end_or_unknown_is_still_lost() -> None:
+    assert _pending_since(16500.0).summary(end=(14, 16606.5))["counts"]["lost"] == 1
+    assert _pending_since(16601.93, "unknown").summary(end=(14, 16606.5))["counts"][
+        "lost"] == 1
+    assert _pending_since(16601.93).summary(end=(13, 16606.5))["counts"]["lost"] == 1
+    assert _pending_since(16601.93).summary()["counts"]["lost"] == 1  # no end
+
+
 def _watched(obs: Observations, boot: int) -> RestartWatch:
     watch = RestartWatch(boot, 7, "corrupt_file", 100.0, WALL, [12.0, 0.2, 0.0], None, False)
     obs.restart_begins(watch)
