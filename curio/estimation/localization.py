@@ -750,22 +750,25 @@ class Localizer:
         cov = jac @ cov0 @ jac.T + np.diag([var_t, var_t, var_r])
         return pred, np.asarray(cov, dtype=np.float64)
 
-    def _beam_classes(self, pts: F64, pose: Pose2D) -> npt.NDArray[np.int8]:
-        """What each beam end of ``pts`` (``base_link``) says about ``pose``: ``AGAINST``,
+    def _beam_classes(self, pts: F64, pose: Pose2D) -> tuple[npt.NDArray[np.int8], F64]:
+        """What each beam end of ``pts`` (``base_link``) says about ``pose`` — ``AGAINST``,
         ``ON_WALL`` or ``IN_FRONT`` of the map
-        (:func:`~curio.estimation.localization_kernels.beam_evidence`)."""
+        (:func:`~curio.estimation.localization_kernels.beam_evidence`) — and the distance
+        field at each end (metres, what :meth:`DistanceField.lookup` reads there)."""
         wx, wy = self._world(pts, pose)
         ex, ey = self.field.to_local(wx, wy)
         laser = pose @ self.laser_pose
         lx, ly = self.field.to_local(np.array([laser.x]), np.array([laser.y]))
         out = np.empty(len(pts), dtype=np.int8)
+        end_dist: F64 = np.empty(len(pts))
         beam_evidence(self.field.dist_m, self._free_cells, self.grid.resolution_m,
                       self.field.max_dist_m, float(lx[0]), float(ly[0]),
                       np.ascontiguousarray(ex, dtype=np.float64),
-                      np.ascontiguousarray(ey, dtype=np.float64), self.cfg.inlier_distance_m, out)
+                      np.ascontiguousarray(ey, dtype=np.float64), self.cfg.inlier_distance_m, out,
+                      end_dist)
         if np.count_nonzero(out == IN_FRONT) > 1:
             self._wide_in_front_against(pts, out)
-        return out
+        return out, end_dist
 
     def _wide_in_front_against(self, pts: F64, cls: npt.NDArray[np.int8]) -> None:
         """Mark ``AGAINST`` the ends in front of the map (``pts`` in ``base_link``, in scan
@@ -807,10 +810,6 @@ class Localizer:
             else:
                 cls[i:j + 1] = AGAINST
 
-    @staticmethod
-    def _enough_evidence(evidence: int, n: int) -> bool:
-        return evidence >= max(MIN_EVIDENCE_BEAMS, MIN_EVIDENCE_SHARE * n)
-
     def _fit(self, pts: F64, pose: Pose2D) -> float:
         """How well the scan's ends ``pts`` (``base_link``) fit the map at ``pose``, 0–1: the
         share of the beams that end within the inlier distance of a wall face, a beam that
@@ -829,7 +828,7 @@ class Localizer:
         """
         if len(pts) == 0:
             return 0.0
-        return self._fit_of(self._beam_classes(pts, pose))
+        return self._fit_of(self._beam_classes(pts, pose)[0])
 
     @staticmethod
     def _fit_of(cls: npt.NDArray[np.int8]) -> float:
@@ -851,14 +850,13 @@ class Localizer:
         ``lost_inlier_fraction``: a rover carried away must be judged on all it sees), or when
         too few beams would remain (``MIN_EVIDENCE_SHARE``, ``MIN_EVIDENCE_BEAMS``)."""
         n = len(pts)
-        cls = self._beam_classes(pts, pose)
+        cls, end_dist = self._beam_classes(pts, pose)
         if self._fit_of(cls) < self.cfg.lost_inlier_fraction:
             return pts  # the prediction itself fits poorly (carried away?): judge on every beam
-        d = self.field.lookup(*self._world(pts, pose)) - 0.5 * self.grid.resolution_m
-        deep = (cls == IN_FRONT) & (d >= max(UNMAPPED_MARGIN_M, 2.0 * self.std_xy_m))
-        keep = ~deep
+        d = end_dist - 0.5 * self.grid.resolution_m
+        keep = ~((cls == IN_FRONT) & (d >= max(UNMAPPED_MARGIN_M, 2.0 * self.std_xy_m)))
         kept = int(np.count_nonzero(keep))
-        if kept == n or not self._enough_evidence(kept, n):
+        if kept == n or kept < max(MIN_EVIDENCE_BEAMS, MIN_EVIDENCE_SHARE * n):
             return pts
         out: F64 = pts[keep]
         return out

@@ -129,10 +129,11 @@ def match_terms(dist, ox, oy, res, max_dist, x, y, c, s, px, py, half,  # type: 
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
 def beam_evidence(dist, free, res, max_dist, lx, ly, x, y, inlier_m,  # type: ignore[no-untyped-def]
-                  out):
+                  out, end_dist):
     """Sort beams from the laser at ``(lx, ly)`` to their ends ``(x[i], y[i])`` (grid-local
     metres: the origin corner at (0, 0), unrotated) by what they say about the pose; write
-    ``out[i]`` (int8):
+    ``end_dist[i]``, the nearest-cell distance at the end (``max_dist`` off the grid, as
+    :func:`lookup_points` reads it), and ``out[i]`` (int8):
 
     * ``ON_WALL`` (1): the end lies within ``inlier_m`` of a wall face (the nearest-cell
       distance less half a cell, as the fit counts it);
@@ -156,6 +157,7 @@ def beam_evidence(dist, free, res, max_dist, lx, ly, x, y, inlier_m,  # type: ig
         fy = math.floor(ey / res)
         inside = fx >= 0.0 and fx < w and fy >= 0.0 and fy < h
         d_end = dist[int(fy), int(fx)] if inside else max_dist
+        end_dist[i] = d_end
         if abs(d_end - half) <= inlier_m:
             out[i] = 1
             continue
@@ -197,4 +199,4 @@ def _warm() -> None:  # pragma: no cover - exercised by curio warmup
     match_terms(d, 0.0, 0.0, 0.05, 2.0, 0.0, 0.0, 1.0, 0.0, v, v, 0.025, 0.15, 0.05,
                 np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
     beam_evidence(d, np.ones((3, 3), dtype=np.bool_), 0.05, 2.0, 0.0, 0.0, v, v, 0.12,
-                  np.zeros(1, dtype=np.int8))
+                  np.zeros(1, dtype=np.int8), np.zeros(1))

@@ -77,8 +77,7 @@ class Ledger:
 
     def __init__(self) -> None:
         self.commands: dict[str, CommandRecord] = {}
-        self.published: dict[str, list[int]] = {}
-        self.published_at: dict[str, tuple[int, float]] = {}  # the last publication: boot, s
+        self.published: dict[str, list[tuple[int, float]]] = {}  # each publication: boot, s
         self.rover_answers: dict[str, list[tuple[int, str, str, float]]] = {}
         self.malformed_sent = 0
         self.malformed_refused = 0
@@ -119,8 +118,7 @@ class Ledger:
         if not rid:
             return
         if kind == "operator":
-            self.published.setdefault(rid, []).append(boot)
-            self.published_at[rid] = (boot, stamp)
+            self.published.setdefault(rid, []).append((boot, stamp))
         elif kind in ANSWER_KINDS:
             self.rover_answers.setdefault(rid, []).append(
                 (boot, kind, str(detail.get("message", "")), stamp))
@@ -143,8 +141,9 @@ class Ledger:
                 or rec.lookups[-1] != "pending":
             return False
         boot, end_s = end
-        at = self.published_at.get(rec.rid)
-        return at is not None and at[0] == boot and at[1] >= end_s - PENDING_WINDOW_S
+        published = self.published.get(rec.rid, [])
+        return bool(published) and published[-1][0] == boot and \
+            published[-1][1] >= end_s - PENDING_WINDOW_S
 
     def summary(self, end: tuple[int, float] | None = None) -> dict[str, Any]:
         """Counts, the verdicts and a few examples of each problem; ``end``: the last run's
@@ -159,7 +158,8 @@ class Ledger:
                 examples[what].append({"rid": rec.rid, "client": rec.client,
                                        "action": rec.action, "acked": rec.acked,
                                        "answers": [list(k) for k in rec.answers],
-                                       "published_in": self.published.get(rec.rid, []),
+                                       "published_in": [b for b, _ in
+                                                        self.published.get(rec.rid, [])],
                                        "lookups": rec.lookups[-3:]})
 
         for rec in self.commands.values():
