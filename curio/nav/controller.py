@@ -28,7 +28,9 @@ body twist (forward m/s, yaw rate rad/s in ``base_link``) at ``nav.controller.ra
   **progress checker** (``progress_min_distance_m`` within ``progress_timeout_s``).
 * **People** (optional, :attr:`LocalController.people`): a last stage that reviews the arc
   the stages above chose against the predicted motion of tracked people and may slow it,
-  bend it, or stop and yield (``curio/people/stage.py``); without it nothing changes.
+  bend it, or stop and yield (``curio/people/stage.py``); the controller's own manoeuvres
+  (turning in place, making room to turn) wait while they would drive at someone. Without
+  it nothing changes.
 
 :meth:`LocalController.compute` is pure computation (no bus, no awaits) so it is unit-tested and
 benchmarked directly; the navigator calls it.
@@ -154,6 +156,15 @@ class MotionReview(Protocol):
     def review_turn(self, pose: Pose2D, now_s: float) -> Review | None:
         """None: turning in place at ``pose`` (``map``) keeps clear of everyone; else why
         not (the rover brakes and waits)."""
+
+    def first_too_near(self, poses: F64, step_s: float,
+                       now_s: float) -> npt.NDArray[np.int64]:
+        """For each arc of ``poses`` ``(M, K, 3)`` (``map``, ``step_s`` apart from now), the
+        index of its first pose that drives at someone (``K``: none does)."""
+
+    def wait_for_people(self, now_s: float, detail: str) -> Review:
+        """The review for a rover that waits because its own manoeuvre would drive at
+        someone."""
 
 
 class ProgressChecker:
@@ -651,8 +662,15 @@ class LocalController:
     def _people_hold_turn(self, cyc: _Cycle) -> ControlOutput | None:
         """Someone stands where the corners would swing: brake and wait (None: turn)."""
         review = None if self.people is None else self.people.review_turn(cyc.pose, cyc.now_s)
-        if review is None:
-            return None
+        return None if review is None else self._hold(cyc, review)
+
+    def _wait_for_people(self, cyc: _Cycle, detail: str) -> ControlOutput:
+        """Brake and wait: a manoeuvre of the controller's own would drive at someone."""
+        assert self.people is not None
+        return self._hold(cyc, self.people.wait_for_people(cyc.now_s, detail))
+
+    def _hold(self, cyc: _Cycle, review: Review) -> ControlOutput:
+        """Brake (turning and driving) and report the people stage's ``review``."""
         step = 2.0 * self.cfg.max_angular_accel_radps2 * self.dt_s
         self._w = approach(self._w, 0.0, step)
         self._v = approach(self._v, 0.0, 2.0 * self.cfg.max_accel_mps2 * self.dt_s)
@@ -702,6 +720,14 @@ class LocalController:
             refused = [not self.motion_allowed(float(v), float(v * k))
                        for v, k in zip(speeds, ks, strict=True)]
             clear_steps[np.array(refused, dtype=bool)] = 0
+        if self.people is not None and clear_steps.any():
+            # Never back (or drive on) at someone: an arc ends before its first pose that
+            # would; when people alone leave no arc, wait for them.
+            near = self.people.first_too_near(trajs, dt, cyc.now_s)
+            clear_steps = np.minimum(clear_steps, np.maximum(near - 1, 0))
+            if not clear_steps.any():
+                return self._wait_for_people(cyc, "waiting for people to pass before making "
+                                             "room to turn")
         if not clear_steps.any():
             return None
         # Every few centimetres along each arc: could the rover turn in place there?
@@ -746,6 +772,14 @@ class LocalController:
         if hit:
             self._room_until = -math.inf
             return None
+        if self.people is not None and \
+                self.people.first_too_near(traj[None], 0.1, cyc.now_s)[0] < len(traj):
+            # Someone came into the way: stop and wait; the manoeuvre is chosen afresh (and
+            # not counted against the reversing budget) once they have gone.
+            self._room_until = -math.inf
+            self._reverses = max(0, self._reverses - 1)
+            return self._wait_for_people(cyc, "waiting for people to pass before making "
+                                         "room to turn")
         self._kappa = self._room_kappa
         v = approach(self._v, v_target, self.cfg.max_accel_mps2 * self.dt_s)
         w = v * self._kappa

@@ -294,6 +294,40 @@ class PeopleStage:
         return ~((costs[:, 1:] >= LETHAL).any(axis=1) & ~start_hit)
 
     # -- the review --------------------------------------------------------------------------
+    def first_too_near(self, poses: F64, step_s: float, now_s: float) -> npt.NDArray[np.int64]:
+        """For each arc of ``poses`` ``(M, K, 3)`` (``map``; pose ``k`` is ``k · step_s`` from
+        now), the index of its first pose that comes nearer than ``min_distance_m`` to a
+        person predicted to that time *and* nearer than standing still at the first pose
+        would (the hard rule: never drive at a person); ``K`` where there is none. The
+        controller's own manoeuvres (making room to turn) drive only what this allows."""
+        m_n, k_n = poses.shape[0], poses.shape[1]
+        people = self.people_near(Pose2D(*(float(v) for v in poses[0, 0])), now_s)
+        first = np.full(m_n, k_n, dtype=np.int64)
+        if len(people) == 0 or m_n == 0:
+            return first
+        times = np.arange(k_n, dtype=np.float64) * step_s
+        dist = np.empty((m_n, k_n, len(people)))
+        people_clearances(_dense(poses), times, _dense(people[:, :4]), self.footprint,
+                          self.cfg.person_radius_m, dist)
+        still = np.empty((1, k_n, len(people)))
+        people_clearances(_dense(np.repeat(poses[:1, :1], k_n, axis=1)), times,
+                          _dense(people[:, :4]), self.footprint, self.cfg.person_radius_m,
+                          still)
+        dist -= people[None, None, :, 5]
+        still -= people[None, None, :, 5]
+        near = np.any((dist < self.cfg.min_distance_m) & (dist < still - 0.02), axis=2)
+        hit = near.any(axis=1)
+        first[hit] = near[hit].argmax(axis=1)
+        return first
+
+    def wait_for_people(self, now_s: float, detail: str) -> Review:
+        """The review for a rover that waits because a manoeuvre of its own would drive at
+        someone: yielding (the progress checks pause, "Excuse me" when it is time) for up to
+        ``yield_max_s``."""
+        if self._note_yield(now_s) < self.cfg.yield_max_s:
+            return Review(0.0, 0.0, ControlStatus.YIELDING, detail, hold_progress=True)
+        return Review(0.0, 0.0, ControlStatus.AVOIDING, f"still {detail}")
+
     def steering(self, now_s: float) -> bool:
         """Whether the stage changed the motion in the last 1.5 s (it is steering round
         someone: the controller should not turn in place back to its path meanwhile)."""

@@ -206,3 +206,43 @@ def test_a_track_on_a_rover_the_fleet_knows_is_not_a_person(
     stage.rovers = lambda: np.array([[1.05, 0.0, 0.45]])
     near = stage.people_near(here, 0.0)
     assert len(near) == 1 and tuple(near[0, :2]) == (1.5, -1.0)
+
+
+def test_making_room_to_turn_never_drives_at_a_person(cfg: Config) -> None:
+    """Wedged along a wall with its goal behind it, the rover must drive an arc to make room
+    to turn. Someone stands ahead of it: it backs out instead of driving on at them."""
+    from tests.unit.test_controller import wedged
+
+    _cm, ctrl, start = wedged(cfg)
+    stage = PeopleStage(cfg.people, cfg.nav.controller, ctrl.robot, lambda: None)
+    ahead = Walker((0.95, 0.25), (0.0, 0.0))
+    _pose, log, closest = run(ctrl, start, [ahead], 120.0, stage)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    assert not any(o.detail == "driving on to make room to turn" for _t, _p, o in log)
+    assert closest >= _gap(ctrl, start, ahead) - 0.01, closest
+
+
+def test_with_people_on_both_sides_it_waits_to_make_room(cfg: Config) -> None:
+    """The same wedge with someone ahead *and* someone behind: no arc keeps clear of them, so
+    the rover waits ("waiting for people to pass before making room to turn", yielding:
+    the progress checks pause) instead of driving at either; once they walk off it makes
+    room, turns and reaches its goal. Before, the manoeuvre was the one motion the people
+    stage never saw (in the crowd benchmark it backed to 0.19 m of passing visitors)."""
+    from tests.unit.test_controller import wedged
+
+    _cm, ctrl, start = wedged(cfg)
+    stage = PeopleStage(cfg.people, cfg.nav.controller, ctrl.robot, lambda: None)
+    ahead = Walker((0.95, 0.25), (0.0, 1.0), delay_s=12.0)
+    behind = Walker((-0.95, 0.25), (0.0, 1.0), delay_s=12.0)
+    _pose, log, closest = run(ctrl, start, [ahead, behind], 120.0, stage)
+    assert log[-1][2].status is ControlStatus.GOAL_REACHED
+    early = [o for t, _p, o in log if t < 12.0]
+    assert all(o.detail == "waiting for people to pass before making room to turn"
+               and o.status is ControlStatus.YIELDING for o in early[1:])
+    assert closest >= min(_gap(ctrl, start, ahead), _gap(ctrl, start, behind)) - 0.01, closest
+
+
+def _gap(ctrl: LocalController, pose: Pose2D, person: Walker) -> float:
+    """Footprint-to-body distance (m) from the rover at ``pose`` to ``person``'s start."""
+    return float(polygon_distances(pose.inverse().transform_points(np.array([person.start])),
+                                   np.asarray(ctrl.robot.footprint_points))[0]) - BODY_M
