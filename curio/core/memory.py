@@ -12,8 +12,8 @@ resident size swung by 8–11 MB from minute to minute and climbed in steps for 
 :func:`tune_allocator` puts glibc in that end state at the start: ``M_MMAP_THRESHOLD`` at
 :data:`MMAP_THRESHOLD_BYTES` (32 MiB, glibc's own ceiling) and ``M_TRIM_THRESHOLD`` at
 :data:`TRIM_THRESHOLD_BYTES` (64 MiB, the ratio glibc keeps). Setting them also stops the
-adjustment. A ``MALLOC_MMAP_THRESHOLD_`` or ``MALLOC_TRIM_THRESHOLD_`` in the environment
-(glibc's own knobs) is left to win.
+adjustment. A ``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_`` or ``MALLOC_ARENA_MAX``
+in the environment (glibc's own knobs) is left to win.
 
 :func:`reserve_heap`, called once the rover is built and its parts are started, then takes
 :data:`RESERVE_BYTES` (24 MiB) from the heap, touches it and gives it back: the heap keeps it
@@ -21,6 +21,14 @@ adjustment. A ``MALLOC_MMAP_THRESHOLD_`` or ``MALLOC_TRIM_THRESHOLD_`` in the en
 first time later — its first global search, its first help episode — fits in memory it already
 has, instead of growing it then. This is the real-time practice of ROS 2 and others (prefault
 the heap, do not trim), here for flat memory more than for page faults.
+
+It also sets ``M_ARENA_MAX`` to 1 (:data:`ARENAS`): every thread allocates from that one heap.
+By default glibc gives each thread that allocates an arena of its own, which grows with the
+thread's work and is trimmed in steps. In the soak of 2026-12-07 one such arena (a worker
+thread's: the recorder's writer, which encodes every message, is the thread that allocates all
+the time) grew by 1.0–2.6 MB over each process's life, the growth the memory check reads as a
+leak (docs/reliability.md, "Memory: a thread's arena"). From the main heap the same work fits
+in the reserve.
 
 Cost: none measured (`farm-bench -n 4 --pin 0`, `curio sim guided-tour --seed 1` with and
 without it, 2026-12-01: CPU ×0.997, median of the pairs 0.978–1.015; peak 271.7 against 271.3
@@ -34,17 +42,19 @@ import ctypes.util
 import logging
 import os
 
-__all__ = ["MMAP_THRESHOLD_BYTES", "RESERVE_BYTES", "TRIM_THRESHOLD_BYTES", "reserve_heap",
-           "tune_allocator"]
+__all__ = ["ARENAS", "MMAP_THRESHOLD_BYTES", "RESERVE_BYTES", "TRIM_THRESHOLD_BYTES",
+           "reserve_heap", "tune_allocator"]
 
 log = logging.getLogger("curio.core.memory")
 
 M_TRIM_THRESHOLD = -1  # mallopt's parameter numbers (malloc.h)
 M_MMAP_THRESHOLD = -3
+M_ARENA_MAX = -8
 MMAP_THRESHOLD_BYTES = 32 * 1024 * 1024
 TRIM_THRESHOLD_BYTES = 64 * 1024 * 1024
 RESERVE_BYTES = 24 * 1024 * 1024  # below MMAP_THRESHOLD_BYTES: served from the heap
-_ENVIRONMENT = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+ARENAS = 1  # every thread allocates from the main heap (and its reserve)
+_ENVIRONMENT = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
 _tuned: list[bool] = []  # tune_allocator fixed the thresholds in this process
 
 
@@ -54,9 +64,9 @@ def _libc() -> ctypes.CDLL:
 
 
 def tune_allocator() -> bool:
-    """Fix glibc's mmap and trim thresholds for this process (calling it again changes
-    nothing). Returns True when they are fixed, by this call or by the environment; False
-    where the C library has no ``mallopt`` (musl, macOS)."""
+    """Fix glibc's mmap and trim thresholds and its single arena for this process (calling
+    it again changes nothing). Returns True when they are fixed, by this call or by the
+    environment; False where the C library has no ``mallopt`` (musl, macOS)."""
     if any(name in os.environ for name in _ENVIRONMENT):
         return True
     try:
@@ -66,7 +76,7 @@ def tune_allocator() -> bool:
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
     fixed = bool(mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(
-        mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
+        mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES)) and bool(mallopt(M_ARENA_MAX, ARENAS))
     if fixed and not _tuned:
         _tuned.append(True)
     if not fixed:
