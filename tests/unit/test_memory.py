@@ -47,15 +47,17 @@ def test_large_blocks_come_from_the_heap_from_the_start() -> None:
     assert tuned["tuned"] is True and float(tuned["mapped_mb"]) < 1.0  # type: ignore[arg-type]
 
 
-RESERVE = textwrap.dedent("""
-    import json, sys
+RSS_PRELUDE = textwrap.dedent("""
+    import json, sys, threading
     import numpy as np
     from curio.core.memory import reserve_heap, tune_allocator
 
     def rss_mb():
         with open("/proc/self/statm") as fh:
             return int(fh.read().split()[1]) * 4096 / 1e6
+""")
 
+RESERVE = RSS_PRELUDE + textwrap.dedent("""
     if sys.argv[1] == "tuned":
         tune_allocator()
     before = rss_mb()
@@ -68,36 +70,11 @@ RESERVE = textwrap.dedent("""
                       "later_mb": rss_mb() - reserved}))
 """)
 
-
-def test_the_heap_reserve_holds_large_work_met_later() -> None:
-    """The reserve is resident at once, and 16 MB of work afterwards fits in it (the
-    resident size does not grow); untuned, no reserve is taken (glibc would trim it)."""
-    env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("MALLOC_")}
-    runs = {}
-    for mode in ("tuned", "default"):
-        out = subprocess.run([sys.executable, "-c", RESERVE, mode], capture_output=True,
-                             text=True, check=True, env=env, timeout=60)
-        runs[mode] = json.loads(out.stdout.strip().splitlines()[-1])
-    tuned = runs["tuned"]
-    assert tuned["taken"] is True and tuned["reserve_mb"] >= 20.0, tuned
-    assert tuned["later_mb"] < 1.0, tuned
-    assert runs["default"]["taken"] is False
-
-
-THREAD = textwrap.dedent("""
-    import json, sys, threading
-    import numpy as np
-    from curio.core.memory import reserve_heap, tune_allocator
-
-    def rss_mb():
-        with open("/proc/self/statm") as fh:
-            return int(fh.read().split()[1]) * 4096 / 1e6
-
+THREAD = RSS_PRELUDE + textwrap.dedent("""
     if sys.argv[1] == "tuned":
         tune_allocator()
         reserve_heap()
     before = rss_mb()
-
     kept = []
 
     def work():  # a writer thread's buffers: 12 MB of 64 KB blocks, a quarter kept
@@ -112,16 +89,32 @@ THREAD = textwrap.dedent("""
 """)
 
 
+def _tuned_and_default(script: str) -> dict[str, dict[str, object]]:
+    """``script``'s JSON line, run tuned and by glibc's defaults (no MALLOC_ knobs)."""
+    env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("MALLOC_")}
+    runs = {}
+    for mode in ("tuned", "default"):
+        out = subprocess.run([sys.executable, "-c", script, mode], capture_output=True,
+                             text=True, check=True, env=env, timeout=60)
+        runs[mode] = json.loads(out.stdout.strip().splitlines()[-1])
+    return runs
+
+
+def test_the_heap_reserve_holds_large_work_met_later() -> None:
+    """The reserve is resident at once, and 16 MB of work afterwards fits in it (the
+    resident size does not grow); untuned, no reserve is taken (glibc would trim it)."""
+    runs = _tuned_and_default(RESERVE)
+    tuned = runs["tuned"]
+    assert tuned["taken"] is True and float(tuned["reserve_mb"]) >= 20.0, tuned  # type: ignore[arg-type]
+    assert float(tuned["later_mb"]) < 1.0, tuned  # type: ignore[arg-type]
+    assert runs["default"]["taken"] is False
+
+
 def test_a_thread_allocates_from_the_main_heap_and_its_reserve() -> None:
     """A worker thread's allocations come from the main heap, where the reserve holds them
     (the resident size does not grow); by default glibc gives the thread an arena of its own,
     which grows by the thread's work and, with blocks still in use between the freed ones,
     keeps it."""
-    env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("MALLOC_")}
-    runs = {}
-    for mode in ("tuned", "default"):
-        out = subprocess.run([sys.executable, "-c", THREAD, mode], capture_output=True,
-                             text=True, check=True, env=env, timeout=60)
-        runs[mode] = json.loads(out.stdout.strip().splitlines()[-1])
-    assert runs["tuned"]["grew_mb"] < 1.0, runs
-    assert runs["default"]["grew_mb"] > 5.0, runs
+    runs = _tuned_and_default(THREAD)
+    assert float(runs["tuned"]["grew_mb"]) < 1.0, runs  # type: ignore[arg-type]
+    assert float(runs["default"]["grew_mb"]) > 5.0, runs  # type: ignore[arg-type]
