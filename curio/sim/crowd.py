@@ -33,6 +33,7 @@ from curio.core.config import Config, CrowdConfig
 from curio.core.geometry import Pose2D
 from curio.core.messages import SimPeople, SimPerson
 from curio.estimation.maps import OccupancyGrid
+from curio.robot import footprint_radii
 from curio.sim.crowd_kernel import cast_discs, count_hits, social_accelerations
 from curio.sim.visitors import (
     ARRIVE_M,
@@ -55,7 +56,6 @@ Point = tuple[float, float]
 # than each other: its potential is 2.5 × a person's.
 SF_PARAMS = np.array([2.1, 0.3, 2.0, 10.0, 0.2, math.cos(math.radians(100.0)), 0.5, 5.0, 2.5])
 TAU_S = 0.5
-ROVER_RADIUS_M = 0.45  # the footprint's circumscribed radius
 LEG_RADIUS_M = 0.06
 LEG_OFFSET_M = 0.1
 STRIDE_M = 1.3
@@ -88,11 +88,14 @@ class Crowd:
         rng: the crowd's random generator.
         pois: points of interest (map metres).
         rover_start: where the rover starts (no visitor starts within 2 m of it).
+        rover_radius_m: the circle round the rover's footprint that visitors keep out of
+            (its circumscribed radius, m).
         first_id: the first visitor id.
     """
 
     def __init__(self, walk: WalkMap, cfg: CrowdConfig, rng: np.random.Generator,
-                 pois: list[Point], rover_start: Point, first_id: int = 1) -> None:
+                 pois: list[Point], rover_start: Point, rover_radius_m: float,
+                 first_id: int = 1) -> None:
         self.walk = walk
         self.cfg = cfg
         self.rng = rng
@@ -111,7 +114,7 @@ class Crowd:
         self._reaction = np.array([v.reaction_s for v in self.visitors])
         self._seen_at = np.full(n, -np.inf)
         self._seen = np.zeros((n, 5))
-        self._seen[:, 4] = ROVER_RADIUS_M
+        self._seen[:, 4] = rover_radius_m
         self._plan_due_s = 0.0
         self.radius_m = cfg.body_radius_m
         self.time_s = 0.0
@@ -133,7 +136,8 @@ class Crowd:
                        anchor=(start.x, start.y))
         given = list(ccfg.pois) or [(s.x_m, s.y_m) for s in cfg.bt.tour_stops]
         pois = walk.points_of_interest(rng, given)
-        return cls(walk, ccfg, rng, pois, (start.x, start.y), first_id)
+        _inscribed, circumscribed = footprint_radii(np.asarray(cfg.robot.footprint))
+        return cls(walk, ccfg, rng, pois, (start.x, start.y), circumscribed, first_id)
 
     # -- set-up ------------------------------------------------------------------------------
     def _place(self, rover_start: Point) -> None:

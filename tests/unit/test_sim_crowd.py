@@ -11,6 +11,7 @@ import pytest
 from curio.core.config import Config, load_config
 from curio.core.geometry import Pose2D
 from curio.core.messages import ServoCommand
+from curio.robot import footprint_radii
 from curio.sim.crowd import Crowd, RoverState
 from curio.sim.objects import circle_hits_polygon
 from curio.sim.walkmap import WalkMap
@@ -92,7 +93,7 @@ def _lone_walker(cfg: Config, *extra: str) -> tuple[Crowd, WalkMap]:
                            "sim.crowd.mix_crosser=0", *extra])
     walk = WalkMap(open_grid(16.0), anchor=(0.0, 0.0))
     crowd = Crowd(walk, c.sim.crowd, np.random.default_rng(1), [(6.0, 0.1), (-6.0, 0.1)],
-                  (0.0, 0.0))
+                  (0.0, 0.0), footprint_radii(np.asarray(c.robot.footprint))[1])
     crowd.pos[0] = (-5.0, 0.1)
     crowd.planner.send(crowd.visitors[0], 0, (6.0, 0.1), 0.0, (-5.0, 0.1))
     return crowd, walk
