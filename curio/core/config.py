@@ -587,6 +587,11 @@ class PeopleConfig(Section):
                                   "closer than this to a person (unless stopping would be "
                                   "closer still)")
     horizon_s: float = Field(4.0, gt=0.0, le=10.0, description="people are predicted this far")
+    prediction_growth_mps: float = Field(
+        0.15, ge=0.0, le=1.0, description="the comfortable distance to a walking person grows "
+        "by this much per second of prediction (for the first 2 s): a constant-velocity "
+        "prediction drifts off by about the tracker's velocity error (0.20 m/s RMSE in the "
+        "crowd benchmark); docs/people.md, 'Room for the prediction'")
     interaction_radius_m: float = Field(6.0, gt=0.0, le=20.0, description="people farther "
                                         "than this are ignored by the stage")
     near_distance_m: float = Field(1.0, ge=0.0, le=5.0)

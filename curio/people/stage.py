@@ -21,12 +21,14 @@ reviews it against the tracked people (``/people``, ``map``) within
 3. **Comfort** — each person has a comfortable distance, ``passing_distance_m`` beside and
    behind them growing to ``head_on_distance_m`` in front of someone walking (the rover
    ahead of their motion); a track that never walked (a pillar? someone standing since the
-   rover came) only asks ``min_distance_m``. For each person the worst squared shortfall over
-   the horizon counts (nearer times weigh more); a candidate's cost is what its motion *adds*
-   to the worst that stopping would leave (someone walking up behind the rover is not its
-   doing), plus a fifth of the whole (so it steps aside from someone walking at it and a
-   dodge that ends farther away wins over standing there), against progress towards
-   the lookahead point and bending away from the chosen curvature. Coming nearer than
+   rover came) only asks ``min_distance_m``. For someone walking it grows with the
+   prediction's uncertainty, ``prediction_growth_mps`` per second ahead for the first 2 s.
+   For each person the worst squared shortfall over the horizon counts (nearer times weigh
+   more); a candidate's cost is what its motion *adds* to the worst that stopping would
+   leave (someone walking up behind the rover is not its doing), plus a fifth of the whole
+   (so it steps aside from someone walking at it and a dodge that ends farther away wins
+   over standing there), against progress towards the lookahead point and bending away from
+   the chosen curvature. Coming nearer than
    ``min_distance_m`` to anyone (even where stopping would too: someone walking at the rover)
    costs ten times more than any discomfort, so the rover rather dodges. When the chosen arc
    is allowed and costs (almost) nothing, it is kept as it is.
@@ -90,6 +92,7 @@ W_SAFE = 300.0
 BACK_OFF_MPS = 0.1
 COMFORT_SLACK = 1e-3  # a comfort cost this small is nobody's concern
 STEERING_S = 1.5
+GROWTH_CAP_S = 2.0  # the comfortable distance grows with the prediction for this long
 ROVER_MARGIN_M = 0.25  # a person track this near a known rover's circle is that rover (m)
 
 
@@ -446,6 +449,10 @@ class PeopleStage:
         req = self._required(steps, times, people)
         if now_s < self._assertive_until_s or self._narrow(ctl, pose):
             req = np.minimum(req, cfg.min_distance_m + 0.05)
+        # A walking person's predicted place is less certain the further ahead: keep more room.
+        walking = np.hypot(people[:, 2], people[:, 3]) > WALKING_MPS
+        req = req + cfg.prediction_growth_mps * np.minimum(times, GROWTH_CAP_S)[None, :, None] \
+            * walking[None, None, :]
         # Each person's worst (time-weighted, squared) shortfall over the horizon.
         worst = (np.clip(req - dist, 0.0, None) ** 2
                  * self.weights[::2][None, :, None]).max(axis=1)
