@@ -17,9 +17,11 @@ Options (``--set``): ``counts=0,5,10,20``; ``controllers=aware,baseline``; ``tou
 share of runs that are guided tours); ``maps=building,curio_shapes,willow_garage,depot``
 (names of the default building and of ``../shared/maps`` folders; ``--map`` runs one map);
 ``procs=2`` (worker processes); ``rtf=1`` (also time the whole stack on one core: the
-guided tour with ``rtf_visitors=20`` visitors). ``--pairs N`` is the number of runs per
-visitor count and controller (default 200; half on the building, the rest spread over the
-shared maps).
+guided tour with ``rtf_visitors=20`` visitors); ``standing=1`` (the reference row "a rover
+standing still": the same visitors, no stack, round a rover that never moves at the start
+of each of the first 100 goto jobs for 120 s — how close the visitors come by themselves).
+``--pairs N`` is the number of runs per visitor count and controller (default 200; half on
+the building, the rest spread over the shared maps).
 
 Rows: one per controller and visitor count with ``runs``, ``success_rate``,
 ``collisions_rover_at_fault`` (and ``runs_with_rover_fault``), ``collisions_person_at_fault``,
@@ -274,6 +276,64 @@ def _ratios(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+# --- the standing rover: what the visitors do by themselves ----------------------------------
+STANDING_S = 120.0
+STANDING_STEP_S = 0.05
+STANDING_RUNS = 100  # per visitor count (the first goto jobs)
+
+
+def standing_job(job: dict[str, Any]) -> dict[str, Any]:
+    """The crowd alone (no stack) round a rover that stands still at the goto job's start for
+    ``STANDING_S``: its encounters, as the crowd scenario counts them."""
+    from curio.estimation.maps import load_map
+    from curio.people.metrics import Proximity
+    from curio.sim.crowd import Crowd, RoverState
+    from curio.sim.objects import circle_hits_polygon
+
+    cfg = load_config(REPO_ROOT / "config.toml", [
+        f'sim.world="{job["world"]}"', f"sim.crowd.visitors={job['visitors']}",
+        f"sim.seed={job['seed']}"])
+    pose = Pose2D(*job["start"])
+    footprint = np.asarray(cfg.robot.footprint, dtype=np.float64)
+    crowd = Crowd.for_world(load_map(cfg.resolve(cfg.sim.world)), cfg, pose)
+    prox = Proximity(footprint)
+    if crowd is None:
+        return {**job, **prox.summary()}
+    outline = [pose.transform_point(x, y) for x, y in footprint]
+    rover = RoverState(pose, 0.0, 0.0)
+    ids = [v.vid for v in crowd.visitors]
+    radii = np.full(len(ids), crowd.radius_m)
+    t = 0.0
+    while t < STANDING_S:
+        crowd.step(STANDING_STEP_S, rover,
+                   lambda x, y, r: circle_hits_polygon(x, y, r, outline))
+        t += STANDING_STEP_S
+        prox.add(t, pose, 0.0, ids, crowd.pos, radii)
+    return {**job, **prox.summary()}
+
+
+def standing_rows(base_jobs: list[dict[str, Any]], counts: list[int],
+                  procs: int) -> list[dict[str, Any]]:
+    """A reference for the distance figures: the same visitors round a rover that never moves
+    (at the start of each of the first ``STANDING_RUNS`` goto jobs, ``STANDING_S`` each), per
+    visitor count."""
+    gotos = [j for j in base_jobs if j["kind"] == "goto"][:STANDING_RUNS]
+    jobs = [{**j, "visitors": n} for j in gotos for n in counts if n > 0]
+    ctx = multiprocessing.get_context("fork")
+    with ctx.Pool(procs, maxtasksperchild=50) as pool:
+        results = list(pool.imap_unordered(standing_job, jobs, chunksize=4))
+    rows = []
+    for n in sorted({r["visitors"] for r in results}):
+        rs = [r for r in results if r["visitors"] == n]
+        enc = sum(r["encounters"] for r in rs)
+        ok = sum(r["encounters_ok"] for r in rs)
+        rows.append({"subject": "a rover standing still (the crowd alone)", "visitors": n,
+                     "runs": len(rs), "seconds_each": STANDING_S, "encounters": enc,
+                     "encounters_ok_fraction": ok / enc if enc else None,
+                     "time_below_0_3m_s": _mean([r["time_below_0_3m_s"] for r in rs])})
+    return rows
+
+
 # --- the one-core real-time factor ------------------------------------------------------------
 def rtf_row(visitors: int, seed: int) -> dict[str, Any]:
     """The whole stack (default config, dashboard hub on, no clients, people-aware) running
@@ -342,6 +402,8 @@ def run(opts: BenchOptions) -> list[dict[str, Any]]:
         rows.append({"subject": "failed runs (first 20)", "failures": [
             {k: r[k] for k in ("controller", "visitors", "map", "kind", "seed", "failure")}
             for r in failed[:20]]})
+    if str(opts.extra.get("standing", "1")) not in ("0", "false", "no"):
+        rows += standing_rows(base_jobs, counts, procs)
     rows.append({"subject": "bench", "jobs": len(jobs), "procs": procs,
                  "wall_time_s": round(wall, 1)})
     if str(opts.extra.get("rtf", "1")) not in ("0", "false", "no"):
