@@ -447,12 +447,15 @@ class PeopleStage:
                             people[-n:, 5] + cfg.person_radius_m, known)
             dist[:, :, -n:] = known
         req = self._required(steps, times, people)
+        if self._narrow(ctl, pose):
+            req = np.minimum(req, cfg.min_distance_m + 0.05)
         # A walking person's predicted place is less certain the further ahead: keep more room
-        # (unless the room shrinks to the minimum: assertive, or in a narrow passage).
+        # (in a narrow passage too: wait for them rather than meet them in a doorway), unless
+        # "Excuse me" was said and the rover creeps on at the minimum.
         walking = np.hypot(people[:, 2], people[:, 3]) > WALKING_MPS
         req = req + cfg.prediction_growth_mps * np.minimum(times, GROWTH_CAP_S)[None, :, None] \
             * walking[None, None, :]
-        if now_s < self._assertive_until_s or self._narrow(ctl, pose):
+        if now_s < self._assertive_until_s:
             req = np.minimum(req, cfg.min_distance_m + 0.05)
         # Each person's worst (time-weighted, squared) shortfall over the horizon.
         worst = (np.clip(req - dist, 0.0, None) ** 2
