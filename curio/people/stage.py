@@ -452,7 +452,8 @@ class PeopleStage:
         # A walking person's predicted place is less certain the further ahead: keep more room
         # (in a narrow passage too: wait for them rather than meet them in a doorway), unless
         # "Excuse me" was said and the rover creeps on at the minimum.
-        walking = np.hypot(people[:, 2], people[:, 3]) > WALKING_MPS
+        walking = (np.hypot(people[:, 2], people[:, 3]) > WALKING_MPS) & (people[:, 4] > 0.5)
+        walking[self._persons:] = False  # the movers' futures are known, not extrapolated
         req = req + cfg.prediction_growth_mps * np.minimum(times, GROWTH_CAP_S)[None, :, None] \
             * walking[None, None, :]
         if now_s < self._assertive_until_s:
