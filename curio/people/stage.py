@@ -46,7 +46,9 @@ Turning in place (to the path, or to a goal's heading) waits while someone is wi
 ``min_distance_m`` of the circle the footprint's corners sweep (:meth:`PeopleStage.review_turn`;
 "Excuse me" as above; after ``yield_max_s`` the progress checks run again). In a narrow
 passage (the costmap says the footprint's corners are near a wall) the comfortable distances
-are ``min_distance_m``: stopping in a doorway helps nobody through it.
+are ``min_distance_m``: stopping in a doorway helps nobody through it. The prediction's room
+for someone walking still applies there (wait for a walker rather than meet them in the
+doorway) until "Excuse me" was said.
 
 **Movers with known intent** (:attr:`PeopleStage.movers`, optional): other rovers of a fleet
 (``curio/fleet/intent.py``) join the people as obstacles whose future is *known*: predicted
