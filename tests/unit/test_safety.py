@@ -285,3 +285,32 @@ async def test_estop_stops_in_the_same_loop_turn_even_after_a_flood(cfg: Config)
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
         await task
+
+
+async def test_the_docking_allowance_is_for_the_docker_not_for_teleop(cfg: Config,
+                                                                      bus: Bus) -> None:
+    """While docking, the stop zone keeps only 5 mm to what is ahead, for the docker's own
+    slow approach. An operator driving by hand meanwhile gets the whole stop zone: in the soak
+    of 2026-12-07 (seed 2) a teleop command 1 cm before the dock drove the rover into it."""
+    clock = SimClock()
+    stage = make_stage(cfg, clock, bus)
+    front_m = max(x for x, _ in stage.robot.footprint_points)
+    dock_face = wall_ahead(front_m + 0.03, half_width_m=0.3)
+
+    async def drive(**command: tuple[float, float]) -> float:
+        period = 1.0 / stage.scfg.rate_hz
+        out = 0.0
+        for _ in range(20):
+            await clock.advance(period)
+            stage.allow_docking(clock.now() + 0.3, 0.065)
+            stage.on_scan(scan_of_points(clock.now(), dock_face, cfg))
+            if "nav" in command:
+                stage.on_nav(Twist(clock.now(), *command["nav"]))
+            if "teleop" in command:
+                stage.on_teleop(Twist(clock.now(), *command["teleop"]))
+            out = max(out, stage.step().linear_mps)
+        return out
+
+    assert await drive(nav=(0.05, 0.0)) > 0.02  # the docker closes on its dock
+    await run_cycles(stage, clock, 20, nav=(0.0, 0.0))
+    assert await drive(teleop=(0.06, 0.0)) == 0.0  # a hand on the joystick does not
