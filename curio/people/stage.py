@@ -449,8 +449,9 @@ class PeopleStage:
                             people[-n:, 5] + cfg.person_radius_m, known)
             dist[:, :, -n:] = known
         req = self._required(steps, times, people)
+        floor_m = cfg.min_distance_m + 0.05  # what the comfortable distances shrink to
         if self._narrow(ctl, pose):
-            req = np.minimum(req, cfg.min_distance_m + 0.05)
+            req = np.minimum(req, floor_m)
         # A walking person's predicted place is less certain the further ahead: keep more room
         # (in a narrow passage too: wait for them rather than meet them in a doorway), unless
         # "Excuse me" was said and the rover creeps on at the minimum.
@@ -459,7 +460,7 @@ class PeopleStage:
         req = req + cfg.prediction_growth_mps * np.minimum(times, GROWTH_CAP_S)[None, :, None] \
             * walking[None, None, :]
         if now_s < self._assertive_until_s:
-            req = np.minimum(req, cfg.min_distance_m + 0.05)
+            req = np.minimum(req, floor_m)
         # Each person's worst (time-weighted, squared) shortfall over the horizon.
         worst = (np.clip(req - dist, 0.0, None) ** 2
                  * self.weights[::2][None, :, None]).max(axis=1)
