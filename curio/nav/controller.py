@@ -153,9 +153,9 @@ class MotionReview(Protocol):
         """Whether the stage is steering round people now (the controller then does not start
         turning in place back to its path: the stage's arcs take it back)."""
 
-    def review_turn(self, pose: Pose2D, now_s: float) -> Review | None:
-        """None: turning in place at ``pose`` (``map``) keeps clear of everyone; else why
-        not (the rover brakes and waits)."""
+    def review_turn(self, pose: Pose2D, now_s: float, turn_rad: float) -> Review | None:
+        """None: turning in place at ``pose`` (``map``) by ``turn_rad`` (rad, counter-clockwise
+        positive) keeps clear of everyone; else why not (the rover brakes and waits)."""
 
     def first_too_near(self, poses: F64, step_s: float,
                        now_s: float) -> npt.NDArray[np.int64]:
@@ -572,7 +572,7 @@ class LocalController:
             self._v = self._w = 0.0
             return ControlOutput(0.0, 0.0, ControlStatus.GOAL_REACHED,
                                  distance_to_goal_m=cyc.dist_goal, distance_remaining_m=0.0)
-        held = self._people_hold_turn(replace(cyc, remaining=0.0))
+        held = self._people_hold_turn(replace(cyc, remaining=0.0), yaw_err)
         if held is not None:
             return held
         v, w = self._turn(yaw_err)
@@ -593,7 +593,7 @@ class LocalController:
         back out to make room (or report blocked)."""
         if abs(self._v) < 1e-3 and self._rotation_blocked(cyc.pose, aim.heading_err):
             return self._make_room(cyc, aim.point) or self._blocked(cyc)
-        held = self._people_hold_turn(cyc)
+        held = self._people_hold_turn(cyc, aim.heading_err)
         if held is not None:
             return held
         v, w = self._turn(aim.heading_err)
@@ -659,9 +659,11 @@ class LocalController:
                     self.progress.reset()
         return self._finish(cyc, v, w, status, detail)
 
-    def _people_hold_turn(self, cyc: _Cycle) -> ControlOutput | None:
-        """Someone stands where the corners would swing: brake and wait (None: turn)."""
-        review = None if self.people is None else self.people.review_turn(cyc.pose, cyc.now_s)
+    def _people_hold_turn(self, cyc: _Cycle, turn_rad: float) -> ControlOutput | None:
+        """Someone stands where the corners would swing turning ``turn_rad`` (rad): brake
+        and wait (None: turn)."""
+        review = None if self.people is None else self.people.review_turn(cyc.pose, cyc.now_s,
+                                                                          turn_rad)
         return None if review is None else self._hold(cyc, review)
 
     def _wait_for_people(self, cyc: _Cycle, detail: str) -> ControlOutput:

@@ -42,9 +42,11 @@ reviews it against the tracked people (``/people``, ``map``) within
 
 While it steers round someone the controller does not start turning in place back to its
 path (:meth:`PeopleStage.steering`): the stage's arcs take it back once they have passed.
-Turning in place (to the path, or to a goal's heading) waits while someone is within
-``min_distance_m`` of the circle the footprint's corners sweep (:meth:`PeopleStage.review_turn`;
-"Excuse me" as above; after ``yield_max_s`` the progress checks run again). In a narrow
+Turning in place (to the path, or to a goal's heading) follows the hard rule too: it waits
+while the turn it makes (its direction and size, not the whole circle the corners could
+sweep) would bring the footprint nearer than ``min_distance_m`` to someone, and nearer than
+where the turn began (:meth:`PeopleStage.review_turn`; "Excuse me" as above; after
+``yield_max_s`` the progress checks run again). In a narrow
 passage (the costmap says the footprint's corners are near a wall) the comfortable distances
 are ``min_distance_m``: stopping in a doorway helps nobody through it. The prediction's room
 for someone walking still applies there (wait for a walker rather than meet them in the
@@ -73,7 +75,7 @@ import numpy as np
 import numpy.typing as npt
 
 from curio.core.config import ControllerConfig, PeopleConfig
-from curio.core.geometry import Pose2D, approach
+from curio.core.geometry import Pose2D, approach, wrap_angle
 from curio.core.messages import PeopleTracks
 from curio.nav.controller import ControlStatus, LocalController, Review
 from curio.nav.costs import LETHAL, NO_INFORMATION, cost_at_distance
@@ -94,6 +96,9 @@ W_SAFE = 300.0
 BACK_OFF_MPS = 0.1
 COMFORT_SLACK = 1e-3  # a comfort cost this small is nobody's concern
 STEERING_S = 1.5
+TURN_STEP_RAD = 0.1  # the turn in place is checked at this spacing (corners 4 cm apart)
+TURN_GAP_S = 0.3  # a turn in place not reviewed for this long has ended
+TURN_SAME_RAD = 0.2  # a target heading this close to the last one is the same turn
 GROWTH_CAP_S = 2.0  # the comfortable distance grows with the prediction for this long
 ROVER_MARGIN_M = 0.25  # a person track this near a known rover's circle is that rover (m)
 
@@ -144,6 +149,9 @@ class PeopleStage:
         self._yield_since: float | None = None
         self._last_excuse_s = -math.inf
         self._assertive_until_s = -math.inf
+        # The turn in place under way: where it started (map), its target heading (rad) and
+        # when it was last reviewed (s).
+        self._turn: tuple[Pose2D, float, float] | None = None
         self.excuse_me_count = 0
         self.reviews = 0
         self.changed = 0
@@ -338,22 +346,36 @@ class PeopleStage:
         someone: the controller should not turn in place back to its path meanwhile)."""
         return now_s - self._changed_at_s < STEERING_S
 
-    def review_turn(self, pose: Pose2D, now_s: float) -> Review | None:
-        """None when nobody is (or within a second will be) within ``min_distance_m`` of the
-        circle the footprint's corners sweep turning in place; else wait for them."""
-        people = self.people_near(pose, now_s)
-        room = self.reach_m + self.cfg.person_radius_m + self.cfg.min_distance_m
-        for t in (0.0, 0.5, 1.0):
-            d = np.hypot(people[:, 0] + people[:, 2] * t - pose.x,
-                         people[:, 1] + people[:, 3] * t - pose.y) - people[:, 5]
-            if (d < room).any():
-                if self._note_yield(now_s) < self.cfg.yield_max_s:
-                    return Review(0.0, 0.0, ControlStatus.YIELDING,
-                                  "waiting for people to step back before turning",
-                                  hold_progress=True)
-                return Review(0.0, 0.0, ControlStatus.AVOIDING,
-                              "still waiting for people to step back before turning")
-        return None
+    def review_turn(self, pose: Pose2D, now_s: float, turn_rad: float) -> Review | None:
+        """None when turning in place by ``turn_rad`` (rad, counter-clockwise positive) would
+        not bring the footprint nearer than ``min_distance_m`` to anyone (predicted to each
+        moment of the turn) than it was where the turn began (the hard rule, as for any
+        arc); else wait for them. Only the turn the rover makes counts, not the whole circle
+        its corners could sweep: someone beside it need not step back for a turn that swings
+        the corners away from them. A turn under way is judged from where it began, so one
+        that was clear to start does not stop half-way for a standing person."""
+        target = pose.yaw + turn_rad
+        turn = self._turn
+        if turn is None or now_s - turn[2] > TURN_GAP_S or \
+                abs(wrap_angle(turn[1] - target)) > TURN_SAME_RAD:
+            turn = (pose, target, now_s)
+        self._turn = (turn[0], turn[1], now_s)
+        steps = max(2, math.ceil(abs(turn_rad) / TURN_STEP_RAD) + 1)
+        poses = np.empty((1, steps + 1, 3))
+        poses[0, :, 0], poses[0, :, 1] = pose.x, pose.y
+        poses[0, 0, 2] = turn[0].yaw  # the reference: where the turn began
+        poses[0, 1:, 2] = pose.yaw + np.linspace(0.0, turn_rad, steps)
+        # Turning from a standstill averages about half the top rate.
+        step_s = abs(turn_rad) / (steps - 1) / (0.5 * self.ccfg.max_angular_radps)
+        if self.first_too_near(poses, step_s, now_s)[0] > steps:
+            return None
+        self._turn = None  # waiting: the next turn starts afresh from where it stands
+        if self._note_yield(now_s) < self.cfg.yield_max_s:
+            return Review(0.0, 0.0, ControlStatus.YIELDING,
+                          "waiting for people to step back before turning",
+                          hold_progress=True)
+        return Review(0.0, 0.0, ControlStatus.AVOIDING,
+                      "still waiting for people to step back before turning")
 
     def review(self, controller: LocalController, pose: Pose2D, now_s: float,
                linear_mps: float, target_mps: float, kappa: float, aim: tuple[float, float],

@@ -260,3 +260,67 @@ def _gap(ctrl: LocalController, pose: Pose2D, person: Walker) -> float:
     """Footprint-to-body distance (m) from the rover at ``pose`` to ``person``'s start."""
     return float(polygon_distances(pose.inverse().transform_points(np.array([person.start])),
                                    np.asarray(ctrl.robot.footprint_points))[0]) - BODY_M
+
+
+def _standing_at(cfg: Config, robot: RobotModel, xy: tuple[float, float]) -> PeopleStage:
+    """A people stage that sees one person standing at ``xy`` (``map``; they walked before)."""
+    track = PersonTrack(1, xy[0], xy[1], 0.0, 0.0, walked=True)
+    return PeopleStage(cfg.people, cfg.nav.controller, robot,
+                       lambda: PeopleTracks(0.0, (track,)))
+
+
+def test_a_turn_in_place_waits_only_for_people_its_corners_swing_at(cfg: Config) -> None:
+    """Only the turn the rover makes counts, not the whole circle its corners could sweep.
+
+    Someone stands beside its left side, 0.4 m from it and 0.96 m from its centre (inside
+    that circle, about 1.0 m with the minimum distance): a small turn either way passes them
+    by, a turn of 1 rad either way swings a corner to 0.26 m of them, so the rover waits.
+    Someone off the front-left corner, already nearer than the minimum (0.23 m): a turn to
+    the left swings that corner at them (wait), a turn to the right does not bring the rover
+    any nearer (turn). Before, every one of these turns waited: in a crowded doorway the
+    rover stood for minutes (20 visitors, the crowd benchmark)."""
+    robot = RobotModel.from_config(cfg.robot)
+    reach_m = max(math.hypot(x, y) for x, y in robot.footprint_points)
+    room_m = reach_m + cfg.people.person_radius_m + cfg.people.min_distance_m
+    here = Pose2D(0.0, 0.0, 0.0)
+    beside = _standing_at(cfg, robot, (0.0, 0.96))
+    assert room_m > 0.96  # the whole circle's check would wait for them
+    assert beside.review_turn(here, 0.0, +0.3) is None
+    assert beside.review_turn(here, 0.0, -0.3) is None
+    for turn in (+1.0, -1.0):
+        held = beside.review_turn(here, 0.0, turn)
+        assert held is not None and held.status is ControlStatus.YIELDING
+        assert held.detail == "waiting for people to step back before turning"
+    corner = _standing_at(cfg, robot, (0.85 * math.cos(1.2), 0.85 * math.sin(1.2)))
+    assert corner.review_turn(here, 0.0, +1.0) is not None
+    assert corner.review_turn(here, 0.0, -0.5) is None
+
+
+@pytest.mark.parametrize(("side", "turns_at_once"), [(-1.0, True), (+1.0, False)])
+def test_the_controller_asks_about_the_turn_it_makes(cfg: Config, side: float,
+                                                    turns_at_once: bool) -> None:
+    """The path leaves 0.9 rad to the right: the rover turns in place to the right, which
+    swings its front-left corner forward and its front-right corner back. Someone off the
+    front-right corner does not hold that turn; someone off the front-left corner does (the
+    controller passes the turn's direction and size to the people stage). Half-way through
+    the turn the rover stands farther from the first than at either end: the turn, judged
+    from where it began, goes on."""
+    robot = RobotModel.from_config(cfg.robot)
+    ctrl = LocalController(cfg.nav.controller, robot, Costmap(open_grid(12.0), robot,
+                                                              cfg.nav.costmap))
+    heading = -0.9
+    s = np.arange(0.0, 4.0 + 1e-9, 0.05)
+    plan = np.stack([s * math.cos(heading), s * math.sin(heading),
+                     np.full_like(s, heading)], axis=1)
+    ctrl.set_plan(plan, Pose2D(4.0 * math.cos(heading), 4.0 * math.sin(heading), heading))
+    person = Walker((0.85 * math.cos(0.45), side * 0.85 * math.sin(0.45)), (0.0, 0.0))
+    stage = PeopleStage(cfg.people, cfg.nav.controller, robot, lambda: None)
+    pose, log, _closest = run(ctrl, Pose2D(0.0, 0.0, 0.0), [person], 3.0, stage)
+    details = {o.detail for _t, _p, o in log}
+    if turns_at_once:  # and it does not stop half-way (the corners pass them, then go)
+        assert "waiting for people to step back before turning" not in details, details
+        assert log[0][2].detail == "turning towards the path"
+        assert pose.yaw < heading + cfg.nav.controller.rotate_exit_rad + 0.05, pose
+    else:
+        assert details == {"waiting for people to step back before turning"}, details
+        assert pose.yaw == 0.0
