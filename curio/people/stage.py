@@ -149,9 +149,9 @@ class PeopleStage:
         self._yield_since: float | None = None
         self._last_excuse_s = -math.inf
         self._assertive_until_s = -math.inf
-        # The turn in place under way: where it started (map), its target heading (rad) and
-        # when it was last reviewed (s).
-        self._turn: tuple[Pose2D, float, float] | None = None
+        # The turn in place under way: the heading it started from and its target (rad,
+        # map), and when it was last reviewed (s).
+        self._turn: tuple[float, float, float] | None = None
         self.excuse_me_count = 0
         self.reviews = 0
         self.changed = 0
@@ -358,12 +358,12 @@ class PeopleStage:
         turn = self._turn
         if turn is None or now_s - turn[2] > TURN_GAP_S or \
                 abs(wrap_angle(turn[1] - target)) > TURN_SAME_RAD:
-            turn = (pose, target, now_s)
+            turn = (pose.yaw, target, now_s)
         self._turn = (turn[0], turn[1], now_s)
         steps = max(2, math.ceil(abs(turn_rad) / TURN_STEP_RAD) + 1)
         poses = np.empty((1, steps + 1, 3))
         poses[0, :, 0], poses[0, :, 1] = pose.x, pose.y
-        poses[0, 0, 2] = turn[0].yaw  # the reference: where the turn began
+        poses[0, 0, 2] = turn[0]  # the reference: where the turn began
         poses[0, 1:, 2] = pose.yaw + np.linspace(0.0, turn_rad, steps)
         # Turning from a standstill averages about half the top rate.
         step_s = abs(turn_rad) / (steps - 1) / (0.5 * self.ccfg.max_angular_radps)
