@@ -101,8 +101,6 @@ TURN_GAP_S = 0.3  # a turn in place not reviewed for this long has ended
 TURN_SAME_RAD = 0.2  # a target heading this close to the last one is the same turn
 GROWTH_CAP_S = 2.0  # the comfortable distance grows with the prediction for this long
 ROVER_MARGIN_M = 0.25  # a person track this near a known rover's circle is that rover (m)
-CONTACT_M = 0.1  # someone this near the footprint now (m, to their assumed body) is touching
-CONTACT_S = 0.4  # ... and no candidate may bring the footprint nearer their spot in this time
 
 
 def _dense(a: F64) -> F64:
@@ -491,7 +489,6 @@ class PeopleStage:
         comfort = (np.clip(worst - worst[3:4], 0.0, None) + 0.2 * worst).sum(axis=1)
         closest = dist.min(axis=1)  # (M, J): each candidate's closest approach to each person
         bad = ((closest < cfg.min_distance_m) & (closest < closest[3:4] - 0.02)).any(axis=1)
-        bad |= self._approaches_touching(poses, people, dist[0, 0])
         bad[3] = False
         ax, ay = aim[0] - pose.x, aim[1] - pose.y
         norm = math.hypot(ax, ay) or 1.0
@@ -506,23 +503,6 @@ class PeopleStage:
         cost[bad] = np.inf
         self.last_costs = (cands, cost, comfort, progress, closest.min(axis=1))
         return cost, comfort
-
-    def _approaches_touching(self, poses: F64, people: F64, now_m: F64) -> npt.NDArray[np.bool_]:
-        """Which candidates bring the footprint nearer, within ``CONTACT_S``, to where someone
-        it (nearly) touches now stands (``now_m``: each one's clearance now, m). Someone
-        predicted to walk *through* the rover makes stopping look as bad as any motion, so
-        the hard rule lets a step aside through; it must not be a step into them."""
-        touching = now_m < CONTACT_M
-        if not touching.any():
-            return np.zeros(len(poses), dtype=bool)
-        k = round(CONTACT_S / STEP_S) + 1
-        where = _dense(np.column_stack([people[touching, :2],
-                                        np.zeros((int(touching.sum()), 2))]))
-        dist = np.empty((len(poses), k, len(where)))
-        people_clearances(_dense(poses[:, :k]), self.times[:k], where, self.footprint,
-                          self.cfg.person_radius_m, dist)
-        dist -= people[None, None, touching, 5]
-        return np.asarray((dist[:, 1:] < now_m[None, None, touching] - 0.005).any(axis=(1, 2)))
 
     def _note_yield(self, now_s: float) -> float:
         """The rover waits for people: start the clock, say "Excuse me" when it is time;
