@@ -300,7 +300,7 @@ def standing_job(job: dict[str, Any]) -> dict[str, Any]:
     if crowd is None:
         return {**job, **prox.summary()}
     outline = [pose.transform_point(x, y) for x, y in footprint]
-    rover = RoverState(pose, 0.0, 0.0)
+    rover = RoverState(pose, 0.0, 0.0, footprint)
     ids = [v.vid for v in crowd.visitors]
     radii = np.full(len(ids), crowd.radius_m)
     t = 0.0

@@ -16,7 +16,9 @@ and each person's body (edge to edge; negative: overlap): the minimum, the time 
 nearer than ``near_m`` (0.3 m) and *encounters* — a person coming within ``enter_m`` (1 m)
 until they are again farther than ``exit_m`` (1.5 m) — with each encounter's minimum, the
 minimum while the rover moved, and whether the rover was closing in on the person (its own
-motion shrinking the distance by more than 0.05 m/s) when they were nearest: an encounter
+motion shrinking the distance by more than 0.05 m/s,
+:data:`curio.safety.stop_zone.ROVER_CLOSING_MPS`, as for the simulator's collision fault)
+when they were nearest: an encounter
 below ``near_m`` in which the rover was not is one the person made (walking past or into a
 rover that stood still, turned away or drove away).
 """
@@ -33,7 +35,7 @@ from scipy.optimize import linear_sum_assignment
 
 from curio.core.geometry import Pose2D
 from curio.core.messages import PeopleTracks, SimPeople
-from curio.safety.stop_zone import polygon_distances
+from curio.safety.stop_zone import ROVER_CLOSING_MPS, closing_speeds_mps, polygon_distances
 
 __all__ = ["MotAccumulator", "Proximity"]
 
@@ -167,10 +169,9 @@ class Proximity:
         closing = np.zeros(len(d), dtype=bool)
         close = d < self.enter_m
         if close.any():
-            ahead = rover @ Pose2D(rover_speed_mps * 0.1, 0.0, rover_yaw_rate_radps * 0.1)
-            d_ahead = polygon_distances(ahead.inverse().transform_points(xy[close]),
-                                        self.footprint) - radii[close]
-            closing[close] = (d[close] - d_ahead) / 0.1 > 0.05
+            closing[close] = closing_speeds_mps(self.footprint, rover, rover_speed_mps,
+                                                rover_yaw_rate_radps, xy[close]) \
+                > ROVER_CLOSING_MPS
         moving = abs(rover_speed_mps) > 0.02
         nearest = float(d.min())
         self.min_distance_m = min(self.min_distance_m, nearest)

@@ -14,12 +14,18 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from curio.core.geometry import arc_poses
+from curio.core.geometry import Pose2D, arc_poses
 from curio.safety.kernel import polygon_distances_into, sweep_stop_zone
 
-__all__ = ["StopZone", "StopZoneResult", "convex_hull", "polygon_distances"]
+__all__ = ["ROVER_CLOSING_MPS", "StopZone", "StopZoneResult", "closing_speeds_mps", "convex_hull",
+           "polygon_distances"]
 
 F64 = npt.NDArray[np.float64]
+
+# The rover's own motion bringing its footprint nearer to someone faster than this (m/s) makes a
+# contact or a close pass its doing (the simulator's collision fault, the crowd's encounters).
+ROVER_CLOSING_MPS = 0.05
+CLOSING_DT_S = 0.1
 
 
 def polygon_distances(points: F64, polygon: F64) -> F64:
@@ -35,6 +41,26 @@ def polygon_distances(points: F64, polygon: F64) -> F64:
     polygon_distances_into(flat, np.ascontiguousarray(polygon, dtype=np.float64), out)
     shaped: F64 = out.reshape(pts.shape[:-1])
     return shaped
+
+
+def closing_speeds_mps(footprint: F64, pose: Pose2D, linear_mps: float, angular_radps: float,
+                       points: F64) -> F64:
+    """How fast the rover's own motion brings its footprint nearer to each point, m/s
+    (negative: farther): the distance now less the distance after 0.1 s along the body twist.
+
+    Args:
+        footprint: ``(E, 2)`` polygon in ``base_link``, m.
+        pose: the rover's pose in ``map``.
+        linear_mps: forward speed, m/s.
+        angular_radps: yaw rate, rad/s (counter-clockwise positive).
+        points: ``(N, 2)`` points in ``map``, m (a body's centre: its radius does not matter).
+    """
+    ahead = pose @ Pose2D(linear_mps * CLOSING_DT_S, 0.0, angular_radps * CLOSING_DT_S)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    now = polygon_distances(pose.inverse().transform_points(pts), footprint)
+    later = polygon_distances(ahead.inverse().transform_points(pts), footprint)
+    closing: F64 = (now - later) / CLOSING_DT_S
+    return closing
 
 
 def convex_hull(points: F64) -> F64:

@@ -11,8 +11,10 @@ them at ``sim.crowd.rate_hz`` (the world calls :meth:`Crowd.step` from its physi
 3. speeds are capped at 1.3 × the desired speed; a step that would take a visitor into a wall
    is refused, and so is one that would overlap the rover's footprint: the visitor stops
    against the rover and a ``collision`` event is raised once per contact, ``fault:
-   "person"`` when the rover was standing still or moving away, ``"rover"`` when it was
-   moving towards the visitor.
+   "rover"`` when the rover's own motion (forward and turning) was bringing its footprint
+   nearer to them faster than 0.05 m/s (``curio.safety.stop_zone.ROVER_CLOSING_MPS``, the
+   rule the close-pass metrics use), ``"person"`` otherwise: standing still, moving or
+   turning away.
 
 The simulated lidar sees each visitor as two legs (radius 0.06 m, 0.2 m apart, swinging
 with the gait) or one body circle (``sim.crowd.lidar_model``). Everything random comes from
@@ -34,6 +36,7 @@ from curio.core.geometry import Pose2D
 from curio.core.messages import SimPeople, SimPerson
 from curio.estimation.maps import OccupancyGrid
 from curio.robot import footprint_radii
+from curio.safety.stop_zone import ROVER_CLOSING_MPS, closing_speeds_mps
 from curio.sim.crowd_kernel import cast_discs, count_hits, social_accelerations
 from curio.sim.visitors import (
     ARRIVE_M,
@@ -66,11 +69,19 @@ PLAN_PERIOD_S = 0.2  # plans (destinations, where to head) move on at 5 Hz
 
 @dataclass(frozen=True)
 class RoverState:
-    """The rover as the crowd sees it: pose in ``map`` and body velocity (m/s, rad/s)."""
+    """The rover as the crowd sees it: pose in ``map``, body velocity (m/s, rad/s) and its
+    footprint (``(E, 2)`` polygon in ``base_link``, m)."""
 
     pose: Pose2D
     linear_mps: float
     angular_radps: float
+    footprint: F64
+
+    def closing_mps(self, x: float, y: float) -> float:
+        """How fast the rover's own motion brings its footprint nearer to ``(x, y)`` (``map``,
+        m), m/s (negative: farther)."""
+        return float(closing_speeds_mps(self.footprint, self.pose, self.linear_mps,
+                                        self.angular_radps, np.array([[x, y]]))[0])
 
     @property
     def velocity(self) -> Point:
@@ -238,7 +249,6 @@ class Crowd:
         events: list[dict[str, Any]] = []
         rx, ry = rover.pose.x, rover.pose.y
         near = np.hypot(new[:, 0] - rx, new[:, 1] - ry) < 0.5 + self.radius_m + 0.2
-        rvx, rvy = rover.velocity
         for i in np.flatnonzero(near):
             v = self.visitors[i]
             if not touches(float(new[i, 0]), float(new[i, 1]), self.radius_m):
@@ -256,10 +266,8 @@ class Crowd:
             if not v.in_contact:
                 v.in_contact = True
                 self.contacts += 1
-                ux, uy = (self.pos[i, 0] - rx) / max(d_old, 1e-6), (
-                    self.pos[i, 1] - ry) / max(d_old, 1e-6)
-                approach = rvx * ux + rvy * uy + abs(rover.angular_radps) * 0.3
-                fault = "rover" if approach > 0.05 else "person"
+                closing = rover.closing_mps(float(self.pos[i, 0]), float(self.pos[i, 1]))
+                fault = "rover" if closing > ROVER_CLOSING_MPS else "person"
                 events.append({"with": [f"visitor:{v.vid}"], "fault": fault,
                                "by": "person", "x": round(rx, 3), "y": round(ry, 3),
                                "yaw": round(rover.pose.yaw, 3),

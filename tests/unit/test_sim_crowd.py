@@ -110,7 +110,8 @@ def _walk_past(crowd: Crowd, rover: RoverState, cfg: Config, seconds: float) -> 
 
 def test_an_attentive_visitor_walks_round_a_standing_rover(cfg: Config) -> None:
     crowd, _ = _lone_walker(cfg, "sim.crowd.distracted_fraction=0")
-    events = _walk_past(crowd, RoverState(Pose2D(0.0, 0.0, 1.0), 0.0, 0.0), cfg, 25.0)
+    standing = RoverState(Pose2D(0.0, 0.0, 1.0), 0.0, 0.0, _footprint(cfg))
+    events = _walk_past(crowd, standing, cfg, 25.0)
     assert not events
     assert crowd.pos[0, 0] > 3.0  # got past
 
@@ -121,12 +122,33 @@ def test_a_visitor_who_walks_into_a_standing_rover_is_at_fault(cfg: Config) -> N
     crowd, _ = _lone_walker(cfg, "sim.crowd.distracted_fraction=1",
                             "sim.crowd.distracted_notice_m=0")
     crowd.visitors[0].patience_s = 0.0
-    events = _walk_past(crowd, RoverState(Pose2D(0.0, 0.0, 1.0), 0.0, 0.0), cfg, 8.0)
+    standing = RoverState(Pose2D(0.0, 0.0, 1.0), 0.0, 0.0, _footprint(cfg))
+    events = _walk_past(crowd, standing, cfg, 8.0)
     assert len(events) == 1
     assert events[0]["fault"] == "person" and events[0]["with"] == ["visitor:1"]
     poly = [Pose2D(0.0, 0.0, 1.0).transform_point(x, y) for x, y in cfg.robot.footprint]
     x, y = crowd.pos[0]
     assert not circle_hits_polygon(float(x), float(y), crowd.radius_m - 0.01, poly)
+
+
+def _footprint(cfg: Config) -> np.ndarray:
+    return np.asarray(cfg.robot.footprint, dtype=np.float64)
+
+
+@pytest.mark.parametrize(("yaw_rate_radps", "fault"), [(1.0, "rover"), (-1.0, "person")])
+def test_a_turning_rover_is_at_fault_only_when_it_turns_into_the_visitor(
+        cfg: Config, yaw_rate_radps: float, fault: str) -> None:
+    """A distracted visitor walks along x into the rear of a rover that turns on the spot
+    (facing +x). Turning anticlockwise swings its rear edge at them (the rover's doing);
+    turning clockwise swings it away (theirs). Before, any turn faster than 0.17 rad/s made
+    every contact the rover's, whichever way it turned."""
+    crowd, _ = _lone_walker(cfg, "sim.crowd.distracted_fraction=1",
+                            "sim.crowd.distracted_notice_m=0")
+    crowd.visitors[0].patience_s = 0.0
+    rover = RoverState(Pose2D(0.0, 0.0, 0.0), 0.0, yaw_rate_radps, _footprint(cfg))
+    events = _walk_past(crowd, rover, cfg, 8.0)
+    assert len(events) == 1
+    assert events[0]["fault"] == fault
 
 
 def test_the_rover_driving_into_a_visitor_is_at_fault(cfg: Config) -> None:
