@@ -233,7 +233,6 @@ class World:
         # Footprint, collision samples (base_link).
         self.footprint: list[tuple[float, float]] = self.robot.footprint_points
         self._fp_radius = max(math.hypot(x, y) for x, y in self.footprint)
-        self._footprint_array = np.asarray(self.footprint, dtype=np.float64)
         self._fp_samples = _footprint_samples(self.footprint, 0.5 * grid.resolution_m)
         # State.
         self._pose = start or Pose2D()
@@ -557,7 +556,7 @@ class World:
         if self.crowd is None:
             return
         poly = [self._pose.transform_point(x, y) for x, y in self.footprint]
-        rover = RoverState(self._pose, self._vx, self._w, self._footprint_array)
+        rover = RoverState(self._pose, self._vx, self._w, self.robot.footprint)
         for detail in self.crowd.step(dt_s, rover,
                                       lambda x, y, r: circle_hits_polygon(x, y, r, poly)):
             self._events.append(("collision", detail))

@@ -108,6 +108,10 @@ def _walk_past(crowd: Crowd, rover: RoverState, cfg: Config, seconds: float) -> 
     return events
 
 
+def _footprint(cfg: Config) -> np.ndarray:
+    return np.asarray(cfg.robot.footprint, dtype=np.float64)
+
+
 def test_an_attentive_visitor_walks_round_a_standing_rover(cfg: Config) -> None:
     crowd, _ = _lone_walker(cfg, "sim.crowd.distracted_fraction=0")
     standing = RoverState(Pose2D(0.0, 0.0, 1.0), 0.0, 0.0, _footprint(cfg))
@@ -129,10 +133,6 @@ def test_a_visitor_who_walks_into_a_standing_rover_is_at_fault(cfg: Config) -> N
     poly = [Pose2D(0.0, 0.0, 1.0).transform_point(x, y) for x, y in cfg.robot.footprint]
     x, y = crowd.pos[0]
     assert not circle_hits_polygon(float(x), float(y), crowd.radius_m - 0.01, poly)
-
-
-def _footprint(cfg: Config) -> np.ndarray:
-    return np.asarray(cfg.robot.footprint, dtype=np.float64)
 
 
 @pytest.mark.parametrize(("yaw_rate_radps", "fault"), [(1.0, "rover"), (-1.0, "person")])
