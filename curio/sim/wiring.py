@@ -85,9 +85,25 @@ class Simulator:
             self.scans += 1
 
     async def run_imu(self) -> None:
-        """Publish BNO055 samples at ``imu_rate_hz``."""
-        async for t in self.clock.every(1.0 / self.cfg.sim.imu_rate_hz, phase_s=0.001):
-            self.bus.publish(IMU, self.world.imu_sample(t))
+        """Publish BNO055 samples at ``imu_rate_hz``, each stamped at its own sample time.
+
+        The world only moves at physics steps, so the samples between two steps see the same
+        state. When ``imu_rate_hz`` is a whole multiple ``n`` of ``physics_rate_hz``, the
+        ``n`` samples of one physics period are handed over together, at the last one's time
+        (the first arrives ``(n - 1) / imu_rate_hz`` late, like a driver reading the sensor's
+        FIFO): the same messages, with the loop woken once instead of ``n`` times. The EKF, the
+        one reader, drains its queue at ``ekf.rate_hz``; at or below the physics rate it sees
+        exactly the same samples at each of its ticks.
+        """
+        period_s = 1.0 / self.cfg.sim.imu_rate_hz
+        ratio = self.cfg.sim.imu_rate_hz / self.cfg.sim.physics_rate_hz
+        per_wake = round(ratio) if ratio >= 1.0 and abs(ratio - round(ratio)) < 1e-9 else 1
+        stamp = self.clock.now() + 0.001
+        async for _ in self.clock.every(per_wake * period_s,
+                                        phase_s=0.001 + (per_wake - 1) * period_s):
+            for _ in range(per_wake):
+                self.bus.publish(IMU, self.world.imu_sample(stamp))
+                stamp += period_s
 
     async def run_wheels(self) -> None:
         """Publish the wheel servo positions at ``wheel_feedback_rate_hz``."""

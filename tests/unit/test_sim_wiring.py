@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -71,6 +72,27 @@ async def test_sensor_rates_and_frames() -> None:
     health = bus.latest(HEALTH)
     assert health is not None and health.name == "simulator"
     assert health.counters["scans"] == 10 and health.counters["collisions"] == 0
+
+
+async def test_imu_samples_keep_their_own_stamps_and_arrive_within_a_physics_period() -> None:
+    """The simulated IMU hands over the samples of one physics period together: each is
+    stamped at its own 100 Hz instant, never arrives before that instant, and arrives at most
+    one physics period (20 ms) after it; none is lost or repeated."""
+    _cfg, bus, clock, _world, sim, _base = make()
+    sub = bus.subscribe(IMU, maxsize=1000)
+    arrivals: list[tuple[float, float]] = []  # (stamp, clock time on arrival)
+
+    async def watch() -> None:
+        async for imu in sub:
+            arrivals.append((imu.stamp, clock.now()))
+
+    await run_parts(clock, [sim.run_physics, sim.run_imu, watch], 1.0)
+    stamps = [s for s, _ in arrivals]
+    assert len(stamps) == 100
+    assert stamps[0] == pytest.approx(0.001)
+    assert all(b - a == pytest.approx(0.01) for a, b in itertools.pairwise(stamps))
+    assert all(-1e-9 <= t - s <= 0.02 for s, t in arrivals)
+    assert len({t for _, t in arrivals}) == 50  # handed over once per physics period
 
 
 async def test_simbase_drives_and_times_out() -> None:
