@@ -683,18 +683,25 @@ class Localizer:
         mean = Pose2D(mx, my, myaw)
         pts = scan.points(self.laser_pose, max_beams=self.cfg.scan_match_beams,
                           range_max_m=scan.range_max_m - 0.05)
-        # The prior only while the particles agree on one place (not while hypotheses compete
-        # after a global search: the particle filter decides between them).
+        # The prior while the particles agree on one place, or while the filter tracks (a
+        # match was accepted, or the odometry carried the estimate, since the last search): a
+        # scan that sees one or two distant shapes pins the pose down along some directions
+        # only; the cloud smears along the others until its heaviest 0.5 m bin no longer holds
+        # most of the weight, and the odometry's prediction is a better guess there than
+        # whichever part of the smear is heaviest. Not while hypotheses compete after a global
+        # search (no track then): the particle filter decides between them.
         unimodal = float(w[sel].sum()) >= 0.8 * float(w.sum())
         self.unimodal = unimodal
-        guess, prior_cov = self._tracking_prior(mean, pts) if unimodal else (mean, None)
+        tracking = self.track_cov is not None
+        guess, prior_cov = (self._tracking_prior(mean, pts) if unimodal or tracking
+                            else (mean, None))
         if self.cfg.scan_match and len(pts) >= (3 if prior_cov is not None else 10):
             m = scan_match(self.field, pts, guess,
                            max_residual_m=self.cfg.scan_match_max_residual_m,
                            inlier_m=self.cfg.inlier_distance_m, prior_cov=prior_cov)
             self.inlier_fraction = self._fit(pts, m.pose)
             self.track_cov = None
-            jump = m.pose.distance_to(mean)
+            jump = m.pose.distance_to(guess)  # how far the match moved from where it began
             if self.inlier_fraction >= self.cfg.lost_inlier_fraction and jump < 0.3:
                 # Floor: 1 cm, 0.3° (map resolution, unmodelled errors), never overconfident.
                 self.track_cov = m.covariance + np.diag([1e-4, 1e-4, 3e-5])
