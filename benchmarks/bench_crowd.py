@@ -287,6 +287,7 @@ def standing_job(job: dict[str, Any]) -> dict[str, Any]:
     ``STANDING_S``: its encounters, as the crowd scenario counts them."""
     from curio.estimation.maps import load_map
     from curio.people.metrics import Proximity
+    from curio.robot import RobotModel
     from curio.sim.crowd import Crowd, RoverState
     from curio.sim.objects import circle_hits_polygon
 
@@ -294,7 +295,7 @@ def standing_job(job: dict[str, Any]) -> dict[str, Any]:
         f'sim.world="{job["world"]}"', f"sim.crowd.visitors={job['visitors']}",
         f"sim.seed={job['seed']}"])
     pose = Pose2D(*job["start"])
-    footprint = np.asarray(cfg.robot.footprint, dtype=np.float64)
+    footprint = RobotModel.from_config(cfg.robot).footprint
     crowd = Crowd.for_world(load_map(cfg.resolve(cfg.sim.world)), cfg, pose)
     prox = Proximity(footprint)
     if crowd is None:

@@ -683,18 +683,15 @@ class Localizer:
         mean = Pose2D(mx, my, myaw)
         pts = scan.points(self.laser_pose, max_beams=self.cfg.scan_match_beams,
                           range_max_m=scan.range_max_m - 0.05)
-        # The prior while the particles agree on one place, or while the filter tracks (a
-        # match was accepted, or the odometry carried the estimate, since the last search): a
-        # scan that sees one or two distant shapes pins the pose down along some directions
-        # only; the cloud smears along the others until its heaviest 0.5 m bin no longer holds
-        # most of the weight, and the odometry's prediction is a better guess there than
-        # whichever part of the smear is heaviest. Not while hypotheses compete after a global
-        # search (no track then): the particle filter decides between them.
-        unimodal = float(w[sel].sum()) >= 0.8 * float(w.sum())
-        self.unimodal = unimodal
-        tracking = self.track_cov is not None
-        guess, prior_cov = (self._tracking_prior(mean, pts) if unimodal or tracking
-                            else (mean, None))
+        self.unimodal = float(w[sel].sum()) >= 0.8 * float(w.sum())
+        # The prior whenever the filter tracks (a match was accepted, or the odometry carried
+        # the estimate, since the last search), even when the particles do not agree on one
+        # place: a scan that sees one or two distant shapes pins the pose down along some
+        # directions only; the cloud smears along the others until its heaviest 0.5 m bin no
+        # longer holds most of the weight, and the odometry's prediction is a better guess
+        # there than whichever part of the smear is heaviest. While hypotheses compete after a
+        # global search there is no track: the particle filter decides between them.
+        guess, prior_cov = self._tracking_prior(mean, pts)
         if self.cfg.scan_match and len(pts) >= (3 if prior_cov is not None else 10):
             m = scan_match(self.field, pts, guess,
                            max_residual_m=self.cfg.scan_match_max_residual_m,

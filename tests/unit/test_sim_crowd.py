@@ -11,7 +11,7 @@ import pytest
 from curio.core.config import Config, load_config
 from curio.core.geometry import Pose2D
 from curio.core.messages import ServoCommand
-from curio.robot import footprint_radii
+from curio.robot import RobotModel, footprint_radii
 from curio.sim.crowd import Crowd, RoverState
 from curio.sim.objects import circle_hits_polygon
 from curio.sim.walkmap import WalkMap
@@ -109,7 +109,7 @@ def _walk_past(crowd: Crowd, rover: RoverState, cfg: Config, seconds: float) -> 
 
 
 def _footprint(cfg: Config) -> np.ndarray:
-    return np.asarray(cfg.robot.footprint, dtype=np.float64)
+    return RobotModel.from_config(cfg.robot).footprint
 
 
 def test_an_attentive_visitor_walks_round_a_standing_rover(cfg: Config) -> None:
