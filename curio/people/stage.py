@@ -63,6 +63,10 @@ With :attr:`PeopleStage.stop_short` (the guide sets it on the way to a tour stop
 with people standing on it counts as reached within ``stop_short_m``: the rover keeps its
 distance instead of pushing into the group. The safety stage's stop zone still has the last
 word on every command.
+
+The rollouts and the scores are compiled (:mod:`curio.people.stage_kernel`): the same
+floating-point operations, in the same order, as numpy would do them (the simulator's reports
+are compared byte for byte), each candidate scored once per review.
 """
 
 from __future__ import annotations
@@ -79,7 +83,15 @@ from curio.core.geometry import Pose2D, approach, wrap_angle
 from curio.core.messages import PeopleTracks
 from curio.nav.controller import ControlStatus, LocalController, Review
 from curio.nav.costs import LETHAL, NO_INFORMATION, cost_at_distance
-from curio.people.stage_kernel import path_clearances, people_clearances
+from curio.people.stage_kernel import (
+    combine_costs,
+    path_clearances,
+    people_clearances,
+    rollout_candidates,
+    score_candidates,
+    score_params,
+    situation,
+)
 from curio.robot import RobotModel
 
 __all__ = ["PeopleStage"]
@@ -101,6 +113,7 @@ TURN_GAP_S = 0.3  # a turn in place not reviewed for this long has ended
 TURN_SAME_RAD = 0.2  # a target heading this close to the last one is the same turn
 GROWTH_CAP_S = 2.0  # the comfortable distance grows with the prediction for this long
 ROVER_MARGIN_M = 0.25  # a person track this near a known rover's circle is that rover (m)
+_COST_WEIGHTS = np.array([W_SAFE, W_COMFORT, W_PROGRESS, W_BEND])  # for combine_costs
 
 
 def _dense(a: F64) -> F64:
@@ -161,6 +174,7 @@ class PeopleStage:
         self.rovers: Callable[[], F64] | None = None
         self._futures: F64 = np.zeros((0, len(self.times), 2))  # of the rows after the people
         self._persons = 0  # people (not movers) in the last people_near
+        self._turns: dict[tuple[float, float], F64] = {}  # _turning_rows' (kmax, vmax)
 
     # -- people ------------------------------------------------------------------------------
     def people_near(self, pose: Pose2D, now_s: float) -> F64:
@@ -236,56 +250,38 @@ class PeopleStage:
             vmax = min(vmax, self.cfg.near_speed_mps)
         v_nom = min(max(target, 0.0), vmax)
         never = math.inf
-        rows = [(v_nom, kappa, never, kappa), (0.6 * v_nom, kappa, never, kappa),
-                (0.3 * v_nom, kappa, never, kappa), (0.0, kappa, never, kappa)]
+        turns = self._turning_rows(kmax, vmax)
+        cands = np.empty((4 + len(turns) + (1 if approaching else 0), 4))
+        cands[:4] = ((v_nom, kappa, never, kappa), (0.6 * v_nom, kappa, never, kappa),
+                     (0.3 * v_nom, kappa, never, kappa), (0.0, kappa, never, kappa))
+        cands[4:4 + len(turns)] = turns
+        if approaching:
+            cands[-1] = (-BACK_OFF_MPS, 0.0, never, 0.0)
+        return cands
+
+    def _turning_rows(self, kmax: float, vmax: float) -> F64:
+        """The candidates that do not depend on the chosen arc: the nine curvatures and the
+        side-steps (rows 4 on of :meth:`_candidates`). Kept per ``(kmax, vmax)``: the robot
+        model is fixed, as the footprint is."""
+        key = (kmax, vmax)
+        rows = self._turns.get(key)
+        if rows is not None:
+            return rows
+        never = math.inf
+        out: list[tuple[float, float, float, float]] = []
         for k in np.linspace(-kmax, kmax, 9):
             v = min(vmax, self.robot.max_speed_on_arc_mps(float(k)))
-            rows += [(v, float(k), never, float(k)), (0.5 * v, float(k), never, float(k))]
+            out += [(v, float(k), never, float(k)), (0.5 * v, float(k), never, float(k))]
         for k in (-kmax, -0.5 * kmax, 0.5 * kmax, kmax):
             v = min(vmax, self.robot.max_speed_on_arc_mps(float(k)))
             for t_bend in (1.0, 2.0):
-                rows += [(v, float(k), t_bend, 0.0), (0.5 * v, float(k), 2.0 * t_bend, 0.0)]
-        if approaching:
-            rows.append((-BACK_OFF_MPS, 0.0, never, 0.0))
-        return np.array(rows, dtype=np.float64)
-
-    def _rollout(self, pose: Pose2D, v_now: float, cands: F64) -> F64:
-        """``(M, K, 3)`` poses (map) of each candidate from the current speed (the speed ramps
-        under the acceleration limits, braking twice as hard)."""
-        t = self.times[None, :]
-        vc = cands[:, 0:1]
-        up = self.ccfg.max_accel_mps2
-        acc = np.where(vc >= v_now, up, -2.0 * up)
-        t_ramp = np.abs(vc - v_now) / np.abs(acc)
-        tr = np.minimum(t, t_ramp)
-        s = v_now * tr + 0.5 * acc * tr * tr + vc * np.maximum(t - t_ramp, 0.0)
-        kap = np.where(t < cands[:, 2:3], cands[:, 1:2], cands[:, 3:4])
-        ds = np.diff(s, axis=1)
-        th = pose.yaw + np.concatenate([np.zeros((len(cands), 1)),
-                                        np.cumsum(kap[:, :-1] * ds, axis=1)], axis=1)
-        mid = th[:, :-1] + 0.5 * kap[:, :-1] * ds
-        x = pose.x + np.concatenate([np.zeros((len(cands), 1)),
-                                     np.cumsum(ds * np.cos(mid), axis=1)], axis=1)
-        y = pose.y + np.concatenate([np.zeros((len(cands), 1)),
-                                     np.cumsum(ds * np.sin(mid), axis=1)], axis=1)
-        return np.stack([x, y, th], axis=-1)
-
-    def _required(self, poses: F64, times: F64, people: F64) -> F64:
-        """``(M, K, J)`` comfortable distance (m) of each person from each rover pose at
-        ``times`` (s from now)."""
-        cfg = self.cfg
-        px = people[None, None, :, 0] + people[None, None, :, 2] * times[None, :, None]
-        py = people[None, None, :, 1] + people[None, None, :, 3] * times[None, :, None]
-        rx = poses[:, :, 0:1] - px
-        ry = poses[:, :, 1:2] - py
-        sp = np.hypot(people[:, 2], people[:, 3])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            front = (people[None, None, :, 2] * rx + people[None, None, :, 3] * ry) / (
-                np.hypot(rx, ry) * np.maximum(sp, 1e-9)[None, None, :])
-        front = np.where(sp[None, None, :] > WALKING_MPS, np.clip(np.nan_to_num(front), 0.0,
-                                                                  1.0), 0.0)
-        req = cfg.passing_distance_m + (cfg.head_on_distance_m - cfg.passing_distance_m) * front
-        return np.where(people[None, None, :, 4] > 0.5, req, cfg.min_distance_m)
+                out += [(v, float(k), t_bend, 0.0), (0.5 * v, float(k), 2.0 * t_bend, 0.0)]
+        rows = np.array(out, dtype=np.float64)
+        rows.setflags(write=False)
+        if len(self._turns) >= 8:  # kmax and the speed limit take a few values
+            self._turns.clear()
+        self._turns[key] = rows
+        return rows
 
     @staticmethod
     def _narrow(ctl: LocalController, pose: Pose2D) -> bool:
@@ -414,21 +410,27 @@ class PeopleStage:
         """The best candidate's row, the candidates, and whether a person is near."""
         near, approaching = self._situation(pose, people)
         cands = self._candidates(target, kappa, kmax, near, approaching)
+        scores = _Scores(self, ctl, pose, now_s, people, cands, kappa, kmax, aim)
         if not near:  # first the chosen arc (and stopping) alone: most of the time it is fine
-            few = cands[:4]
-            poses = self._rollout(pose, ctl.commanded_mps, few)
-            cost, comfort = self._score(ctl, pose, now_s, people, few, poses, kappa, kmax, aim)
+            cost, comfort = scores.upto(4)
             if comfort[0] <= COMFORT_SLACK and math.isfinite(cost[0]):
                 return 0, cands, near  # nobody minds the chosen arc: keep it
-        poses = self._rollout(pose, ctl.commanded_mps, cands)
-        cost, comfort = self._score(ctl, pose, now_s, people, cands, poses, kappa, kmax, aim)
+        cost, comfort = scores.upto(len(cands))  # (the first four are not scored again)
+        poses = scores.poses
         if comfort[0] <= COMFORT_SLACK and math.isfinite(cost[0]) and \
                 self._costmap_ok(ctl, poses[:1])[0]:
             return 0, cands, near
-        # The cheapest candidates first; the costmap is asked only until one fits.
-        order = [int(i) for i in np.argsort(cost, kind="stable") if math.isfinite(cost[i])]
-        for k in range(0, len(order), 4):
-            batch = order[k:k + 4]
+        # The cheapest candidates first; the costmap is asked only until one fits (each
+        # candidate's answer is its own): the cheapest alone, as it nearly always fits, then
+        # four at a time. Stopping needs no answer.
+        ranked = np.argsort(cost, kind="stable")
+        order: list[int] = ranked[np.isfinite(cost[ranked])].tolist()
+        k = 0
+        while k < len(order):
+            batch = order[k:k + (4 if k else 1)]
+            k += len(batch)
+            if batch[0] == 3:
+                return 3, cands, near
             fits = self._costmap_ok(ctl, poses[batch])
             for i, ok in zip(batch, fits.tolist(), strict=True):
                 if ok or i == 3:
@@ -436,73 +438,16 @@ class PeopleStage:
         return 3, cands, near
 
     def _situation(self, pose: Pose2D, people: F64) -> tuple[bool, bool]:
-        """Whether someone ahead is near (slow down) and someone walks straight at the rover
-        (offer backing off)."""
+        """Whether someone ahead is near (slow down: unless they walk away from the rover
+        anyway) and someone walks straight at the rover (offer backing off)."""
         now_d = np.empty((1, 1, len(people)))
         people_clearances(np.array([[[pose.x, pose.y, pose.yaw]]]), self.times[:1],
                           _dense(people[:, :4]), self.footprint, self.cfg.person_radius_m,
                           now_d)
-        now_d -= people[None, None, :, 5]
-        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        ahead = (people[:, 0] - pose.x) * c + (people[:, 1] - pose.y) * s
-        towards = people[:, 2] * c + people[:, 3] * s
-        # Slow near someone ahead, unless they walk away from the rover anyway.
-        near = bool(((now_d[0, 0] < self.cfg.near_distance_m) & (ahead > 0.0)
-                     & (towards < WALKING_MPS)).any())
-        approaching = bool(((ahead > 0) & (towards < -WALKING_MPS)
-                            & (now_d[0, 0] < 1.5)).any())
-        return near, approaching
-
-    def _score(self, ctl: LocalController, pose: Pose2D, now_s: float, people: F64,
-               cands: F64, poses: F64, kappa: float, kmax: float,
-               aim: tuple[float, float]) -> tuple[F64, F64]:
-        """Each candidate's cost (inf: it drives at someone) and comfort cost, from the
-        people predicted every 0.2 s."""
-        cfg = self.cfg
-        steps = _dense(poses[:, ::2])
-        times = _dense(self.times[::2])
-        dist = np.empty((len(cands), len(times), len(people)))
-        people_clearances(steps, times, _dense(people[:, :4]), self.footprint,
-                          cfg.person_radius_m, dist)
-        n = len(self._futures)
-        if n:  # the movers: along their known future, with their own radius
-            known = np.empty((len(cands), len(times), n))
-            path_clearances(steps, _dense(self._futures[:, ::2]), self.footprint,
-                            people[-n:, 5] + cfg.person_radius_m, known)
-            dist[:, :, -n:] = known
-        req = self._required(steps, times, people)
-        floor_m = cfg.min_distance_m + 0.05  # what the comfortable distances shrink to
-        if self._narrow(ctl, pose):
-            req = np.minimum(req, floor_m)
-        # A walking person's predicted place is less certain the further ahead: keep more room
-        # (in a narrow passage too: wait for them rather than meet them in a doorway), unless
-        # "Excuse me" was said and the rover creeps on at the minimum.
-        walking = (np.hypot(people[:, 2], people[:, 3]) > WALKING_MPS) & (people[:, 4] > 0.5)
-        walking[self._persons:] = False  # the movers' futures are known, not extrapolated
-        req = req + cfg.prediction_growth_mps * np.minimum(times, GROWTH_CAP_S)[None, :, None] \
-            * walking[None, None, :]
-        if now_s < self._assertive_until_s:
-            req = np.minimum(req, floor_m)
-        # Each person's worst (time-weighted, squared) shortfall over the horizon.
-        worst = (np.clip(req - dist, 0.0, None) ** 2
-                 * self.weights[::2][None, :, None]).max(axis=1)
-        comfort = (np.clip(worst - worst[3:4], 0.0, None) + 0.2 * worst).sum(axis=1)
-        closest = dist.min(axis=1)  # (M, J): each candidate's closest approach to each person
-        bad = ((closest < cfg.min_distance_m) & (closest < closest[3:4] - 0.02)).any(axis=1)
-        bad[3] = False
-        ax, ay = aim[0] - pose.x, aim[1] - pose.y
-        norm = math.hypot(ax, ay) or 1.0
-        span = max(self.ccfg.max_speed_mps * self.times[-1], 1e-6)
-        progress = ((poses[:, -1, 0] - pose.x) * ax + (poses[:, -1, 1] - pose.y) * ay) / (
-            norm * span)
-        bend = np.abs(cands[:, 1] - kappa) / (2.0 * max(kmax, 1e-6))
-        # Coming nearer than min_distance_m to anyone is far worse than any discomfort.
-        unsafe = (np.clip(cfg.min_distance_m - closest, 0.0, None) ** 2).sum(axis=1)
-        cost = (W_SAFE * unsafe + W_COMFORT * comfort - W_PROGRESS * progress
-                + W_BEND * bend)
-        cost[bad] = np.inf
-        self.last_costs = (cands, cost, comfort, progress, closest.min(axis=1))
-        return cost, comfort
+        near, approaching = situation(
+            now_d, np.array([pose.x, pose.y, math.cos(pose.yaw), math.sin(pose.yaw)]),
+            _dense(people), self.cfg.near_distance_m, WALKING_MPS)
+        return bool(near), bool(approaching)
 
     def _note_yield(self, now_s: float) -> float:
         """The rover waits for people: start the clock, say "Excuse me" when it is time;
@@ -535,3 +480,71 @@ class PeopleStage:
             return Review(v, k_c, ControlStatus.YIELDING, "waiting for people to pass",
                           hold_progress=True)
         return Review(v, k_c, ControlStatus.AVOIDING, "still waiting for people to pass")
+
+
+class _Scores:
+    """One review's scores of its candidates (:func:`score_candidates`), scored in order and
+    each once: first the chosen arc and stopping (rows 0 to 3), the rest when those do not do.
+
+    Each candidate's cost (inf: it drives at someone) and comfort cost come from the people
+    predicted every 0.2 s (every other step of :attr:`PeopleStage.times`): the comfortable
+    distance of each person (``passing_distance_m`` growing to ``head_on_distance_m`` in front
+    of a walker, ``min_distance_m`` for a track that never walked; ``min_distance_m + 0.05`` at
+    most in a narrow passage or after "Excuse me"; plus the prediction's growth for a walking
+    person), each person's worst time-weighted squared shortfall, what that adds to the worst
+    that stopping leaves plus a fifth of it, coming nearer than ``min_distance_m``, progress
+    towards the aim and bending away from the chosen curvature (see the module docstring).
+    """
+
+    def __init__(self, stage: PeopleStage, ctl: LocalController, pose: Pose2D, now_s: float,
+                 people: F64, cands: F64, kappa: float, kmax: float,
+                 aim: tuple[float, float]) -> None:
+        cfg = stage.cfg
+        self.stage = stage
+        self.cands = cands
+        self.people = _dense(people)
+        m_n, j_n = len(cands), len(people)
+        self.poses: F64 = np.empty((m_n, len(stage.times), 3))  # the rollouts (map)
+        self.work: F64 = np.empty((4, m_n, j_n))
+        self.rows: F64 = np.empty((4, m_n))
+        n = len(stage._futures)  # the movers (the last rows of people): known futures
+        self.futures: F64 = _dense(stage._futures[:, ::2])
+        self.radii: F64 = _dense(self.people[j_n - n:, 5] + cfg.person_radius_m)
+        self.known: F64 = np.empty((m_n, self.futures.shape[1], n))  # their distances (m)
+        self.done = 0  # rows scored
+        ax, ay = aim[0] - pose.x, aim[1] - pose.y
+        norm = math.hypot(ax, ay) or 1.0
+        span = max(stage.ccfg.max_speed_mps * stage.times[-1], 1e-6)
+        self.params = score_params(
+            pose=(pose.x, pose.y, pose.yaw), v_now=ctl.commanded_mps,
+            accel=stage.ccfg.max_accel_mps2, radius=cfg.person_radius_m,
+            min_distance=cfg.min_distance_m, passing=cfg.passing_distance_m,
+            head_gain=cfg.head_on_distance_m - cfg.passing_distance_m,
+            growth=cfg.prediction_growth_mps, growth_cap=GROWTH_CAP_S,
+            floor=cfg.min_distance_m + 0.05,  # what the comfortable distances shrink to
+            narrow=stage._narrow(ctl, pose), assertive=now_s < stage._assertive_until_s,
+            walking=WALKING_MPS, aim=(ax, ay), progress_scale=norm * span,
+            bend_scale=2.0 * max(kmax, 1e-6), kappa=kappa)
+
+    def upto(self, hi: int) -> tuple[F64, F64]:
+        """The cost and the comfort cost of candidates ``0`` to ``hi`` (scoring those not
+        scored yet); the numbers go to :attr:`PeopleStage.last_costs`."""
+        stage = self.stage
+        lo = self.done
+        if hi > lo:
+            rollout_candidates(lo, hi, self.cands, stage.times, self.params, self.poses)
+            if len(self.futures):  # the movers: along their known future, with their own radius
+                path_clearances(_dense(self.poses[lo:hi, ::2]), self.futures, stage.footprint,
+                                self.radii, self.known[lo:hi])
+            score_candidates(lo, hi, self.cands, stage.times, stage.weights, self.people,
+                             self.known, stage.footprint, self.params, stage._persons,
+                             self.poses, self.work, self.rows)
+            self.done = hi
+        # Each candidate's comfort and safety sums over the people: numpy's (pairwise) sums.
+        sums = self.work[2:, :hi].sum(axis=2)
+        cost = np.empty(hi)
+        combine_costs(sums, self.rows, _COST_WEIGHTS, cost)
+        comfort = sums[0]
+        # rows 0 and 3: progress and the closest approach to anyone
+        stage.last_costs = (self.cands[:hi], cost, comfort, self.rows[0, :hi], self.rows[3, :hi])
+        return cost, comfort
