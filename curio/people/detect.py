@@ -19,6 +19,10 @@ A segment's centre is its points' mean pushed away from the sensor by 0.64 × it
 detection estimates the centre of the leg or body, not its near surface. Each detection keeps
 the beam indices it was made of (the costmap leaves them unmarked when they belong to a
 walking person).
+
+The loops over returns and segments run compiled (:mod:`curio.people.tracking_kernel`) with
+numpy's operations in numpy's order — the same bits; the trigonometry, the flat-panel fit and
+the pairing of legs (Python's ``math.hypot``) stay in numpy and Python.
 """
 
 from __future__ import annotations
@@ -34,6 +38,13 @@ from curio.core.config import PeopleConfig
 from curio.core.geometry import Pose2D
 from curio.core.messages import LaserScan
 from curio.estimation.maps import OccupancyGrid
+from curio.people.tracking_kernel import (
+    beam_angles,
+    close_pairs,
+    end_points_off_map,
+    map_distances,
+    scan_segments,
+)
 
 __all__ = ["Detection", "Detector", "StaticMap"]
 
@@ -70,10 +81,21 @@ class StaticMap:
         dist = ndimage.distance_transform_edt(~occ) if occ.any() else np.full(occ.shape, 1e9)
         self.distance_m: F64 = np.asarray(dist, dtype=np.float64) * grid.resolution_m
         self._inv = grid.origin.inverse()
+        # An origin without rotation: map point p lies in cell floor((p + offset) / resolution)
+        # — what distance_at computes (its product with the identity rotation adds only exact
+        # zeros); the detector's compiled foreground does it so.
+        self.axis_aligned = (math.cos(self._inv.yaw) == 1.0
+                             and math.sin(self._inv.yaw) == 0.0)
+        self.offset_m = (float(self._inv.x), float(self._inv.y))
 
     def distance_at(self, xy: F64) -> F64:
         """Distance (m) to the map's nearest obstacle at each ``(N, 2)`` map point (−1 outside
         the map)."""
+        if self.axis_aligned:
+            out: F64 = map_distances(np.ascontiguousarray(xy, dtype=np.float64),
+                                     *self.offset_m, float(self.grid.resolution_m),
+                                     self.distance_m)
+            return out
         g = self._inv.transform_points(xy) / self.grid.resolution_m
         col = np.floor(g[:, 0]).astype(np.int64)
         row = np.floor(g[:, 1]).astype(np.int64)
@@ -99,12 +121,19 @@ class Detector:
     def foreground(self, scan: LaserScan, laser: Pose2D) -> tuple[I64, F64, F64]:
         """The beams (indices), end points (map) and ranges of returns not on the map."""
         ranges = np.asarray(scan.ranges_m, dtype=np.float64)
-        valid = scan.valid_mask() & (ranges <= self.cfg.max_range_m)
-        idx = np.flatnonzero(valid)
-        r = ranges[idx]
-        ang = scan.angle_min_rad + idx * scan.angle_increment_rad + laser.yaw
-        pts = np.column_stack([laser.x + r * np.cos(ang), laser.y + r * np.sin(ang)])
-        keep = self.static.distance_at(pts) > self.cfg.static_margin_m
+        idx, r, ang = beam_angles(scan.valid_mask(), ranges, float(self.cfg.max_range_m),
+                                  float(scan.angle_min_rad), float(scan.angle_increment_rad),
+                                  float(laser.yaw))
+        c, s = np.cos(ang), np.sin(ang)
+        static = self.static
+        if static.axis_aligned:
+            out: tuple[I64, F64, F64] = end_points_off_map(
+                idx, float(laser.x), float(laser.y), r, c, s, *static.offset_m,
+                float(static.grid.resolution_m), static.distance_m,
+                float(self.cfg.static_margin_m))
+            return out
+        pts = np.column_stack([laser.x + r * c, laser.y + r * s])
+        keep = static.distance_at(pts) > self.cfg.static_margin_m
         return idx[keep], pts[keep], r[keep]
 
     def detect(self, scan: LaserScan, laser: Pose2D) -> list[Detection]:
@@ -125,22 +154,16 @@ class Detector:
         ``circle_beams``: the scan's beam count when it covers the full circle (its last beam
         neighbours its first: a segment across that seam is one segment, not two), else 0.
         """
-        if circle_beams and len(idx) > 1:
-            idx, pts, r = _start_after_a_split(idx, pts, r, circle_beams,
-                                               self.cfg.segment_gap_m)
-        step = np.diff(idx) % circle_beams if circle_beams else np.diff(idx)
-        gap = np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1]))
-        split = (gap > self.cfg.segment_gap_m + 0.01 * r[1:]) | (step > 3)
-        starts = np.concatenate([[0], np.flatnonzero(split) + 1])
-        ends = np.concatenate([starts[1:], [len(idx)]])
-        counts = ends - starts
-        cx = np.add.reduceat(pts[:, 0], starts) / counts
-        cy = np.add.reduceat(pts[:, 1], starts) / counts
-        width = np.hypot(pts[ends - 1, 0] - pts[starts, 0], pts[ends - 1, 1] - pts[starts, 1])
-        keep = (width <= self.cfg.max_width_m) & ((counts >= 2) | (r[starts] >= 3.0))
-        return [(float(cx[k]), float(cy[k]), max(float(width[k]), 0.05),
-                 idx[starts[k]:ends[k]]) for k in np.flatnonzero(keep).tolist()
-                if width[k] <= FLAT_MIN_WIDTH_M or not _flat(pts[starts[k]:ends[k]])]
+        idx, pts, starts, ends, cx, cy, width, keep = scan_segments(
+            np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(pts, np.float64),
+            np.ascontiguousarray(r, dtype=np.float64), int(circle_beams),
+            float(self.cfg.segment_gap_m), float(self.cfg.max_width_m))
+        out = []
+        for k in keep.tolist():
+            s, e, w = int(starts[k]), int(ends[k]), float(width[k])
+            if w <= FLAT_MIN_WIDTH_M or not _flat(pts[s:e]):
+                out.append((float(cx[k]), float(cy[k]), max(w, 0.05), idx[s:e]))
+        return out
 
     def _people(self, segments: list[tuple[float, float, float, I64]],
                 sensor: tuple[float, float]) -> list[Detection]:
@@ -152,8 +175,7 @@ class Detector:
             push = ARC_CENTRE * 0.5 * width
             pushed.append((cx + push * dx / d, cy + push * dy / d, width, beams))
         legs = [k for k, s in enumerate(pushed) if s[2] <= self.cfg.leg_width_m]
-        pairs = sorted((math.hypot(pushed[a][0] - pushed[b][0], pushed[a][1] - pushed[b][1]),
-                        a, b) for i, a in enumerate(legs) for b in legs[i + 1:])
+        pairs = sorted(self._close_pairs(pushed, legs))
         used: set[int] = set()
         out = []
         for d, a, b in pairs:
@@ -170,20 +192,22 @@ class Detector:
                 out.append(Detection(s[0], s[1], s[2], s[3]))
         return out
 
-
-def _start_after_a_split(idx: I64, pts: F64, r: F64, n: int,
-                         gap_m: float) -> tuple[I64, F64, F64]:
-    """The returns of a full-circle scan of ``n`` beams reordered (cyclically) to start just
-    after a split between segments, so no segment straddles the seam between the last beam and
-    the first; unchanged when the seam already is a split (or there is none at all)."""
-    step = (np.roll(idx, -1) - idx) % n
-    nxt = np.roll(pts, -1, axis=0)
-    gap = np.hypot(nxt[:, 0] - pts[:, 0], nxt[:, 1] - pts[:, 1])
-    split = (gap > gap_m + 0.01 * np.roll(r, -1)) | (step > 3)
-    if split[-1] or not split.any():
-        return idx, pts, r
-    k = int(np.flatnonzero(split)[-1]) + 1
-    return np.roll(idx, -k), np.roll(pts, -k, axis=0), np.roll(r, -k)
+    def _close_pairs(self, pushed: list[tuple[float, float, float, I64]],
+                     legs: list[int]) -> list[tuple[float, int, int]]:
+        """``(distance, a, b)`` of the pairs of ``legs`` (``a`` before ``b`` in ``legs``) that
+        may be within ``leg_pair_m``: a pair farther apart along x or y (beyond a rounding
+        margin) is farther apart than that, and would never be paired. (With a NaN
+        coordinate: every pair, as sorting them all gave their order.)"""
+        if len(legs) < 2:
+            return []
+        first, second = close_pairs(np.array([pushed[k][:2] for k in legs], dtype=np.float64),
+                                    float(self.cfg.leg_pair_m) + 1e-9)
+        out = []
+        for i, j in zip(first.tolist(), second.tolist(), strict=True):
+            a, b = legs[i], legs[j]
+            out.append((math.hypot(pushed[a][0] - pushed[b][0], pushed[a][1] - pushed[b][1]),
+                        a, b))
+        return out
 
 
 def _flat(seg: F64, rms_m: float = FLAT_RMS_M) -> bool:

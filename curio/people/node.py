@@ -35,6 +35,7 @@ from curio.core.topics import HEALTH, MAP, PEOPLE, SCAN
 from curio.estimation.maps import OccupancyGrid
 from curio.people.detect import Detection, Detector, StaticMap
 from curio.people.tracker import Track, Tracker
+from curio.people.tracking_kernel import beams_near
 from curio.robot import RobotModel
 
 __all__ = ["PeopleNode", "seen_through"]
@@ -86,6 +87,7 @@ class PeopleNode:
         self.scans = 0
         self._cleared_upto = -math.inf
         self._walking_ids: set[int] = set()
+        self._angles: tuple[tuple[float, float, int], npt.NDArray[np.float64]] | None = None
 
     # -- one scan ----------------------------------------------------------------------------
     def process(self, scan: LaserScan) -> bool:
@@ -141,36 +143,44 @@ class PeopleNode:
         this scan is tracked, as the rover's pose at its stamp comes from the localiser. A
         beam counts when its end lies within ``person_radius_m`` + 0.15 m of a prediction.
         """
-        people = [t for t in self.tracker.tracks if t.confirmed and t.travelled]
-        if not people:
+        at = []
+        for t in self.tracker.tracks:
+            if t.confirmed and t.travelled:
+                x, y, vx, vy = t.kf.x[:, 0].tolist()
+                ahead = scan.stamp - t.stamp_s
+                at.append((x + vx * ahead, y + vy * ahead))
+        if not at:
             return None
-        at = np.array([(t.xy[0] + t.velocity[0] * (scan.stamp - t.stamp_s),
-                        t.xy[1] + t.velocity[1] * (scan.stamp - t.stamp_s)) for t in people])
         ranges = np.asarray(scan.ranges_m, dtype=np.float64)
-        valid = scan.valid_mask()
-        ang = laser_in_map.yaw + scan.angles_rad
-        with np.errstate(invalid="ignore"):
-            ex = laser_in_map.x + ranges * np.cos(ang)
-            ey = laser_in_map.y + ranges * np.sin(ang)
+        ang = laser_in_map.yaw + self._angles_rad(scan)
         reach = self.cfg.person_radius_m + 0.15
-        near = np.zeros(len(ranges), dtype=bool)
-        for px, py in at:
-            near |= (ex - px) ** 2 + (ey - py) ** 2 <= reach * reach
-        mask = valid & near
-        return mask if mask.any() else None
+        mask, found = beams_near(scan.valid_mask(), ranges, np.cos(ang), np.sin(ang),
+                                 float(laser_in_map.x), float(laser_in_map.y),
+                                 np.array(at, dtype=np.float64), float(reach * reach))
+        return mask if found else None
+
+    def _angles_rad(self, scan: LaserScan) -> npt.NDArray[np.float64]:
+        """``scan.angles_rad``, kept while the scans' geometry stays the same (never
+        written to)."""
+        key = (scan.angle_min_rad, scan.angle_increment_rad, len(scan.ranges_m))
+        if self._angles is None or self._angles[0] != key:
+            self._angles = (key, scan.angles_rad)
+        return self._angles[1]
 
     def cleared_spots(self) -> list[tuple[float, float]]:
         """Where walking people have been since the last call (map, m): clear marks there."""
         out: list[tuple[float, float]] = []
-        since = self._cleared_upto
+        after = self._cleared_upto - 0.5
         walking = set()
         for t in self.tracker.tracks:
             if not self._walking(t, self.last_stamp):
                 continue
             walking.add(t.track_id)
             # A person just recognised as walking: their whole recent trail (marked before).
-            new = t.track_id not in self._walking_ids
-            out += [(x, y) for x, y, s in t.trail if new or s > since - 0.5]
+            if t.track_id not in self._walking_ids:
+                out += [(x, y) for x, y, _ in t.trail]
+            else:
+                out += [(x, y) for x, y, s in t.trail if s > after]
             out.append(t.xy)
         self._walking_ids = walking
         self._cleared_upto = self.last_stamp

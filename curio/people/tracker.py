@@ -18,6 +18,12 @@ Each scan's detections (:mod:`curio.people.detect`, ``map`` metres) update the t
    one that coasts into a mapped wall, or duplicates an older track (two tracks on one
    person). Ids are never reused.
 
+The filter is filterpy's ``KalmanFilter`` (each track keeps one), its predict and update done
+by :func:`_predict` and :func:`_update` with filterpy's operations and products — the same
+bits — without its per-call overhead (copies of the prior and posterior, a deep copy of each
+measurement, checks, a general 2 × 2 inverse): the filters' ``x`` and ``P`` are kept, the rest
+of filterpy's bookkeeping (``x_prior``, ``K``, ``S``, …) is not.
+
 A track has *walked* once it has moved 0.8 m from where it was born or been faster than
 ``moving_speed_mps`` on three updates in a row: pillars and bins rarely walk, so the
 controller can tell people from furniture the map does not show. (A box seen from a moving
@@ -43,6 +49,7 @@ from scipy.optimize import linear_sum_assignment
 from curio.core.config import PeopleConfig
 from curio.core.messages import PersonTrack
 from curio.people.detect import Detection, StaticMap
+from curio.people.tracking_kernel import kalman_correct
 
 __all__ = ["Track", "Tracker"]
 
@@ -76,12 +83,14 @@ class Track:
     @property
     def xy(self) -> tuple[float, float]:
         """Estimated position (map, m)."""
-        return float(self.kf.x[0, 0]), float(self.kf.x[1, 0])
+        x = self.kf.x
+        return x.item(0), x.item(1)
 
     @property
     def velocity(self) -> tuple[float, float]:
         """Estimated velocity (map, m/s)."""
-        return float(self.kf.x[2, 0]), float(self.kf.x[3, 0])
+        x = self.kf.x
+        return x.item(2), x.item(3)
 
     @property
     def speed_mps(self) -> float:
@@ -92,8 +101,9 @@ class Track:
     @property
     def pos_std_m(self) -> float:
         """Standard deviation of the position along its worse axis, m."""
-        p = self.kf.P[:2, :2]
-        tr, det = p[0, 0] + p[1, 1], p[0, 0] * p[1, 1] - p[0, 1] * p[1, 0]
+        p = self.kf.P
+        p00, p01, p10, p11 = p.item(0, 0), p.item(0, 1), p.item(1, 0), p.item(1, 1)
+        tr, det = p00 + p11, p00 * p11 - p01 * p10
         return math.sqrt(max(0.5 * tr + math.sqrt(max(0.25 * tr * tr - det, 0.0)), 0.0))
 
 
@@ -151,13 +161,13 @@ class Tracker:
         ``seen_through(x, y)`` tells whether the scan saw past map point (x, y) (None: the
         scan is not known; every miss counts as a hidden person).
         """
+        none = np.zeros(0, dtype=np.int64)
         for t in self.tracks:
             dt = stamp - t.stamp_s
             if dt > 0.0:
-                t.kf.F, t.kf.Q = self._model(dt)
-                t.kf.predict()
+                _predict(t.kf, *self._model(dt))
                 t.stamp_s = stamp
-            t.beams = np.zeros(0, dtype=np.int64)
+            t.beams = none  # never written to: one empty array serves every track
         matched = self._associate(detections)
         for ti, di in matched:
             self._correct(self.tracks[ti], detections[di], stamp)
@@ -178,18 +188,20 @@ class Tracker:
         cost += np.array([0.0 if t.confirmed else 0.05 for t in self.tracks])[:, None]
         gate = self.cfg.gate_m
         rows, cols = linear_sum_assignment(np.where(cost <= gate, cost, 1e6))
-        return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] <= gate]
+        near = (cost[rows, cols] <= gate).tolist()
+        return [(r, c) for r, c, ok in zip(rows.tolist(), cols.tolist(), near, strict=True)
+                if ok]
 
     def _correct(self, t: Track, det: Detection, stamp: float) -> None:
-        t.kf.update(np.array([[det.x_m], [det.y_m]]))
+        _update(t.kf, det.x_m, det.y_m)
         t.hits += 1
         t.last_seen_s = stamp
         t.beams = det.beams
         if t.hits >= self.cfg.confirm_hits:
             t.confirmed = True
-        speed = t.speed_mps
+        x, y, vx, vy = t.kf.x[:, 0].tolist()
+        speed = math.hypot(vx, vy)
         t.fast_updates = t.fast_updates + 1 if speed > self.cfg.moving_speed_mps else 0
-        x, y = t.xy
         if not t.travelled and math.hypot(x - t.birth_xy[0], y - t.birth_xy[1]) > WALKED_M:
             t.travelled = True
         if not t.walked and (t.fast_updates >= 3 or t.travelled):
@@ -204,28 +216,30 @@ class Tracker:
             t.trail.popleft()
 
     def _prune(self, stamp: float, seen_through: Callable[[float, float], bool] | None) -> None:
-        keep: list[Track] = []
+        keep: list[tuple[Track, tuple[float, float]]] = []
         cfg = self.cfg
-        xy = np.array([t.xy for t in self.tracks]) if self.tracks else np.zeros((0, 2))
-        wall = self.static.distance_at(xy) if self.static is not None and len(xy) else None
+        xys = [t.xy for t in self.tracks]
+        wall = (self.static.distance_at(np.array(xys)).tolist()
+                if self.static is not None and xys else None)
         for k, t in enumerate(self.tracks):
             t.std_m = t.pos_std_m
             missed = stamp - t.last_seen_s
-            hidden = missed <= 0.0 or seen_through is None or not seen_through(*t.xy)
+            hidden = missed <= 0.0 or seen_through is None or not seen_through(*xys[k])
             coast = cfg.coast_s if t.confirmed and hidden else cfg.tentative_coast_s
             in_wall = wall is not None and missed > 0.0 and 0.0 <= wall[k] < 0.05
             if missed > coast or t.std_m > MAX_STD_M or in_wall:
                 self.deaths += 1
                 continue
-            keep.append(t)
+            keep.append((t, xys[k]))
         # Two tracks on one person: the younger goes.
         out: list[Track] = []
-        for t in sorted(keep, key=lambda t: t.born_s):
-            x, y = t.xy
-            if any(math.hypot(x - o.xy[0], y - o.xy[1]) < DUPLICATE_M for o in out):
+        out_xy: list[tuple[float, float]] = []
+        for t, (x, y) in sorted(keep, key=lambda kept: kept[0].born_s):
+            if any(math.hypot(x - ox, y - oy) < DUPLICATE_M for ox, oy in out_xy):
                 self.deaths += 1
                 continue
             out.append(t)
+            out_xy.append((x, y))
         self.tracks = sorted(out, key=lambda t: t.track_id)
 
     # -- output ------------------------------------------------------------------------------
@@ -235,11 +249,35 @@ class Tracker:
         for t in self.tracks:
             if not t.confirmed:
                 continue
-            x, y = t.xy
-            vx, vy = t.velocity
+            x, y, vx, vy = t.kf.x[:, 0].tolist()
             standing = (stamp - t.still_since_s
                         if t.walked and t.still_since_s is not None else 0.0)
             out.append(PersonTrack(t.track_id, x, y, vx, vy, t.std_m, stamp - t.born_s,
-                                   t.speed_mps > self.cfg.moving_speed_mps, t.walked, standing,
-                                   stamp - t.last_seen_s))
+                                   math.hypot(vx, vy) > self.cfg.moving_speed_mps, t.walked,
+                                   standing, stamp - t.last_seen_s))
         return tuple(out)
+
+
+def _predict(kf: KalmanFilter, f: F64, q: F64) -> None:
+    """filterpy's ``kf.predict()`` with transition ``f`` and process noise ``q``: ``x = F x``,
+    ``P = F P Fᵀ + Q`` — its numpy products in its order; its fading-memory factor α² is 1
+    here (a product by 1.0 changes no bit) and there is no control input."""
+    kf.F, kf.Q = f, q
+    if kf._alpha_sq != 1.0 or kf.B is not None:
+        kf.predict()  # not the tracker's filter: filterpy's own
+        return
+    kf.x = np.dot(f, kf.x)
+    kf.P = np.dot(np.dot(f, kf.P), f.T) + q
+
+
+def _update(kf: KalmanFilter, x_m: float, y_m: float) -> None:
+    """filterpy's ``kf.update([[x_m], [y_m]])``: the compiled
+    :func:`~curio.people.tracking_kernel.kalman_correct` (the products whose elements have one
+    non-zero term), then the Joseph form's ``(I − KH) P (I − KH)ᵀ`` as filterpy computes it.
+    A filter without the tracker's structure gets filterpy's own update."""
+    ok, x, i_kh, krk = kalman_correct(kf.x, kf.P, kf.H, kf.R, float(x_m), float(y_m))
+    if not ok:
+        kf.update(np.array([[x_m], [y_m]]))
+        return
+    kf.P = np.dot(np.dot(i_kh, kf.P), i_kh.T) + krk
+    kf.x = x
