@@ -54,6 +54,8 @@ from curio.core.topics import HEALTH, INITIAL_POSE, LOCALIZATION, ODOM, SCAN
 from curio.estimation.correction import MapOdomPublisher
 from curio.estimation.localization_kernels import (
     beam_evidence,
+    ends_local,
+    heaviest_bin,
     lookup_grad_points,
     lookup_points,
     lookup_poses,
@@ -243,6 +245,12 @@ class MatchResult:
 
 
 HUBER_M = 0.05  # scan match: residuals beyond this weigh HUBER_M / |r|
+# Constant matrices, made once (read-only): the scan match's damping of the normal matrix, and
+# the floor added to the filter's covariance (1 cm, 0.3°; x m², y m², yaw rad²).
+_GN_DAMPING: F64 = np.diag([1e-4, 1e-4, 1e-3])
+_GN_DAMPING.flags.writeable = False
+_COV_FLOOR: F64 = np.diag([1e-4, 1e-4, 3e-5])
+_COV_FLOOR.flags.writeable = False
 
 
 class _MatchTerms:
@@ -322,7 +330,7 @@ def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: 
         if got is None:
             break
         r, j, jw = got
-        h = jw.T @ j + np.diag([1e-4, 1e-4, 1e-3])
+        h = jw.T @ j + _GN_DAMPING
         g = jw.T @ r
         if prior_info is not None:
             dev = np.array([x - centre.x, y - centre.y, wrap_angle(th - centre.yaw)])
@@ -332,12 +340,14 @@ def scan_match(field: DistanceField, points: F64, guess: Pose2D, *, iterations: 
             step = -np.linalg.solve(h, g)
         except np.linalg.LinAlgError:
             break
-        step[:2] = np.clip(step[:2], -0.1, 0.1)
-        step[2] = float(np.clip(step[2], -0.1, 0.1))
-        x += float(step[0])
-        y += float(step[1])
-        th = wrap_angle(th + float(step[2]))
-        if abs(step[0]) < 1e-3 and abs(step[1]) < 1e-3 and abs(step[2]) < 5e-4:
+        # Clipped to ±0.1 as np.clip does (min of max, a NaN kept), on Python floats.
+        sx = min(max(float(step[0]), -0.1), 0.1)
+        sy = min(max(float(step[1]), -0.1), 0.1)
+        st = min(max(float(step[2]), -0.1), 0.1)
+        x += sx
+        y += sy
+        th = wrap_angle(th + st)
+        if abs(sx) < 1e-3 and abs(sy) < 1e-3 and abs(st) < 5e-4:
             converged = True
             break
     c, s = math.cos(th), math.sin(th)
@@ -655,12 +665,8 @@ class Localizer:
     def _cluster(self) -> npt.NDArray[np.bool_]:
         """Particles near the heaviest 0.5 m bin: the best hypothesis."""
         p = self.particles
-        key = (np.floor(p[:, 0] / 0.5).astype(np.int64) * 100_003
-               + np.floor(p[:, 1] / 0.5).astype(np.int64))
-        uniq, inv = np.unique(key, return_inverse=True)
-        mass = np.bincount(inv, weights=self.weights, minlength=len(uniq))
-        best = int(np.argmax(mass))
-        sel = inv == best
+        sel = np.empty(len(p), dtype=np.bool_)
+        heaviest_bin(np.ascontiguousarray(p), np.ascontiguousarray(self.weights), 0.5, sel)
         w = self.weights[sel]
         scl = w.sum()  # np.average's arithmetic, without its checks and dispatch
         if scl == 0.0:
@@ -674,16 +680,19 @@ class Localizer:
         p, w = self.particles, self.weights
         sel = self._cluster()
         ws = w[sel]
-        if ws.sum() <= 0:
+        sel_mass = ws.sum()  # the cluster's weight (summed once: the same sum each time)
+        ws_sum = sel_mass
+        if ws_sum <= 0:
             ws = np.ones(int(sel.sum()))
-        ws = ws / ws.sum()
+            ws_sum = ws.sum()
+        ws = ws / ws_sum
         mx = float(ws @ p[sel, 0])
         my = float(ws @ p[sel, 1])
         myaw = math.atan2(float(ws @ np.sin(p[sel, 2])), float(ws @ np.cos(p[sel, 2])))
         mean = Pose2D(mx, my, myaw)
         pts = scan.points(self.laser_pose, max_beams=self.cfg.scan_match_beams,
                           range_max_m=scan.range_max_m - 0.05)
-        self.unimodal = float(w[sel].sum()) >= 0.8 * float(w.sum())
+        self.unimodal = float(sel_mass) >= 0.8 * float(w.sum())
         # The prior whenever the filter tracks (a match was accepted, or the odometry carried
         # the estimate, since the last search), even when the particles do not agree on one
         # place: a scan that sees one or two distant shapes pins the pose down along some
@@ -701,7 +710,7 @@ class Localizer:
             jump = m.pose.distance_to(guess)  # how far the match moved from where it began
             if self.inlier_fraction >= self.cfg.lost_inlier_fraction and jump < 0.3:
                 # Floor: 1 cm, 0.3° (map resolution, unmodelled errors), never overconfident.
-                self.track_cov = m.covariance + np.diag([1e-4, 1e-4, 3e-5])
+                self.track_cov = m.covariance + _COV_FLOOR
                 self._shift(sel, mean, m.pose)
                 mean = m.pose
         else:
@@ -718,7 +727,7 @@ class Localizer:
         dt = wrap_angles(q[:, 2] - mean.yaw)
         dev = np.stack([dx, dy, dt], axis=1)
         cov = (dev * ws[:, None]).T @ dev
-        self.covariance = cov + np.diag([1e-4, 1e-4, 3e-5])
+        self.covariance = cov + _COV_FLOOR
         self.pose = mean
         self._update_state()
 
@@ -751,7 +760,8 @@ class Localizer:
         jac = np.array([[1.0, 0.0, -s * d.x - c * d.y],
                         [0.0, 1.0, c * d.x - s * d.y],
                         [0.0, 0.0, 1.0]])
-        cov = jac @ cov0 @ jac.T + np.diag([var_t, var_t, var_r])
+        noise = np.array([[var_t, 0.0, 0.0], [0.0, var_t, 0.0], [0.0, 0.0, var_r]])
+        cov = jac @ cov0 @ jac.T + noise
         return pred, np.asarray(cov, dtype=np.float64)
 
     def _beam_classes(self, pts: F64, pose: Pose2D) -> tuple[npt.NDArray[np.int8], F64]:
@@ -759,17 +769,25 @@ class Localizer:
         ``ON_WALL`` or ``IN_FRONT`` of the map
         (:func:`~curio.estimation.localization_kernels.beam_evidence`) — and the distance
         field at each end (metres, what :meth:`DistanceField.lookup` reads there)."""
-        wx, wy = self._world(pts, pose)
-        ex, ey = self.field.to_local(wx, wy)
+        f = self.field
         laser = pose @ self.laser_pose
-        lx, ly = self.field.to_local(np.array([laser.x]), np.array([laser.y]))
+        if f._rotated:
+            wx, wy = self._world(pts, pose)
+            ex, ey = f.to_local(wx, wy)
+            llx, lly = f.to_local(np.array([laser.x]), np.array([laser.y]))
+            lx, ly = float(llx[0]), float(lly[0])
+            ex = np.ascontiguousarray(ex, dtype=np.float64)
+            ey = np.ascontiguousarray(ey, dtype=np.float64)
+        else:  # the arithmetic of ``_world`` and ``to_local``, compiled
+            ex, ey = np.empty(len(pts)), np.empty(len(pts))
+            ends_local(pose.x, pose.y, math.cos(pose.yaw), math.sin(pose.yaw),
+                       np.ascontiguousarray(pts, dtype=np.float64), f.origin.x, f.origin.y,
+                       ex, ey)
+            lx, ly = laser.x - f.origin.x, laser.y - f.origin.y
         out = np.empty(len(pts), dtype=np.int8)
         end_dist: F64 = np.empty(len(pts))
-        beam_evidence(self.field.dist_m, self._free_cells, self.grid.resolution_m,
-                      self.field.max_dist_m, float(lx[0]), float(ly[0]),
-                      np.ascontiguousarray(ex, dtype=np.float64),
-                      np.ascontiguousarray(ey, dtype=np.float64), self.cfg.inlier_distance_m, out,
-                      end_dist)
+        beam_evidence(f.dist_m, self._free_cells, self.grid.resolution_m, f.max_dist_m, lx, ly,
+                      ex, ey, self.cfg.inlier_distance_m, out, end_dist)
         if np.count_nonzero(out == IN_FRONT) > 1:
             self._wide_in_front_against(pts, out)
         return out, end_dist
@@ -788,6 +806,8 @@ class Localizer:
         people of a group), and the straight pieces of ``MIN_WALL_BEAMS`` ends or more that
         are wider than the limit are walls."""
         front = cls == IN_FRONT
+        if not np.any(front[:-1] & front[1:]):
+            return  # no two neighbours in front of the map: every piece is one end, 0 m wide
         rel = pts - np.array([self.laser_pose.x, self.laser_pose.y])
         rng = np.hypot(rel[:, 0], rel[:, 1])
         step = np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1]))

@@ -1,5 +1,5 @@
-"""Compiled inner loops of the localiser (numba): distance-field lookups and the per-point
-terms of the scan match.
+"""Compiled inner loops of the localiser (numba): distance-field lookups, the per-point
+terms of the scan match, the beam ends in grid-local metres and the particles' heaviest bin.
 
 Each kernel computes, element by element and in the same order, the arithmetic of the numpy
 expressions it replaces in :mod:`curio.estimation.localization` (no fused multiply-adds, no
@@ -21,7 +21,8 @@ import math
 import numpy as np
 from numba import njit  # type: ignore[import-untyped]
 
-__all__ = ["beam_evidence", "lookup_grad_points", "lookup_points", "lookup_poses", "match_terms"]
+__all__ = ["beam_evidence", "ends_local", "heaviest_bin",
+           "lookup_grad_points", "lookup_points", "lookup_poses", "match_terms"]
 
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
@@ -128,6 +129,52 @@ def match_terms(dist, ox, oy, res, max_dist, x, y, c, s, px, py, half,  # type: 
 
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
+def heaviest_bin(p, w, size, sel):  # type: ignore[no-untyped-def]
+    """Mark in ``sel`` (bool) the particles ``p`` (rows x, y, … in ``map`` metres; weights ``w``) in
+    the heaviest ``size`` × ``size`` bin; the bins are keyed ``floor(x / size) · 100 003 +
+    floor(y / size)`` (int64), their masses summed particle by particle in index order, and of
+    equal masses the bin with the smallest key wins — what ``np.unique(key,
+    return_inverse=True)``, ``np.bincount`` with the weights and ``np.argmax`` give, to the
+    bit (a NaN mass wins, as in ``np.argmax``)."""
+    n = p.shape[0]
+    key = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        key[i] = (np.int64(math.floor(p[i, 0] / size)) * 100_003
+                  + np.int64(math.floor(p[i, 1] / size)))
+    order = np.argsort(key)
+    rank = np.empty(n, dtype=np.int64)  # the bin's place among the distinct keys, ascending
+    nb = 0
+    for j in range(n):
+        i = order[j]
+        if j > 0 and key[i] != key[order[j - 1]]:
+            nb += 1
+        rank[i] = nb
+    mass = np.zeros(nb + 1)
+    for i in range(n):
+        mass[rank[i]] += w[i]
+    best = 0
+    if not math.isnan(mass[0]):
+        for b in range(1, nb + 1):
+            if math.isnan(mass[b]):
+                best = b
+                break
+            if mass[b] > mass[best]:
+                best = b
+    for i in range(n):
+        sel[i] = rank[i] == best
+
+
+@njit(cache=True, nogil=True)  # type: ignore[misc]
+def ends_local(x, y, c, s, pts, ox, oy, ex, ey):  # type: ignore[no-untyped-def]
+    """Grid-local metres of the points ``pts`` ``(N, 2)`` (``base_link``) seen from the pose at
+    ``(x, y)`` in ``map``, heading cosine ``c`` and sine ``s``, on an unrotated grid whose origin
+    is ``(ox, oy)``: ``ex[i] = (x + c·px − s·py) − ox``, ``ey[i] = (y + s·px + c·py) − oy``."""
+    for i in range(pts.shape[0]):
+        ex[i] = (x + c * pts[i, 0] - s * pts[i, 1]) - ox
+        ey[i] = (y + s * pts[i, 0] + c * pts[i, 1]) - oy
+
+
+@njit(cache=True, nogil=True)  # type: ignore[misc]
 def beam_evidence(dist, free, res, max_dist, lx, ly, x, y, inlier_m,  # type: ignore[no-untyped-def]
                   out, end_dist):
     """Sort beams from the laser at ``(lx, ly)`` to their ends ``(x[i], y[i])`` (grid-local
@@ -198,5 +245,7 @@ def _warm() -> None:  # pragma: no cover - exercised by curio warmup
     lookup_grad_points(d, 0.0, 0.0, 0.05, 2.0, v, v, np.zeros(1), np.zeros(1), np.zeros(1))
     match_terms(d, 0.0, 0.0, 0.05, 2.0, 0.0, 0.0, 1.0, 0.0, v, v, 0.025, 0.15, 0.05,
                 np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
+    heaviest_bin(np.zeros((1, 3)), v, 0.5, np.zeros(1, dtype=np.bool_))
+    ends_local(0.0, 0.0, 1.0, 0.0, np.zeros((1, 2)), 0.0, 0.0, np.zeros(1), np.zeros(1))
     beam_evidence(d, np.ones((3, 3), dtype=np.bool_), 0.05, 2.0, 0.0, 0.0, v, v, 0.12,
                   np.zeros(1, dtype=np.int8), np.zeros(1))

@@ -104,3 +104,41 @@ def test_match_terms_equal_the_numpy_path(field: DistanceField) -> None:
     assert np.array_equal(compiled.covariance, plain.covariance)
     assert compiled.inlier_fraction == plain.inlier_fraction
 
+
+
+def _ref_heaviest_bin(p: F64, w: F64) -> F64:
+    """The numpy code ``heaviest_bin`` replaced in ``Localizer._cluster``."""
+    key = (np.floor(p[:, 0] / 0.5).astype(np.int64) * 100_003
+           + np.floor(p[:, 1] / 0.5).astype(np.int64))
+    uniq, inv = np.unique(key, return_inverse=True)
+    mass = np.bincount(inv, weights=w, minlength=len(uniq))
+    out: F64 = inv == int(np.argmax(mass))
+    return out
+
+
+def test_heaviest_bin_equals_unique_bincount_argmax() -> None:
+    from curio.estimation.localization_kernels import heaviest_bin
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 7, 200, 1000):
+        p = np.column_stack([rng.normal(0.0, 0.7, n), rng.normal(-3.0, 0.7, n),
+                             rng.uniform(-math.pi, math.pi, n)])
+        p[: n // 4, :2] = np.round(p[: n // 4, :2] * 2.0) / 2.0  # on bin edges
+        for w in (rng.random(n), np.full(n, 1.0 / n), np.zeros(n)):  # ties: the smallest key
+            sel = np.empty(n, dtype=np.bool_)
+            heaviest_bin(p, w, 0.5, sel)
+            assert np.array_equal(sel, _ref_heaviest_bin(p, w))
+
+
+def test_ends_local_equals_world_then_to_local(field: DistanceField) -> None:
+    from curio.estimation.localization import Localizer
+    from curio.estimation.localization_kernels import ends_local
+
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(-6.0, 6.0, (181, 2))
+    for pose in (Pose2D(1.3, -0.7, 0.3), Pose2D(-2.0, 4.1, -2.9), Pose2D(0.1, 0.2, math.pi)):
+        ex, ey = np.empty(len(pts)), np.empty(len(pts))
+        ends_local(pose.x, pose.y, math.cos(pose.yaw), math.sin(pose.yaw), pts,
+                   field.origin.x, field.origin.y, ex, ey)
+        rx, ry = field.to_local(*Localizer._world(pts, pose))
+        assert ex.tobytes() == rx.tobytes() and ey.tobytes() == ry.tobytes()
