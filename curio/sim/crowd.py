@@ -37,7 +37,13 @@ from curio.core.messages import SimPeople, SimPerson
 from curio.estimation.maps import OccupancyGrid
 from curio.robot import footprint_radii
 from curio.safety.stop_zone import ROVER_CLOSING_MPS, closing_speeds_mps
-from curio.sim.crowd_kernel import cast_discs, count_hits, social_accelerations
+from curio.sim.crowd_kernel import (
+    cast_discs,
+    count_hits,
+    crowd_advance,
+    crowd_inputs,
+    social_accelerations,
+)
 from curio.sim.visitors import (
     ARRIVE_M,
     ASIDE_S,
@@ -120,9 +126,9 @@ class Crowd:
         self.heading: F64 = rng.uniform(-math.pi, math.pi, n)
         self.phase: F64 = rng.uniform(0.0, 2.0 * math.pi, n)
         self.cap: F64 = np.array([1.3 * max(v.v0, 0.5) for v in self.visitors])
-        self._attention = np.array([v.attention for v in self.visitors])
-        self._notice = np.array([v.notice_m for v in self.visitors])
-        self._reaction = np.array([v.reaction_s for v in self.visitors])
+        self._attention = np.array([v.attention for v in self.visitors], dtype=np.float64)
+        self._notice = np.array([v.notice_m for v in self.visitors], dtype=np.float64)
+        self._reaction = np.array([v.reaction_s for v in self.visitors], dtype=np.float64)
         self._seen_at = np.full(n, -np.inf)
         self._seen = np.zeros((n, 5))
         self._seen[:, 4] = rover_radius_m
@@ -130,6 +136,12 @@ class Crowd:
         self.radius_m = cfg.body_radius_m
         self.time_s = 0.0
         self._acc = np.zeros((n, 2))
+        # Scratch for the compiled step (crowd_inputs → social_accelerations → crowd_advance).
+        self._desired = np.zeros((n, 2))
+        self._walls = np.zeros((n, 3))
+        self._here_clear = np.zeros(n)
+        self._weight = np.zeros(n)
+        self._near = np.zeros(n, dtype=np.bool_)
         self._pending_s = 0.0
         self.contacts = 0
         self._place(rover_start)
@@ -179,8 +191,7 @@ class Crowd:
         return vid - self.visitors[0].vid
 
     def _positions(self) -> dict[int, Point]:
-        return {v.vid: (float(self.pos[i, 0]), float(self.pos[i, 1]))
-                for i, v in enumerate(self.visitors)}
+        return {v.vid: (p[0], p[1]) for v, p in zip(self.visitors, self.pos.tolist(), strict=True)}
 
     @property
     def following(self) -> bool:
@@ -210,45 +221,43 @@ class Crowd:
         if now >= self._plan_due_s:
             self._plan_due_s = now + PLAN_PERIOD_S
             self._plan(now, rover)
-        to = self.steer - self.pos
-        dist = np.maximum(np.hypot(to[:, 0], to[:, 1]), 1e-9)
-        desired = to * (np.where(dist > 0.05, self.speed, 0.0) / dist)[:, None]
-        seen, weight = self._perceive(now, rover)
-        here = self.walk.walls(self.pos)
-        walls = np.column_stack([here[:, :2], np.hypot(*(self.pos - here[:, :2]).T)
-                                 - 0.5 * self.walk.res_fine])
-        social_accelerations(self.pos, self.vel, desired, TAU_S, walls, seen, weight,
-                             SF_PARAMS, self._acc)
-        vel = self.vel + self._acc * dt
-        speed = np.hypot(vel[:, 0], vel[:, 1])
-        vel *= np.minimum(1.0, self.cap / np.maximum(speed, 1e-9))[:, None]
-        new = self.pos + vel * dt
-        # A step into a wall is refused.
-        clear_new = self.walk.walls(new)[:, 2]
-        blocked = (clear_new < 0.8 * self.radius_m) & (clear_new < here[:, 2])
-        new[blocked] = self.pos[blocked]
-        vel[blocked] = 0.0
-        events = self._rover_contacts(new, vel, rover, touches)
+        self._perceive(now, rover)
+        walk = self.walk
+        rx, ry = rover.pose.x, rover.pose.y
+        # Desired velocities, the nearest walls and how strongly each avoids the rover.
+        crowd_inputs(self.pos, self.steer, self.speed, rx, ry, self._notice, self._attention,
+                     walk.clearance_fine, walk.near_row, walk.near_col, walk.ox, walk.oy,
+                     walk.res_fine, self._desired, self._walls, self._here_clear, self._weight)
+        social_accelerations(self.pos, self.vel, self._desired, TAU_S, self._walls, self._seen,
+                             self._weight, SF_PARAMS, self._acc)
+        # Speeds capped; a step into a wall is refused.
+        new = np.empty_like(self.pos)
+        vel = np.empty_like(self.vel)
+        crowd_advance(self.pos, self.vel, self._acc, dt, self.cap, self._here_clear,
+                      0.8 * self.radius_m, walk.clearance_fine, walk.near_row, walk.near_col,
+                      walk.ox, walk.oy, walk.res_fine, rx, ry, 0.5 + self.radius_m + 0.2, new,
+                      vel, self._near)
+        events = self._rover_contacts(new, vel, rover, touches, self._near)
         self._gait(vel, dt)
         self.pos, self.vel = new, vel
         return events
 
-    def _perceive(self, now: float, rover: RoverState) -> tuple[F64, F64]:
-        """The rover as each visitor last saw it, and how strongly each avoids it."""
+    def _perceive(self, now: float, rover: RoverState) -> None:
+        """The visitors due to look at the rover again (every ``reaction_s``) see it now
+        (``_seen``: x, y, vx, vy in ``map``; its radius)."""
         due = now - self._seen_at >= self._reaction
         if due.any():
             vx, vy = rover.velocity
             self._seen[due, :4] = (rover.pose.x, rover.pose.y, vx, vy)
             self._seen_at[due] = now
-        d = np.hypot(self.pos[:, 0] - rover.pose.x, self.pos[:, 1] - rover.pose.y)
-        return self._seen, np.where(d <= self._notice, self._attention, 0.0)
 
     def _rover_contacts(self, new: F64, vel: F64, rover: RoverState,
-                        touches: Callable[[float, float, float], bool]) -> list[dict[str, Any]]:
-        """Refuse steps into the rover; one event per contact, with whose fault it is."""
+                        touches: Callable[[float, float, float], bool],
+                        near: npt.NDArray[np.bool_]) -> list[dict[str, Any]]:
+        """Refuse steps into the rover (``near``: the steps ending within 0.7 m + a body
+        radius of its centre); one event per contact, with whose fault it is."""
         events: list[dict[str, Any]] = []
         rx, ry = rover.pose.x, rover.pose.y
-        near = np.hypot(new[:, 0] - rx, new[:, 1] - ry) < 0.5 + self.radius_m + 0.2
         for i in np.flatnonzero(near):
             v = self.visitors[i]
             if not touches(float(new[i, 0]), float(new[i, 1]), self.radius_m):
@@ -299,8 +308,9 @@ class Crowd:
             if now >= group.dwell_until_s and all(m.state != "stepping_aside" for m in members):
                 positions = positions or self._positions()
                 self.planner.send_group(gid, now, positions, by_id)
+        xy = self.pos.tolist()
         for i, v in enumerate(self.visitors):
-            here = (float(self.pos[i, 0]), float(self.pos[i, 1]))
+            here = (xy[i][0], xy[i][1])
             target, speed = self._intent(v, here, now, rover)
             if speed > 0.0 and self._give_way(i, v, here, target, now):
                 target, speed = self._wait_spot(i, here), 0.4
@@ -487,8 +497,8 @@ class Crowd:
 
     def truth(self, stamp: float) -> SimPeople:
         """Every visitor's ground truth (``/people/ground_truth``)."""
+        pos, vel, visible = self.pos.tolist(), self.vel.tolist(), self._visible.tolist()
         return SimPeople(stamp, tuple(
-            SimPerson(v.vid, float(self.pos[i, 0]), float(self.pos[i, 1]),
-                      float(self.vel[i, 0]), float(self.vel[i, 1]), self.radius_m,
-                      v.behaviour, v.group, v.state, int(self._visible[i]))
-            for i, v in enumerate(self.visitors)))
+            SimPerson(v.vid, p[0], p[1], u[0], u[1], self.radius_m, v.behaviour, v.group,
+                      v.state, n)
+            for v, p, u, n in zip(self.visitors, pos, vel, visible, strict=True)))

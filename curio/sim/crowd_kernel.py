@@ -15,6 +15,10 @@ For each visitor α (positions and velocities in ``map``, metres, m/s):
   it last *perceived*, a reaction time ago);
 * **repulsion from walls** ``U(d) = U0·exp(−d/R)`` from the nearest wall point.
 
+:func:`crowd_inputs` and :func:`crowd_advance` do the crowd step's per-visitor arithmetic
+around it (desired velocities, wall lookups, the speed cap, refused steps) in one pass each,
+with the same operations in the same order as the numpy code they replace (bit for bit).
+
 The first call compiles the kernel (a second or two); numba caches the machine code on disk.
 """
 
@@ -26,8 +30,8 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit  # type: ignore[import-untyped]
 
-__all__ = ["cast_discs", "count_hits", "grid_lookup", "segment_min_clearance",
-           "social_accelerations"]
+__all__ = ["cast_discs", "count_hits", "crowd_advance", "crowd_inputs",
+           "segment_min_clearance", "social_accelerations"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -189,20 +193,83 @@ def count_hits(points: F64, centres: F64, radius: float,
 
 
 @njit(cache=True, nogil=True)  # type: ignore[misc]
-def grid_lookup(xy: F64, clearance: F64, near_row: npt.NDArray[np.int64],
-                near_col: npt.NDArray[np.int64], ox: float, oy: float, res: float,
-                out: F64) -> None:  # pragma: no cover - compiled
-    """For each ``(N, 2)`` map point: its clearance (m; 0 outside the grid) and the centre of
-    the nearest blocked cell (map) → ``out`` ``(N, 3)``: wall x, wall y, clearance."""
+def _wall_at(x: float, y: float, clearance: F64, near_row: npt.NDArray[np.int64],
+             near_col: npt.NDArray[np.int64], ox: float, oy: float,
+             res: float) -> tuple[float, float, float]:  # pragma: no cover - compiled
+    """The centre of the blocked cell nearest to map point (x, y) and the clearance there (m);
+    outside the grid: the point itself and 0."""
     h, w = clearance.shape
-    for i in range(xy.shape[0]):
-        col = math.floor((xy[i, 0] - ox) / res)
-        row = math.floor((xy[i, 1] - oy) / res)
-        if row < 0 or row >= h or col < 0 or col >= w:
-            out[i, 0] = xy[i, 0]
-            out[i, 1] = xy[i, 1]
-            out[i, 2] = 0.0
-            continue
-        out[i, 0] = ox + (near_col[row, col] + 0.5) * res
-        out[i, 1] = oy + (near_row[row, col] + 0.5) * res
-        out[i, 2] = clearance[row, col]
+    col = math.floor((x - ox) / res)
+    row = math.floor((y - oy) / res)
+    if row < 0 or row >= h or col < 0 or col >= w:
+        return x, y, 0.0
+    return (ox + (near_col[row, col] + 0.5) * res, oy + (near_row[row, col] + 0.5) * res,
+            clearance[row, col])
+
+
+@njit(cache=True, nogil=True)  # type: ignore[misc]
+def crowd_inputs(pos: F64, steer: F64, speed: F64, rover_x: float, rover_y: float,
+                 notice: F64, attention: F64, clearance: F64, near_row: npt.NDArray[np.int64],
+                 near_col: npt.NDArray[np.int64], ox: float, oy: float, res: float,
+                 desired: F64, walls: F64, here_clear: F64,
+                 weight: F64) -> None:  # pragma: no cover - compiled
+    """The inputs of :func:`social_accelerations` for ``(N, 2)`` positions ``pos`` (map, m).
+
+    Writes, per visitor: ``desired`` ``(N, 2)`` its desired velocity (m/s, map): ``speed``
+    (m/s) towards ``steer`` (map), zero within 0.05 m of it; ``walls`` ``(N, 3)`` the nearest
+    blocked cell's centre (map) and the distance to that cell's surface (m, half a cell
+    ``res`` nearer than its centre); ``here_clear`` ``(N,)`` the clearance (m) of the cell it
+    stands in (0 outside the grid); ``weight`` ``(N,)`` its ``attention`` if the rover at
+    (``rover_x``, ``rover_y``) is within its ``notice`` distance (m), else 0.
+    """
+    half = 0.5 * res
+    for i in range(pos.shape[0]):
+        x = pos[i, 0]
+        y = pos[i, 1]
+        tx = steer[i, 0] - x
+        ty = steer[i, 1] - y
+        dist = max(np.hypot(tx, ty), 1e-9)
+        f = (speed[i] if dist > 0.05 else 0.0) / dist
+        desired[i, 0] = tx * f
+        desired[i, 1] = ty * f
+        wx, wy, c = _wall_at(x, y, clearance, near_row, near_col, ox, oy, res)
+        walls[i, 0] = wx
+        walls[i, 1] = wy
+        walls[i, 2] = np.hypot(x - wx, y - wy) - half
+        here_clear[i] = c
+        d = np.hypot(x - rover_x, y - rover_y)
+        weight[i] = attention[i] if d <= notice[i] else 0.0
+
+
+@njit(cache=True, nogil=True)  # type: ignore[misc]
+def crowd_advance(pos: F64, vel: F64, acc: F64, dt: float, cap: F64, here_clear: F64,
+                  stop_clear: float, clearance: F64, near_row: npt.NDArray[np.int64],
+                  near_col: npt.NDArray[np.int64], ox: float, oy: float, res: float,
+                  rover_x: float, rover_y: float, near_m: float, new: F64, new_vel: F64,
+                  near: npt.NDArray[np.bool_]) -> None:  # pragma: no cover - compiled
+    """One explicit-Euler step of ``dt`` seconds from ``pos``, ``vel`` (map, m, m/s) with the
+    accelerations ``acc`` (m/s²), each speed capped at ``cap`` (m/s) → ``new``, ``new_vel``.
+
+    A step is refused (the visitor stays, velocity 0) where it ends in a cell with less than
+    ``stop_clear`` metres of clearance and less than ``here_clear`` (where it stands).
+    ``near`` tells which visitors end within ``near_m`` of the rover's centre (map).
+    """
+    for i in range(pos.shape[0]):
+        vx = vel[i, 0] + acc[i, 0] * dt
+        vy = vel[i, 1] + acc[i, 1] * dt
+        k = min(1.0, cap[i] / max(np.hypot(vx, vy), 1e-9))
+        vx *= k
+        vy *= k
+        nx = pos[i, 0] + vx * dt
+        ny = pos[i, 1] + vy * dt
+        c = _wall_at(nx, ny, clearance, near_row, near_col, ox, oy, res)[2]
+        if c < stop_clear and c < here_clear[i]:
+            nx = pos[i, 0]
+            ny = pos[i, 1]
+            vx = 0.0
+            vy = 0.0
+        new[i, 0] = nx
+        new[i, 1] = ny
+        new_vel[i, 0] = vx
+        new_vel[i, 1] = vy
+        near[i] = np.hypot(nx - rover_x, ny - rover_y) < near_m

@@ -33,7 +33,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from curio.estimation.maps import OccupancyGrid
-from curio.sim.crowd_kernel import grid_lookup, segment_min_clearance
+from curio.sim.crowd_kernel import segment_min_clearance
 
 __all__ = ["WalkMap"]
 
@@ -75,8 +75,9 @@ class WalkMap:
         # than its centre).
         self.clearance_fine: F64 = np.maximum(
             np.asarray(dist, dtype=np.float64) * self.res_fine - 0.5 * self.res_fine, 0.0)
-        self._near_row: I64 = np.ascontiguousarray(idx[0], dtype=np.int64)
-        self._near_col: I64 = np.ascontiguousarray(idx[1], dtype=np.int64)
+        # Row and column of each fine cell's nearest blocked cell (the crowd's wall lookups).
+        self.near_row: I64 = np.ascontiguousarray(idx[0], dtype=np.int64)
+        self.near_col: I64 = np.ascontiguousarray(idx[1], dtype=np.int64)
         self.res_m = res_m
         self.walk_clearance_m = walk_clearance_m
         h, w = grid.height, grid.width
@@ -105,18 +106,10 @@ class WalkMap:
         out: F64 = np.where(inside, self.clearance_fine[row, col], 0.0)
         return out
 
-    def walls(self, xy: F64) -> F64:
-        """``(N, 3)``: the nearest occupied or unknown cell's centre (map) and the clearance
-        (m) at each ``(N, 2)`` map point (compiled: the crowd asks every step)."""
-        out = np.empty((len(xy), 3))
-        grid_lookup(np.ascontiguousarray(xy, dtype=np.float64), self.clearance_fine,
-                    self._near_row, self._near_col, self.ox, self.oy, self.res_fine, out)
-        return out
-
     def nearest_wall(self, xy: F64) -> F64:
         """The centre of the nearest occupied or unknown cell to each map point, ``(N, 2)``."""
         row, col, _ = self._fine_index(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
-        nr, nc = self._near_row[row, col], self._near_col[row, col]
+        nr, nc = self.near_row[row, col], self.near_col[row, col]
         return np.stack([self.ox + (nc + 0.5) * self.res_fine,
                          self.oy + (nr + 0.5) * self.res_fine], axis=1)
 
