@@ -115,6 +115,15 @@ class OdomEkf:
         # Bias window: gyro integral (rad) since wheel message ``_win_start`` (stamp, yaw).
         self._win_start: tuple[float, float] | None = None
         self._win_gyro_rad = 0.0
+        # Read once from ``cfg`` (the same expressions as before, not re-evaluated per call).
+        self._qa = cfg.process_accel_sigma_mps2**2  # (m/s²)² per Hz
+        self._qw = cfg.process_yaw_accel_sigma_radps2**2  # (rad/s²)² per Hz
+        self._qb = cfg.gyro_bias_walk_radps**2  # (rad/s)² per s
+        self._r_v = cfg.odom_speed_sigma_mps**2  # (m/s)²
+        # Scratch matrices, rewritten in place: the Jacobian (identity but for its motion
+        # entries) and Q (zero but for its 8 process-noise entries); never handed out.
+        self._f: F64 = np.eye(6)
+        self._qm: F64 = np.zeros((6, 6))
 
     # --- state access ------------------------------------------------------------------------
     @property
@@ -143,44 +152,60 @@ class OdomEkf:
         The extrapolation stops ``MAX_EXTRAPOLATION_S`` after the last measurement, so a dead
         sensor freezes the pose instead of driving it away.
         """
-        s, p = self._x, self._p  # read only: _propagate and the product make new arrays
         if self.t_s is not None and t_s > self.t_s:
             dt = min(t_s - self.t_s, MAX_EXTRAPOLATION_S)
-            s, f = self._propagate(s, dt)
-            p = f @ p @ f.T + self._q(dt)
-        x, y, yaw, v, w, _ = s.tolist()
-        return Odometry(t_s, Pose2D(x, y, wrap_angle(yaw)), v, w,
-                        tuple(p[:3, :3].ravel().tolist()))
+            s = self._propagate_list(self._x.tolist(), dt)
+            f = self._f
+            c = (f @ self._p @ f.T)[:3, :3].ravel().tolist()
+            # + Q's upper-left 3 × 3 (see _q): element by element, as the matrix sum does
+            # (the zeros too: they turn a -0.0 into 0.0).
+            qxy = self._qa * dt**3 / 3 + 1e-8 * dt
+            qyaw = self._qw * dt**3 / 3
+            cov: tuple[float, ...] = (c[0] + qxy, c[1] + 0.0, c[2] + 0.0,
+                                      c[3] + 0.0, c[4] + qxy, c[5] + 0.0,
+                                      c[6] + 0.0, c[7] + 0.0, c[8] + qyaw)
+        else:
+            s = self._x.tolist()
+            cov = tuple(self._p[:3, :3].ravel().tolist())
+        x, y, yaw, v, w, _ = s
+        return Odometry(t_s, Pose2D(x, y, wrap_angle(yaw)), v, w, cov)
 
     # --- prediction --------------------------------------------------------------------------
-    @staticmethod
-    def _propagate(s: F64, dt: float) -> tuple[F64, F64]:
-        """Constant (v, omega) motion over ``dt``; return the new state and its Jacobian."""
-        x, y, yaw, v, w, b = s.tolist()
+    def _propagate_list(self, s: list[float], dt: float) -> list[float]:
+        """Constant (v, omega) motion of the state ``s`` over ``dt`` seconds; return the new
+        state and write its Jacobian into ``self._f`` (valid until the next call)."""
+        x, y, yaw, v, w, b = s
         mid = yaw + 0.5 * w * dt  # midpoint integration (exact enough at 50 Hz)
         c, sn = math.cos(mid), math.sin(mid)
-        out = np.array([x + v * dt * c, y + v * dt * sn, yaw + w * dt, v, w, b])
-        f = np.array([
-            [1.0, 0.0, -v * dt * sn, dt * c, -v * dt * sn * 0.5 * dt, 0.0],
-            [0.0, 1.0, v * dt * c, dt * sn, v * dt * c * 0.5 * dt, 0.0],
-            [0.0, 0.0, 1.0, 0.0, dt, 0.0],
-            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
-            [0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
-            [0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-        ])
-        return out, f
+        vdt = v * dt
+        vc = vdt * c
+        vs = vdt * sn  # -vs is -v * dt * sn to the bit (negation and rounding commute)
+        f = self._f
+        f[0, 2] = -vs
+        f[0, 3] = dt * c
+        f[0, 4] = -vs * 0.5 * dt
+        f[1, 2] = vc
+        f[1, 3] = dt * sn
+        f[1, 4] = vc * 0.5 * dt
+        f[2, 4] = dt
+        return [x + vc, y + vs, yaw + w * dt, v, w, b]
+
+    def _propagate(self, s: F64, dt: float) -> tuple[F64, F64]:
+        """Constant (v, omega) motion over ``dt``; return the new state and its Jacobian
+        (the Jacobian is a scratch array, valid until the next propagation)."""
+        return np.array(self._propagate_list(s.tolist(), dt)), self._f
 
     def _q(self, dt: float) -> F64:
-        qa = self.cfg.process_accel_sigma_mps2**2
-        qw = self.cfg.process_yaw_accel_sigma_radps2**2
-        q = np.zeros((6, 6))
+        """The process noise over ``dt`` seconds (a scratch array, valid until the next call)."""
+        qa, qw = self._qa, self._qw
+        q = self._qm  # its other entries stay 0
         # White-acceleration model for (pos, v) and (yaw, omega).
         q[V, V] = qa * dt
         q[W, W] = qw * dt
         q[YAW, YAW] = qw * dt**3 / 3
         q[YAW, W] = q[W, YAW] = qw * dt**2 / 2
         q[X, X] = q[Y, Y] = qa * dt**3 / 3 + 1e-8 * dt
-        q[B, B] = self.cfg.gyro_bias_walk_radps**2 * dt
+        q[B, B] = self._qb * dt
         return q
 
     def predict_to(self, t_s: float) -> None:
@@ -194,9 +219,11 @@ class OdomEkf:
         if dt > 1.0:  # a long gap (paused sensors): do not extrapolate old speeds far
             self._x[V] = 0.0
             self._x[W] = 0.0
-        s, f = self._propagate(self._x, dt)
-        self._x = s
-        self._p = f @ self._p @ f.T + self._q(dt)
+        self._x = np.array(self._propagate_list(self._x.tolist(), dt))
+        f = self._f
+        p = f @ self._p @ f.T
+        p += self._q(dt)
+        self._p = p
         self.t_s = t_s
 
     # --- measurements ------------------------------------------------------------------------
@@ -232,20 +259,22 @@ class OdomEkf:
         on Python floats; only the Joseph covariance product stays a matrix product.
         """
         x = self._x.tolist()
-        pl = self._p.tolist()
         a = cols[0]
         b = cols[1] if len(cols) > 1 else -1
         hx = x[a] if b < 0 else x[a] + x[b]
         y = z - hx
         if angle:
             y = wrap_angle(y)
+        p = self._p
+        pa = p[:, a].tolist()  # P's column a: pa[i] = P[i, a]
         if b < 0:  # h P hᵀ, summed as (h P) hᵀ; then the gain's P hᵀ and h (P hᵀ)
-            cov = pl[a][a] + r
-            pht = [row[a] for row in pl]
-            s_inv = 1.0 / (pht[a] + r)
+            cov = pa[a] + r
+            pht = pa
+            s_inv = 1.0 / cov  # pht[a] + r
         else:
-            cov = (pl[a][a] + pl[b][a]) + (pl[a][b] + pl[b][b]) + r
-            pht = [row[a] + row[b] for row in pl]
+            pb = p[:, b].tolist()
+            cov = (pa[a] + pa[b]) + (pb[a] + pb[b]) + r
+            pht = [ra + rb for ra, rb in zip(pa, pb, strict=True)]
             s_inv = 1.0 / ((pht[a] + pht[b]) + r)
         d2 = y * y / cov if cov > 0.0 else math.inf
         if not math.isfinite(d2) or math.sqrt(max(d2, 0.0)) > self.cfg.gate_mahalanobis:
@@ -256,7 +285,9 @@ class OdomEkf:
         i_kh = _I6.copy()
         for col in cols:
             i_kh[:, col] -= k
-        self._p = np.dot(i_kh, self._p).dot(i_kh.T) + np.outer(k * r, k)
+        p_new = np.dot(i_kh, p).dot(i_kh.T)
+        p_new += (k * r)[:, None] * k  # np.outer(k * r, k)
+        self._p = p_new
         x_new[YAW] = wrap_angle(float(x_new[YAW]))
         self._x = x_new
         self.accepted[kind] += 1
@@ -311,14 +342,14 @@ class OdomEkf:
         w = d.yaw / dt
         # The average over [prev, now] is the rate at the interval's middle.
         self.predict_to(odom.stamp - 0.5 * dt)
-        h = np.zeros((2, 6))
-        h[0, V] = 1.0
-        h[1, W] = 1.0
-        r = np.diag([self.cfg.odom_speed_sigma_mps**2, self.cfg.odom_yaw_rate_sigma_radps**2])
-        r_v = self.cfg.odom_speed_sigma_mps**2
+        r_v = self._r_v
         if self._gyro_alive(odom.stamp):
             ok = self._update_unit("wheel", v, (V,), r_v)
         else:
+            h = np.zeros((2, 6))
+            h[0, V] = 1.0
+            h[1, W] = 1.0
+            r = np.diag([r_v, self.cfg.odom_yaw_rate_sigma_radps**2])
             ok = self._update("wheel", np.array([v, w]), h, r)
             if not ok:
                 # The yaw rate is the usual culprit (slip); keep the speed if it alone is sane.
@@ -345,7 +376,7 @@ class OdomEkf:
         assert self._last_imu_t is not None
         gyro = self._win_gyro_rad + self._last_imu_rate * (odom.stamp - self._last_imu_t)
         turn = wrap_angle(yaw - yaw0)
-        if abs(gyro - float(self.x[B]) * span) <= BIAS_MAX_TURN_RAD:
+        if abs(gyro - float(self._x[B]) * span) <= BIAS_MAX_TURN_RAD:
             # In turns the wheels' yaw lags and jumps (encoder dead zone) and skids: only
             # windows of (nearly) straight driving or standing still calibrate the gyro.
             z = (gyro - turn) / span
@@ -396,7 +427,7 @@ class OdomEkf:
             self.predict_to(last.stamp)
             yaw_base = wrap_angle(quat_to_yaw(last.orientation_xyzw) - self.imu_yaw_in_base_rad)
             if self._heading_offset is None:
-                self._heading_offset = wrap_angle(float(self.x[YAW]) - yaw_base)
+                self._heading_offset = wrap_angle(float(self._x[YAW]) - yaw_base)
             z = wrap_angle(yaw_base + self._heading_offset)
             # The filter's yaw is unwrapped-by-wrap: compare on the circle.
             self._update_unit("heading", z, (YAW,), self.cfg.imu_heading_sigma_rad**2,
