@@ -862,15 +862,21 @@ def _fit_matrices(
     for k, i in enumerate(STEER_CORNERS):
         angles[i] = steer[k]
     rows: list[tuple[float, float, float]] = []
-    ata = np.zeros((3, 3))
+    # Normal matrix on Python floats: entry by entry the same operations in the same order as
+    # ``ata += np.outer(roll, roll) + np.outer(side, side)``, so the same bits, without numpy's
+    # per-call overhead on 3-vectors. The inverse stays with LAPACK.
+    ata = [[0.0] * 3 for _ in range(3)]
     for i in range(6):
         c, s = math.cos(angles[i]), math.sin(angles[i])
         x, y = xs[i], ys[i]
         roll = (c, s, -c * y + s * x)
         side = (-s, c, s * y + c * x)
         rows.append(roll)
-        ata += np.outer(roll, roll) + np.outer(side, side)
-    inv = np.linalg.inv(ata)
+        for j in range(3):
+            row, rj, sj = ata[j], roll[j], side[j]
+            for k in range(3):
+                row[k] = row[k] + (rj * roll[k] + sj * side[k])
+    inv = np.linalg.inv(np.array(ata, dtype=np.float64))
     return rows, [[float(v) for v in row] for row in inv]
 
 
