@@ -49,6 +49,7 @@ import numpy.typing as npt
 
 from curio.core.config import ControllerConfig
 from curio.core.geometry import Pose2D, approach, arc_poses, wrap_angle
+from curio.nav.controller_kernels import outline_costs
 from curio.nav.costs import (
     INSCRIBED,
     LETHAL,
@@ -483,9 +484,17 @@ class LocalController:
         per = self._perimeter(cm)
         if coarse:
             per = per[::2]
+        c, s = np.cos(trajs[..., 2:3]), np.sin(trajs[..., 2:3])
+        if grid.dtype == np.uint8 and trajs.dtype == np.float64 and trajs.ndim == 3:
+            # The same arithmetic compiled, without the (M, K, P) temporaries.
+            out = np.empty(trajs.shape[:2], dtype=np.uint8)
+            rotated = origin.yaw != 0.0
+            oc, os_ = (math.cos(origin.yaw), math.sin(origin.yaw)) if rotated else (1.0, 0.0)
+            outline_costs(grid, trajs, c, s, per, float(origin.x), float(origin.y), rotated,
+                          oc, os_, res, int(LETHAL), out)
+            return out
         x = trajs[..., 0:1]
         y = trajs[..., 1:2]
-        c, s = np.cos(trajs[..., 2:3]), np.sin(trajs[..., 2:3])
         px = x + c * per[:, 0] - s * per[:, 1]  # (M, K, P)
         py = y + s * per[:, 0] + c * per[:, 1]
         if origin.yaw != 0.0:
