@@ -484,32 +484,14 @@ class LocalController:
         per = self._perimeter(cm)
         if coarse:
             per = per[::2]
+        trajs = np.asarray(trajs, dtype=np.float64)
         c, s = np.cos(trajs[..., 2:3]), np.sin(trajs[..., 2:3])
-        if grid.dtype == np.uint8 and trajs.dtype == np.float64 and trajs.ndim == 3:
-            # The same arithmetic compiled, without the (M, K, P) temporaries.
-            out = np.empty(trajs.shape[:2], dtype=np.uint8)
-            rotated = origin.yaw != 0.0
-            oc, os_ = (math.cos(origin.yaw), math.sin(origin.yaw)) if rotated else (1.0, 0.0)
-            outline_costs(grid, trajs, c, s, per, float(origin.x), float(origin.y), rotated,
-                          oc, os_, res, int(LETHAL), out)
-            return out
-        x = trajs[..., 0:1]
-        y = trajs[..., 1:2]
-        px = x + c * per[:, 0] - s * per[:, 1]  # (M, K, P)
-        py = y + s * per[:, 0] + c * per[:, 1]
-        if origin.yaw != 0.0:
-            oc, os_ = math.cos(origin.yaw), math.sin(origin.yaw)
-            gx = oc * (px - origin.x) + os_ * (py - origin.y)
-            gy = -os_ * (px - origin.x) + oc * (py - origin.y)
-        else:
-            gx, gy = px - origin.x, py - origin.y
-        cols = np.floor(gx / res).astype(np.int64)
-        rows = np.floor(gy / res).astype(np.int64)
-        h, w = grid.shape
-        inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-        vals = np.full(rows.shape, LETHAL, dtype=np.uint8)
-        vals[inside] = grid[rows[inside], cols[inside]]
-        return np.asarray(vals.max(axis=2), dtype=np.uint8)
+        out = np.empty(trajs.shape[:2], dtype=np.uint8)
+        rotated = origin.yaw != 0.0
+        oc, os_ = (math.cos(origin.yaw), math.sin(origin.yaw)) if rotated else (1.0, 0.0)
+        outline_costs(grid, trajs, c, s, per, float(origin.x), float(origin.y), rotated,
+                      oc, os_, res, int(LETHAL), out)
+        return out
 
     def _collides(self, traj: F64) -> tuple[bool, int]:
         """Whether a trajectory's footprint hits a lethal or unknown cell (after its start)."""
