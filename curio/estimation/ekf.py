@@ -157,13 +157,10 @@ class OdomEkf:
             s = self._propagate_list(self._x.tolist(), dt)
             f = self._f
             c = (f @ self._p @ f.T)[:3, :3].ravel().tolist()
-            # + Q's upper-left 3 × 3 (see _q): element by element, as the matrix sum does
-            # (the zeros too: they turn a -0.0 into 0.0).
-            qxy = self._qa * dt**3 / 3 + 1e-8 * dt
-            qyaw = self._qw * dt**3 / 3
-            cov: tuple[float, ...] = (c[0] + qxy, c[1] + 0.0, c[2] + 0.0,
-                                      c[3] + 0.0, c[4] + qxy, c[5] + 0.0,
-                                      c[6] + 0.0, c[7] + 0.0, c[8] + qyaw)
+            q = self._q(dt)[:3, :3].ravel().tolist()
+            # + Q's upper-left 3 × 3, element by element as the matrix sum does (its zeros
+            # too: they turn a -0.0 into 0.0).
+            cov: tuple[float, ...] = tuple(ci + qi for ci, qi in zip(c, q, strict=True))
         else:
             s = self._x.tolist()
             cov = tuple(self._p[:3, :3].ravel().tolist())
@@ -189,11 +186,6 @@ class OdomEkf:
         f[1, 4] = vc * 0.5 * dt
         f[2, 4] = dt
         return [x + vc, y + vs, yaw + w * dt, v, w, b]
-
-    def _propagate(self, s: F64, dt: float) -> tuple[F64, F64]:
-        """Constant (v, omega) motion over ``dt``; return the new state and its Jacobian
-        (the Jacobian is a scratch array, valid until the next propagation)."""
-        return np.array(self._propagate_list(s.tolist(), dt)), self._f
 
     def _q(self, dt: float) -> F64:
         """The process noise over ``dt`` seconds (a scratch array, valid until the next call)."""
